@@ -1,0 +1,27 @@
+#pragma once
+// Pinhole intrinsics of an RGB-D camera and its depth encoding.
+#include <string>
+
+namespace rekon {
+
+struct Intrinsics {
+  int width = 640;
+  int height = 480;
+  double fx = 525.0;
+  double fy = 525.0;
+  double cx = 319.5;
+  double cy = 239.5;
+  double depth_scale = 5000.0;  // raw 16-bit depth units per metre
+
+  // Throws rekon::Error naming `source` when a value is not finite or out of range.
+  void validate(const std::string& source) const;
+
+  // Intrinsics of pyramid level `level` (each level halves the resolution).
+  Intrinsics atLevel(int level) const;
+};
+
+// Reads `width height fx fy cx cy depth_scale` from a camera.yaml.
+Intrinsics loadIntrinsics(const std::string& yaml_path);
+void saveIntrinsics(const Intrinsics& k, const std::string& yaml_path);
+
+}  // namespace rekon

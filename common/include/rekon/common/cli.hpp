@@ -1,0 +1,46 @@
+#pragma once
+// Command-line parsing shared by every rekon binary and subcommand:
+// `--name value`, `--flag`, repeated options, positionals, and `--help`.
+#include <map>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace rekon {
+
+class ArgParser {
+ public:
+  ArgParser(std::string program, std::string summary);
+
+  // An option that takes a value; `fallback` is shown in --help.
+  ArgParser& option(const std::string& name, const std::string& help, const std::string& fallback = "");
+  // An option that may be given several times (e.g. --set key=value).
+  ArgParser& repeated(const std::string& name, const std::string& help);
+  ArgParser& flag(const std::string& name, const std::string& help);
+  ArgParser& positional(const std::string& name, const std::string& help);
+
+  // Returns false when --help was printed (the caller exits 0). Throws
+  // rekon::Error for an unknown option, a missing value or a missing positional.
+  bool parse(int argc, char** argv);
+
+  bool has(const std::string& name) const;
+  std::string get(const std::string& name) const;  // value or its fallback
+  double getDouble(const std::string& name) const;
+  int getInt(const std::string& name) const;
+  bool flagSet(const std::string& name) const;
+  const std::vector<std::string>& all(const std::string& name) const;
+  std::string usage() const;
+
+ private:
+  struct Spec {
+    std::string help, fallback;
+    bool takes_value = true, repeated = false;
+  };
+  std::string program_, summary_;
+  std::map<std::string, Spec> specs_;
+  std::vector<std::string> option_order_;
+  std::vector<std::pair<std::string, std::string>> positionals_;
+  std::map<std::string, std::vector<std::string>> values_;
+};
+
+}  // namespace rekon

@@ -1,0 +1,36 @@
+#pragma once
+// Helpers every rekon test uses: where the shared real data is, a fresh
+// temporary folder, and running a built binary.
+#include <gtest/gtest.h>
+
+#include <string>
+
+namespace rekon::test {
+
+// ../shared/data/NAME, or "" when absent (REKON_DATA overrides the root).
+std::string sharedDataset(const std::string& name);
+// Skips the calling test with a visible message when the dataset is absent.
+#define REKON_REQUIRE_DATASET(var, name)                                                      \
+  const std::string var = ::rekon::test::sharedDataset(name);                                \
+  if (var.empty()) GTEST_SKIP() << "../shared/data/" << (name) << " is absent: skipping (real-data test)"
+
+// A new empty folder under the system temp dir, removed when the object dies.
+class TempDir {
+ public:
+  TempDir();
+  ~TempDir();
+  TempDir(const TempDir&) = delete;
+  TempDir& operator=(const TempDir&) = delete;
+  const std::string& path() const { return path_; }
+  std::string operator/(const std::string& name) const { return path_ + "/" + name; }
+
+ private:
+  std::string path_;
+};
+
+std::string binDir();
+std::string sourceDir();
+// Runs a shell command, returns its exit status; stdout+stderr go to `output`.
+int runCommand(const std::string& command, std::string* output = nullptr);
+
+}  // namespace rekon::test

@@ -1,0 +1,11 @@
+#include "commands.hpp"
+
+namespace rekon {
+
+const std::vector<Command>& commands() {
+  static const std::vector<Command> table = {
+  };
+  return table;
+}
+
+}  // namespace rekon

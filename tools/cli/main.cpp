@@ -1,0 +1,31 @@
+// `rekon SUBCOMMAND ...`: dispatches to the subcommands in commands.cpp.
+#include <spdlog/spdlog.h>
+
+#include <cstring>
+#include <iostream>
+#include <string>
+
+#include "commands.hpp"
+#include "rekon/common/error.hpp"
+
+int main(int argc, char** argv) {
+  const auto& table = rekon::commands();
+  if (argc < 2 || std::strcmp(argv[1], "--help") == 0 || std::strcmp(argv[1], "-h") == 0) {
+    std::cout << "usage: rekon COMMAND [options]   (rekon COMMAND --help for its options)\n\ncommands:\n";
+    for (const auto& c : table) std::cout << "  " << c.name << std::string(12 - std::strlen(c.name), ' ') << c.summary << "\n";
+    return argc < 2 ? 2 : 0;
+  }
+  for (const auto& c : table) {
+    if (argv[1] != std::string(c.name)) continue;
+    std::string program = std::string("rekon ") + c.name;
+    argv[1] = program.data();
+    try {
+      return c.main(argc - 1, argv + 1);
+    } catch (const rekon::Error& e) {
+      std::cerr << "rekon " << c.name << ": error: " << e.what() << "\n";
+      return 1;
+    }
+  }
+  std::cerr << "rekon: unknown command '" << argv[1] << "'; run rekon --help for the list\n";
+  return 2;
+}
