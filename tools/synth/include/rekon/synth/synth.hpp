@@ -28,13 +28,34 @@ class Scene {
   virtual int defaultFrames() const = 0;
   // Camera-to-world poses at 30 Hz (timestamps i / 30); deterministic for a seed.
   virtual Trajectory trajectory(int frames, uint64_t seed) const = 0;
-  // The exact scene surface with colors.
+  // The exact scene surface with colors: every surface a camera inside the
+  // scene can see (faces resting on the floor or against a wall, and the floor
+  // under objects, are left out), triangulated with vertices a scene-specific
+  // spacing apart (tabletop 1 cm, room 2 cm, corridor 3 cm). Planar faces are
+  // exact; curved ones are within 0.2 mm. Vertex colors are the texture of
+  // render() (Noise::None) filtered at the vertex spacing.
   virtual Mesh groundTruthMesh() const = 0;
+  virtual Mesh groundTruthMesh(double vertex_spacing_m) const = 0;
 
   // Ray casts one frame at `camera_to_world`. With Noise::None depth is exact up
   // to the 16-bit quantisation of depth_scale; `seed` makes the noise repeatable.
+  // Uses every hardware thread; id and timestamp of the frame are left 0.
   virtual RgbdFrame render(const Intrinsics& k, const Pose& camera_to_world, Noise noise, uint64_t seed) const = 0;
+  // The same with an explicit number of worker threads (1 = the calling thread only).
+  virtual RgbdFrame render(const Intrinsics& k, const Pose& camera_to_world, Noise noise, uint64_t seed,
+                           int threads) const = 0;
 };
+
+// "none" or "kinect"; throws rekon::Error otherwise.
+Noise parseNoise(const std::string& text);
+
+// The ground truth perturbed by a random walk on SE(3): each frame-to-frame
+// motion is composed with a random increment whose standard deviation grows
+// with the distance travelled, so that the relative pose error over one metre
+// has an rms of `translation_per_m` metres (per axis / sqrt(3)) and
+// `rotation_deg_per_m` degrees. The first pose is kept.
+Trajectory driftedTrajectory(const Trajectory& ground_truth, double translation_per_m, double rotation_deg_per_m,
+                             uint64_t seed);
 
 struct SequenceOptions {
   std::string scene = "room";
@@ -46,9 +67,18 @@ struct SequenceOptions {
   double drift_rotation_deg_per_m = 0.0;
 };
 
+// What writeSequence did, for the caller to report.
+struct SequenceReport {
+  int frames = 0;
+  double seconds = 0.0;  // wall time
+  size_t mesh_vertices = 0;
+};
 // Writes a TUM-layout sequence (rgb/, depth/, rgb.txt, depth.txt,
 // groundtruth.txt, camera.yaml, mesh_gt.ply, and drifted_trajectory.txt when
 // drift is set) into `out_dir`.
-void writeSequence(const SequenceOptions& options, const std::string& out_dir);
+SequenceReport writeSequence(const SequenceOptions& options, const std::string& out_dir);
+
+// `rekon synth`: the command-line front end of writeSequence.
+int synthCommand(int argc, char** argv);
 
 }  // namespace rekon::synth

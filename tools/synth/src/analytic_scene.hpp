@@ -1,0 +1,50 @@
+#pragma once
+// The one implementation of Scene: an analytic SceneModel, its materials and a
+// trajectory generator. The named scenes (scenes.cpp) are instances of it.
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "geometry.hpp"
+#include "rekon/synth/synth.hpp"
+#include "texture.hpp"
+
+namespace rekon::synth {
+
+class AnalyticScene : public Scene {
+ public:
+  using TrajectoryFn = std::function<Trajectory(int frames, uint64_t seed)>;
+  AnalyticScene(std::string name, SceneModel model, std::vector<Material> materials, int default_frames,
+                double mesh_spacing_m, TrajectoryFn trajectory);
+
+  std::string name() const override { return name_; }
+  int defaultFrames() const override { return default_frames_; }
+  Trajectory trajectory(int frames, uint64_t seed) const override;
+  Mesh groundTruthMesh() const override { return groundTruthMesh(mesh_spacing_m_); }
+  Mesh groundTruthMesh(double vertex_spacing_m) const override;
+  RgbdFrame render(const Intrinsics& k, const Pose& camera_to_world, Noise noise, uint64_t seed) const override;
+  RgbdFrame render(const Intrinsics& k, const Pose& camera_to_world, Noise noise, uint64_t seed,
+                   int threads) const override;
+
+  const SceneModel& model() const { return model_; }
+  const std::vector<Material>& materials() const { return materials_; }
+
+ private:
+  std::string name_;
+  SceneModel model_;
+  std::vector<Material> materials_;
+  int default_frames_;
+  double mesh_spacing_m_;
+  TrajectoryFn trajectory_;
+};
+
+std::unique_ptr<AnalyticScene> makeTabletopScene();
+std::unique_ptr<AnalyticScene> makeRoomScene();
+std::unique_ptr<AnalyticScene> makeCorridorScene();
+
+// Triangulates every visible surface of the model with vertices about
+// `spacing_m` apart, colored by the texture filtered at that spacing.
+Mesh triangulate(const SceneModel& model, const std::vector<Material>& materials, double spacing_m);
+
+}  // namespace rekon::synth

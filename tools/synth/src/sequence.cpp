@@ -1,0 +1,135 @@
+// writeSequence and drift: a whole TUM-layout sequence on disk.
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <mutex>
+#include <numbers>
+#include <thread>
+
+#include "analytic_scene.hpp"
+#include "rekon/common/error.hpp"
+#include "rekon/common/image_io.hpp"
+#include "sensor_noise.hpp"
+
+namespace fs = std::filesystem;
+
+namespace rekon::synth {
+namespace {
+
+std::string stamp(double t) {
+  char buf[32];
+  std::snprintf(buf, sizeof(buf), "%.6f", t);
+  return buf;
+}
+
+void writeBytes(const std::string& path, const std::vector<uint8_t>& bytes) {
+  std::ofstream out(path, std::ios::binary);
+  out.write(reinterpret_cast<const char*>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
+  if (!out) throw Error(path + ": cannot write; check that the output folder is writable and the disk not full");
+}
+
+Eigen::Matrix3d expSo3(const Eigen::Vector3d& w) {
+  const double angle = w.norm();
+  if (angle < 1e-15) return Eigen::Matrix3d::Identity();
+  return Eigen::AngleAxisd(angle, w / angle).toRotationMatrix();
+}
+
+}  // namespace
+
+Trajectory driftedTrajectory(const Trajectory& ground_truth, double translation_per_m, double rotation_deg_per_m,
+                             uint64_t seed) {
+  if (!(translation_per_m >= 0) || !(rotation_deg_per_m >= 0)) {
+    throw Error("drift must be non-negative: got " + std::to_string(translation_per_m) + " m/m, " +
+                std::to_string(rotation_deg_per_m) + " deg/m");
+  }
+  Trajectory out = ground_truth;
+  Rng rng(mixSeed(seed, 0xD21F7ull));
+  const double per_axis = 1.0 / std::sqrt(3.0);
+  for (size_t i = 1; i < out.size(); ++i) {
+    const Pose rel = ground_truth[i - 1].pose.inverse() * ground_truth[i].pose;
+    const double root_ds = std::sqrt(rel.translation().norm());
+    const double sigma_t = translation_per_m * per_axis * root_ds;
+    const double sigma_r = rotation_deg_per_m * std::numbers::pi / 180.0 * per_axis * root_ds;
+    Pose eps = Pose::Identity();
+    Eigen::Vector3d dt, dr;
+    for (int k = 0; k < 3; ++k) dt[k] = sigma_t * rng.normal();
+    for (int k = 0; k < 3; ++k) dr[k] = sigma_r * rng.normal();
+    eps.linear() = expSo3(dr);
+    eps.translation() = dt;
+    out[i].pose = orthonormalised(out[i - 1].pose * rel * eps);
+  }
+  return out;
+}
+
+SequenceReport writeSequence(const SequenceOptions& options, const std::string& out_dir) {
+  const auto start = std::chrono::steady_clock::now();
+  const auto scene = Scene::make(options.scene);
+  const int frames = options.frames > 0 ? options.frames : scene->defaultFrames();
+  if (options.frames < 0) throw Error("--frames " + std::to_string(options.frames) + " is negative; give 1 or more (0 = scene default)");
+  std::error_code ec;
+  fs::create_directories(fs::path(out_dir) / "rgb", ec);
+  fs::create_directories(fs::path(out_dir) / "depth", ec);
+  if (ec || !fs::is_directory(fs::path(out_dir) / "depth")) {
+    throw Error(out_dir + ": cannot create the output folder (" + ec.message() + "); choose a writable --out");
+  }
+  const Intrinsics k = defaultIntrinsics();
+  const Trajectory trajectory = scene->trajectory(frames, options.seed);
+
+  // Frames in parallel, each rendered on one thread: rendering and PNG
+  // encoding then both use every core.
+  const int workers = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  std::atomic<int> next{0};
+  std::mutex error_mutex;
+  std::string first_error;
+  auto work = [&] {
+    for (;;) {
+      const int i = next.fetch_add(1);
+      if (i >= frames) return;
+      try {
+        const auto& sp = trajectory[static_cast<size_t>(i)];
+        const RgbdFrame f = scene->render(k, sp.pose, options.noise, mixSeed(options.seed, static_cast<uint64_t>(i) + 1), 1);
+        const std::string name = stamp(sp.timestamp) + ".png";
+        writeBytes((fs::path(out_dir) / "rgb" / name).string(), encodePng(f.color));
+        writeBytes((fs::path(out_dir) / "depth" / name).string(), encodePng(f.depth));
+      } catch (const std::exception& e) {
+        std::lock_guard<std::mutex> lock(error_mutex);
+        if (first_error.empty()) first_error = e.what();
+        next = frames;
+      }
+    }
+  };
+  std::vector<std::thread> pool;
+  for (int i = 1; i < workers; ++i) pool.emplace_back(work);
+  work();
+  for (auto& t : pool) t.join();
+  if (!first_error.empty()) throw Error(first_error);
+
+  std::ofstream rgb_txt(fs::path(out_dir) / "rgb.txt"), depth_txt(fs::path(out_dir) / "depth.txt");
+  rgb_txt << "# color images\n# rekon synth --scene " << options.scene << " --seed " << options.seed << "\n# timestamp filename\n";
+  depth_txt << "# depth maps\n# rekon synth --scene " << options.scene << " --seed " << options.seed << "\n# timestamp filename\n";
+  for (const auto& sp : trajectory) {
+    const std::string s = stamp(sp.timestamp);
+    rgb_txt << s << " rgb/" << s << ".png\n";
+    depth_txt << s << " depth/" << s << ".png\n";
+  }
+  if (!rgb_txt || !depth_txt) throw Error(out_dir + ": cannot write rgb.txt/depth.txt; check the output folder");
+  writeTumTrajectory(trajectory, (fs::path(out_dir) / "groundtruth.txt").string());
+  saveIntrinsics(k, (fs::path(out_dir) / "camera.yaml").string());
+  if (options.drift_translation_per_m > 0 || options.drift_rotation_deg_per_m > 0) {
+    writeTumTrajectory(driftedTrajectory(trajectory, options.drift_translation_per_m, options.drift_rotation_deg_per_m, options.seed),
+                       (fs::path(out_dir) / "drifted_trajectory.txt").string());
+  }
+  const Mesh mesh = scene->groundTruthMesh();
+  writePly(mesh, (fs::path(out_dir) / "mesh_gt.ply").string());
+
+  SequenceReport report;
+  report.frames = frames;
+  report.mesh_vertices = mesh.vertices.size();
+  report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return report;
+}
+
+}  // namespace rekon::synth
