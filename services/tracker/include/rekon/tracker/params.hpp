@@ -1,0 +1,100 @@
+#pragma once
+// Every tunable of the tracker, with its named default. `tracker:` in
+// config/default.yaml documents each key; trackerParamsFromConfig reads them.
+#include <string>
+
+#include "rekon/common/config.hpp"
+
+namespace rekon::tracker {
+
+// How the dense aligner selects pixels and iterates.
+struct AlignerParams {
+  static constexpr int kDefaultFinestLevel = 1;    // 320x240 of a 640x480 frame
+  static constexpr int kDefaultCoarsestLevel = 3;  // 80x60
+  static constexpr int kDefaultMaxIterations = 20;
+  static constexpr double kDefaultConvergenceStep = 1e-5;
+  static constexpr double kDefaultTDistributionDof = 5.0;
+  static constexpr double kDefaultMinGradient = 0.01;
+  static constexpr double kDefaultMinDepth = 0.1;
+  static constexpr double kDefaultMaxDepth = 6.0;
+  static constexpr double kDefaultMaxDepthStep = 0.1;
+  static constexpr int kDefaultMinValidPixels = 150;
+  static constexpr bool kDefaultUseDepth = true;
+
+  int finest_level = kDefaultFinestLevel;
+  int coarsest_level = kDefaultCoarsestLevel;
+  int max_iterations = kDefaultMaxIterations;        // per pyramid level
+  double convergence_step = kDefaultConvergenceStep;  // stop a level when |increment| falls below
+  double t_dof = kDefaultTDistributionDof;             // nu of the bivariate t-distribution
+  // Keyframe pixels whose intensity gradient (intensity 0..1 per pixel) is
+  // smaller than this are skipped: they carry almost no information.
+  double min_gradient = kDefaultMinGradient;
+  double min_depth = kDefaultMinDepth;  // metres; depth outside [min, max] counts as missing
+  double max_depth = kDefaultMaxDepth;
+  // Relative depth change between neighbouring pixels above which a pixel sits
+  // on an occlusion edge: its depth gradient is meaningless, so it is skipped.
+  double max_depth_step = kDefaultMaxDepthStep;
+  int min_valid_pixels = kDefaultMinValidPixels;  // fewer warped pixels at a level: alignment fails
+  bool use_depth = kDefaultUseDepth;              // false: photometric residual only
+
+  // Throws rekon::Error naming the key for a value out of range.
+  void validate() const;
+};
+
+// When a new DVO keyframe starts.
+struct KeyframeParams {
+  static constexpr const char* kDefaultCriterion = "entropy_ratio";
+  static constexpr double kDefaultEntropyRatio = 0.91;
+  static constexpr double kDefaultMaxTranslation = 0.2;
+  static constexpr double kDefaultMaxRotationDeg = 15.0;
+
+  // "entropy_ratio" (Kerl et al. IROS 2013, plus the distance limits) or
+  // "distance" (the distance limits only).
+  std::string criterion = kDefaultCriterion;
+  double entropy_ratio = kDefaultEntropyRatio;
+  double max_translation = kDefaultMaxTranslation;  // metres from the keyframe
+  double max_rotation_deg = kDefaultMaxRotationDeg;
+
+  void validate() const;
+};
+
+// When a frame counts as lost.
+struct LostParams {
+  static constexpr double kDefaultMinValidDepthFraction = 0.05;
+  static constexpr double kDefaultMinMeanIntensity = 0.02;
+  static constexpr double kDefaultMinOverlap = 0.2;
+  static constexpr double kDefaultMaxFrameTranslation = 0.3;
+  static constexpr double kDefaultMaxFrameRotationDeg = 30.0;
+  static constexpr double kDefaultMaxIntensitySigma = 0.15;
+  static constexpr int kDefaultMaxLostFrames = 30;
+
+  double min_valid_depth_fraction = kDefaultMinValidDepthFraction;  // of the frame's pixels
+  double min_mean_intensity = kDefaultMinMeanIntensity;              // 0..1; below = black image
+  // Fraction of the keyframe's selected pixels that must land in the frame
+  // with valid depth at the finest level.
+  double min_overlap = kDefaultMinOverlap;
+  // Largest correction of the constant-velocity prediction still inside the
+  // convergence basin; beyond it the estimate is not trusted.
+  double max_frame_translation = kDefaultMaxFrameTranslation;
+  double max_frame_rotation_deg = kDefaultMaxFrameRotationDeg;
+  // Largest robust scale of the intensity residual (0..1) of a good alignment.
+  double max_intensity_sigma = kDefaultMaxIntensitySigma;
+  // After this many lost frames in a row a trackable frame starts a new
+  // keyframe at the last good pose (the chain of odometry constraints breaks).
+  int max_lost_frames = kDefaultMaxLostFrames;
+
+  void validate() const;
+};
+
+struct TrackerParams {
+  AlignerParams aligner;
+  KeyframeParams keyframe;
+  LostParams lost;
+
+  void validate() const;
+};
+
+// Reads the `tracker.*` keys of `config` and validates them.
+TrackerParams trackerParamsFromConfig(const Config& config);
+
+}  // namespace rekon::tracker

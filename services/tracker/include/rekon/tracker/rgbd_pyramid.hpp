@@ -1,0 +1,44 @@
+#pragma once
+// An RGB-D frame as the dense aligner reads it: per pyramid level a float
+// intensity plane (0..1) and a float depth plane (metres, NaN = missing),
+// structure of arrays, row-major. Level l halves the resolution l times.
+#include <vector>
+
+#include "rekon/common/camera.hpp"
+#include "rekon/common/rgbd_frame.hpp"
+
+namespace rekon::tracker {
+
+struct PyramidLevel {
+  Intrinsics k;  // intrinsics of this level (k.width x k.height)
+  std::vector<float> intensity;
+  std::vector<float> depth;
+  bool empty() const { return intensity.empty(); }
+};
+
+class RgbdPyramid {
+ public:
+  // Builds levels finest..coarsest from `frame` (levels finer than `finest`
+  // are not stored). Reuses its buffers, so a pyramid rebuilt for frames of
+  // one size allocates nothing. Depth outside [min_depth, max_depth] is
+  // missing. Throws rekon::Error for a frame whose type or size does not
+  // match `k`.
+  void build(const RgbdFrame& frame, const Intrinsics& k, int finest, int coarsest, double min_depth,
+             double max_depth);
+
+  int finestLevel() const { return finest_; }
+  int coarsestLevel() const { return coarsest_; }
+  bool hasLevel(int level) const { return level >= finest_ && level <= coarsest_ && !levels_[level].empty(); }
+  const PyramidLevel& level(int level) const;
+
+  // Measured on the full-resolution input while building.
+  double validDepthFraction() const { return valid_depth_fraction_; }
+  double meanIntensity() const { return mean_intensity_; }
+
+ private:
+  std::vector<PyramidLevel> levels_;
+  int finest_ = 0, coarsest_ = -1;
+  double valid_depth_fraction_ = 0.0, mean_intensity_ = 0.0;
+};
+
+}  // namespace rekon::tracker

@@ -1,0 +1,107 @@
+#pragma once
+// DVO frame-to-keyframe tracking (Kerl, Sturm, Cremers, IROS 2013): every
+// frame is densely aligned to the current DVO keyframe from a constant-
+// velocity prediction; a new keyframe starts when the entropy ratio of the
+// estimate drops or the camera moved too far from the keyframe, and each new
+// keyframe brings an odometry constraint to its predecessor.
+#include <cstdint>
+#include <memory>
+#include <optional>
+
+#include "rekon/common/camera.hpp"
+#include "rekon/common/pose.hpp"
+#include "rekon/common/rgbd_frame.hpp"
+#include "rekon/tracker/dense_aligner.hpp"
+#include "rekon/tracker/keyframe_reference.hpp"
+#include "rekon/tracker/params.hpp"
+#include "rekon/tracker/rgbd_pyramid.hpp"
+#include "rekon/tracker/se3.hpp"
+
+namespace rekon::tracker {
+
+enum class TrackingState { Ok, Lost };
+
+enum class LostReason {
+  None,
+  NoDepth,           // too few valid depth pixels in the frame
+  BlackImage,        // mean intensity too low to align photometrically
+  AlignmentFailed,   // too few pixels or a singular system at the finest level
+  TooLittleOverlap,  // too few keyframe pixels landed in the frame
+  JumpBeyondBasin,   // the estimate moved too far from the prediction to be trusted
+  LargeResidual,     // the aligned images still disagree
+};
+const char* toString(LostReason reason);
+
+// A DVO keyframe: immutable once made, shared with loop-closure checks.
+struct Keyframe {
+  int64_t id = 0;
+  int64_t frame_id = 0;
+  double timestamp = 0.0;
+  Pose pose_world = Pose::Identity();  // the tracker's odometry estimate when it was made
+  RgbdPyramid pyramid;                 // the keyframe as the "current" side of an alignment
+  KeyframeReference reference;         // the keyframe as the reference side
+};
+
+// Pose of keyframe `to_id` in the frame of `from_id` with its information
+// (right perturbation, (v, w) order, as AlignResult::information).
+struct OdometryConstraint {
+  int64_t from_id = 0;
+  int64_t to_id = 0;
+  Pose relative = Pose::Identity();
+  Matrix6d information = Matrix6d::Zero();
+};
+
+struct TrackResult {
+  int64_t frame_id = 0;
+  double timestamp = 0.0;
+  int64_t keyframe_id = -1;  // -1 only while no keyframe exists yet
+  // Camera-to-keyframe pose and its covariance (right perturbation, (v, w));
+  // identity and zero for the frame that is itself the new keyframe. A lost
+  // frame carries the last good pose and kLostVariance on the diagonal.
+  Pose pose_in_keyframe = Pose::Identity();
+  Matrix6d covariance = Matrix6d::Zero();
+  TrackingState state = TrackingState::Lost;
+  LostReason lost_reason = LostReason::None;
+  bool new_keyframe = false;
+  // The new keyframe was started after max_lost_frames lost frames, at the
+  // last good pose: no odometry constraint links it to its predecessor.
+  bool keyframe_reset = false;
+  std::optional<OdometryConstraint> odometry;  // set when a keyframe followed its predecessor
+  Pose keyframe_pose_world = Pose::Identity();  // odometry estimate of the keyframe
+  Pose pose_world = Pose::Identity();           // keyframe_pose_world * pose_in_keyframe
+  double entropy = 0.0;                         // of the alignment, when one ran
+  double entropy_ratio = 1.0;                   // H(kf, t) / H(kf, kf+1)
+  int valid_pixels = 0;
+  int iterations = 0;
+};
+
+class Tracker {
+ public:
+  static constexpr double kLostVariance = 1e4;
+
+  explicit Tracker(const TrackerParams& params = {});
+
+  // Tracks one frame; never returns a NaN or non-orthonormal pose. Throws
+  // rekon::Error only for a frame whose format does not match `k`.
+  TrackResult track(const RgbdFrame& frame, const Intrinsics& k);
+
+  std::shared_ptr<const Keyframe> currentKeyframe() const { return keyframe_; }
+  int64_t keyframeCount() const { return next_keyframe_id_; }
+  const TrackerParams& params() const { return params_; }
+
+ private:
+  std::shared_ptr<const Keyframe> makeKeyframe(const RgbdFrame& frame, const Pose& pose_world);
+  bool keyframeDue(const AlignResult& aligned) const;
+
+  TrackerParams params_;
+  DenseAligner aligner_;
+  RgbdPyramid current_;
+  std::shared_ptr<const Keyframe> keyframe_;
+  int64_t next_keyframe_id_ = 0;
+  Pose last_in_keyframe_ = Pose::Identity();  // last good frame, relative to keyframe_
+  Pose velocity_ = Pose::Identity();          // motion between the last two good frames
+  std::optional<double> reference_entropy_;   // H(kf, kf+1)
+  int lost_in_a_row_ = 0;
+};
+
+}  // namespace rekon::tracker

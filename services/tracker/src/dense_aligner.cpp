@@ -1,0 +1,268 @@
+#include "rekon/tracker/dense_aligner.hpp"
+
+#include <Eigen/Cholesky>
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <numbers>
+#include <string>
+
+#include "rekon/common/error.hpp"
+
+namespace rekon::tracker {
+namespace {
+
+using Vector8f = Eigen::Matrix<float, 8, 1>;
+using Matrix8f = Eigen::Matrix<float, 8, 8>;
+
+// Floors of the residual scales: noise-free synthetic frames drive the
+// residuals to zero, and a singular scale matrix would give infinite weights.
+constexpr double kMinIntensitySigma = 1e-4;  // intensity 0..1
+constexpr double kMinDepthSigma = 1e-5;      // metres
+constexpr double kMaxCorrelation = 0.99;
+constexpr int kScaleIterations = 10;
+constexpr double kScaleTolerance = 1e-3;  // relative change that ends the EM of the scale
+// Float partial sums are flushed to double this often, so that long sums keep
+// their precision while the inner loop stays in float.
+constexpr int kFlushEvery = 256;
+
+void clampScale(double& s11, double& s12, double& s22, bool use_depth) {
+  s11 = std::max(s11, kMinIntensitySigma * kMinIntensitySigma);
+  if (!use_depth) {
+    s22 = 1.0;
+    s12 = 0.0;
+    return;
+  }
+  s22 = std::max(s22, kMinDepthSigma * kMinDepthSigma);
+  const double limit = kMaxCorrelation * std::sqrt(s11 * s22);
+  s12 = std::clamp(s12, -limit, limit);
+}
+
+}  // namespace
+
+Matrix6d AlignResult::covariance() const {
+  Eigen::LLT<Matrix6d> llt(information);
+  if (!valid || llt.info() != Eigen::Success) return Matrix6d::Zero();
+  return llt.solve(Matrix6d::Identity());
+}
+
+DenseAligner::DenseAligner(const AlignerParams& params) : params_(params) { params_.validate(); }
+
+int DenseAligner::warp(const KeyframeReference::Level& ref, const PyramidLevel& cur,
+                       const Eigen::Matrix<float, 3, 4>& t) {
+  const int w = cur.k.width, h = cur.k.height;
+  const float fx = static_cast<float>(cur.k.fx), fy = static_cast<float>(cur.k.fy);
+  const float cx = static_cast<float>(cur.k.cx), cy = static_cast<float>(cur.k.cy);
+  const float umax = static_cast<float>(w - 1) - 1e-3f, vmax = static_cast<float>(h - 1) - 1e-3f;
+  const float zmin = static_cast<float>(params_.min_depth);
+  const float max_step = static_cast<float>(params_.max_depth_step);
+  const bool use_depth = params_.use_depth;
+  const float r00 = t(0, 0), r01 = t(0, 1), r02 = t(0, 2), t0 = t(0, 3);
+  const float r10 = t(1, 0), r11 = t(1, 1), r12 = t(1, 2), t1 = t(1, 3);
+  const float r20 = t(2, 0), r21 = t(2, 1), r22 = t(2, 2), t2 = t(2, 3);
+  const float* P = ref.points.data();
+  const float* I = cur.intensity.data();
+  const float* D = cur.depth.data();
+  float* out_i = res_i_.data();
+  float* out_z = res_z_.data();
+  int* out_idx = index_.data();
+  int n = 0;
+  for (int i = 0; i < ref.count; ++i) {
+    const float* p = P + KeyframeReference::kPointStride * i;
+    const float z = r20 * p[0] + r21 * p[1] + r22 * p[2] + t2;
+    if (!(z > zmin)) continue;
+    const float iz = 1.f / z;
+    const float u = fx * (r00 * p[0] + r01 * p[1] + r02 * p[2] + t0) * iz + cx;
+    const float v = fy * (r10 * p[0] + r11 * p[1] + r12 * p[2] + t1) * iz + cy;
+    if (!(u >= 0.f && v >= 0.f && u < umax && v < vmax)) continue;
+    const int x0 = static_cast<int>(u), y0 = static_cast<int>(v);
+    const float ax = u - static_cast<float>(x0), ay = v - static_cast<float>(y0);
+    const int o = y0 * w + x0;
+    float rz = 0.f;
+    if (use_depth) {
+      const float d00 = D[o], d01 = D[o + 1], d10 = D[o + w], d11 = D[o + w + 1];
+      if (std::isnan(d00 + d01 + d10 + d11)) continue;
+      const float lo = std::min(std::min(d00, d01), std::min(d10, d11));
+      const float hi = std::max(std::max(d00, d01), std::max(d10, d11));
+      // Interpolating across an occlusion edge would invent a surface.
+      if (hi - lo > max_step * lo) continue;
+      const float top = d00 + ax * (d01 - d00), bottom = d10 + ax * (d11 - d10);
+      rz = top + ay * (bottom - top) - z;
+    }
+    const float i00 = I[o], i01 = I[o + 1], i10 = I[o + w], i11 = I[o + w + 1];
+    const float top = i00 + ax * (i01 - i00), bottom = i10 + ax * (i11 - i10);
+    out_i[n] = top + ay * (bottom - top) - p[3];
+    out_z[n] = rz;
+    out_idx[n] = i;
+    ++n;
+  }
+  return n;
+}
+
+double DenseAligner::estimateScale(int n, Scale& scale) {
+  using Arr = Eigen::Map<Eigen::ArrayXf>;
+  Arr ri(res_i_.data(), n), rz(res_z_.data(), n), w(weight_.data(), n);
+  const bool use_depth = params_.use_depth;
+  const float nu = static_cast<float>(params_.t_dof);
+  const double inv_n = 1.0 / n;
+  if (scale.s11 <= 0.0) {
+    scale.s11 = ri.square().cast<double>().sum() * inv_n;
+    scale.s22 = rz.square().cast<double>().sum() * inv_n;
+    scale.s12 = 0.0;
+  }
+  clampScale(scale.s11, scale.s12, scale.s22, use_depth);
+  auto quadratic = [&](const Scale& s) {
+    const double det = s.s11 * s.s22 - s.s12 * s.s12;
+    const float a = static_cast<float>(s.s22 / det), b = static_cast<float>(-s.s12 / det),
+                c = static_cast<float>(s.s11 / det);
+    w = a * ri.square() + 2.f * b * ri * rz + c * rz.square();  // r^T S^-1 r, kept in w
+  };
+  for (int k = 0; k < kScaleIterations; ++k) {
+    quadratic(scale);
+    w = (nu + 2.f) / (nu + w);
+    Scale next;
+    next.s11 = (w * ri.square()).cast<double>().sum() * inv_n;
+    next.s12 = (w * ri * rz).cast<double>().sum() * inv_n;
+    next.s22 = (w * rz.square()).cast<double>().sum() * inv_n;
+    clampScale(next.s11, next.s12, next.s22, use_depth);
+    const bool settled = std::abs(next.s11 - scale.s11) <= kScaleTolerance * scale.s11 &&
+                         std::abs(next.s22 - scale.s22) <= kScaleTolerance * scale.s22;
+    scale = next;
+    if (settled) break;
+  }
+  // Mean negative log-likelihood of the residuals under the t-distribution.
+  quadratic(scale);
+  const double log_det = std::log(scale.s11 * scale.s22 - scale.s12 * scale.s12);
+  const double mean_log = (w / nu).log1p().cast<double>().sum() * inv_n;
+  return 0.5 * log_det + 0.5 * (params_.t_dof + 2.0) * mean_log;
+}
+
+void DenseAligner::accumulate(const KeyframeReference::Level& ref, int n, const Scale& scale, Matrix6d& h,
+                              Vector6d& b) {
+  // Whitening: S^-1 = U^T U with U upper triangular turns the 2x2-weighted
+  // joint residual into two scalar rows, each one rank-1 update.
+  const double det = scale.s11 * scale.s22 - scale.s12 * scale.s12;
+  const double a = scale.s22 / det, bb = -scale.s12 / det, c = scale.s11 / det;
+  const float u11 = static_cast<float>(std::sqrt(a));
+  const float u12 = static_cast<float>(bb / std::sqrt(a));
+  const float u22 = params_.use_depth ? static_cast<float>(std::sqrt(std::max(c - bb * bb / a, 0.0))) : 0.f;
+  const float nu = static_cast<float>(params_.t_dof);
+  const float* J = ref.jacobians.data();
+  Matrix8f acc = Matrix8f::Zero();
+  Eigen::Matrix<double, 8, 8> total = Eigen::Matrix<double, 8, 8>::Zero();
+  for (int k = 0; k < n; ++k) {
+    const float ri = res_i_[k], rz = res_z_[k];
+    const float e1 = u11 * ri + u12 * rz, e2 = u22 * rz;
+    const float wgt = (nu + 2.f) / (nu + e1 * e1 + e2 * e2);
+    const float* j = J + KeyframeReference::kJacobianStride * index_[k];
+    const Eigen::Map<const Vector8f> ji(j), jz(j + 8);
+    Vector8f g1 = u11 * ji + u12 * jz;
+    Vector8f g2 = u22 * jz;
+    g1[6] = e1;
+    g2[6] = e2;
+    acc.noalias() += (wgt * g1) * g1.transpose();
+    acc.noalias() += (wgt * g2) * g2.transpose();
+    if ((k + 1) % kFlushEvery == 0) {
+      total += acc.cast<double>();
+      acc.setZero();
+    }
+  }
+  total += acc.cast<double>();
+  h = total.topLeftCorner<6, 6>();
+  b = total.block<6, 1>(0, 6);
+}
+
+AlignResult DenseAligner::align(const KeyframeReference& reference, const RgbdPyramid& current, const Pose& initial,
+                                int coarsest, int finest) {
+  if (coarsest < 0) coarsest = params_.coarsest_level;
+  if (finest < 0) finest = params_.finest_level;
+  for (int l = finest; l <= coarsest; ++l) {
+    if (!reference.hasLevel(l) || !current.hasLevel(l))
+      throw Error("dense alignment on level " + std::to_string(l) +
+                  ", which the keyframe or the frame lacks; build both with the aligner's levels");
+  }
+  AlignResult result;
+  result.pose = initial;
+  if (!isValidPose(initial, 1e-4)) return result;
+  size_t capacity = 0;
+  for (int l = finest; l <= coarsest; ++l) capacity = std::max(capacity, static_cast<size_t>(reference.level(l).count));
+  if (res_i_.size() < capacity) {
+    res_i_.resize(capacity);
+    res_z_.resize(capacity);
+    weight_.resize(capacity);
+    index_.resize(capacity);
+  }
+  result.selected_pixels = reference.level(finest).count;
+
+  Pose t_ck = initial.inverse();
+  Scale scale;
+  Matrix6d h_final = Matrix6d::Zero();
+  bool finest_done = false;
+  for (int l = coarsest; l >= finest; --l) {
+    const auto& ref = reference.level(l);
+    const auto& cur = current.level(l);
+    double prev_nll = std::numeric_limits<double>::infinity();
+    Pose t_prev = t_ck;
+    bool stopped = false;
+    for (int it = 0; it < params_.max_iterations; ++it) {
+      const Eigen::Matrix<float, 3, 4> t = t_ck.matrix().topRows<3>().cast<float>();
+      const int n = warp(ref, cur, t);
+      if (n < params_.min_valid_pixels) {
+        // The step left too little overlap: the previous estimate is the best this level has.
+        t_ck = t_prev;
+        stopped = it > 0;
+        break;
+      }
+      const Scale before = scale;
+      const double nll = estimateScale(n, scale);
+      if (nll > prev_nll) {
+        t_ck = t_prev;
+        scale = before;
+        stopped = true;
+        break;
+      }
+      Matrix6d h;
+      Vector6d b;
+      accumulate(ref, n, scale, h, b);
+      const Vector6d delta = h.ldlt().solve(b);
+      if (!delta.allFinite()) {
+        t_ck = t_prev;
+        break;
+      }
+      if (l == finest) {
+        h_final = h;
+        result.valid_pixels = n;
+        result.intensity_sigma = std::sqrt(scale.s11);
+        result.depth_sigma = params_.use_depth ? std::sqrt(scale.s22) : 0.0;
+        finest_done = true;
+      }
+      t_prev = t_ck;
+      prev_nll = nll;
+      t_ck = t_ck * expSe3(-delta);
+      ++result.iterations;
+      if (delta.norm() < params_.convergence_step) {
+        stopped = true;
+        break;
+      }
+    }
+    if (l == finest) result.converged = stopped;
+  }
+
+  const Pose t_kc = orthonormalised(t_ck.inverse());
+  if (!isValidPose(t_kc, 1e-6) || !finest_done) return result;
+  // h_final is for the left increment exp(xi) * pose (keyframe frame); the
+  // adjoint moves it to the right increment in the current camera's frame.
+  const Matrix6d ad = adjoint(t_kc);
+  const Matrix6d info = ad.transpose() * h_final * ad;
+  const Eigen::LLT<Matrix6d> llt(info);
+  if (llt.info() != Eigen::Success || !info.allFinite()) return result;
+  double log_det = 0.0;
+  for (int i = 0; i < 6; ++i) log_det += 2.0 * std::log(llt.matrixL()(i, i));
+  result.pose = t_kc;
+  result.information = 0.5 * (info + info.transpose());
+  result.entropy = 3.0 * (1.0 + std::log(2.0 * std::numbers::pi)) - 0.5 * log_det;
+  result.valid = std::isfinite(result.entropy);
+  return result;
+}
+
+}  // namespace rekon::tracker

@@ -1,0 +1,91 @@
+#include "rekon/tracker/params.hpp"
+
+#include <cmath>
+#include <string>
+
+#include "rekon/common/error.hpp"
+
+namespace rekon::tracker {
+namespace {
+
+void require(bool ok, const std::string& key, double value, const std::string& want) {
+  if (!ok) throw Error("tracker." + key + " = " + std::to_string(value) + " is invalid; it must be " + want);
+}
+
+}  // namespace
+
+void AlignerParams::validate() const {
+  require(finest_level >= 0 && finest_level <= 6, "finest_level", finest_level, "between 0 and 6");
+  require(coarsest_level >= finest_level && coarsest_level <= 6, "coarsest_level", coarsest_level,
+          "between finest_level and 6");
+  require(max_iterations >= 1, "max_iterations", max_iterations, "at least 1");
+  require(std::isfinite(convergence_step) && convergence_step > 0, "convergence_step", convergence_step, "positive");
+  require(std::isfinite(t_dof) && t_dof > 0, "t_dof", t_dof, "positive");
+  require(std::isfinite(min_gradient) && min_gradient >= 0, "min_gradient", min_gradient, "zero or positive");
+  require(std::isfinite(min_depth) && min_depth > 0, "min_depth", min_depth, "positive");
+  require(std::isfinite(max_depth) && max_depth > min_depth, "max_depth", max_depth, "greater than min_depth");
+  require(std::isfinite(max_depth_step) && max_depth_step > 0, "max_depth_step", max_depth_step, "positive");
+  require(min_valid_pixels >= 6, "min_valid_pixels", min_valid_pixels, "at least 6 (one per degree of freedom)");
+}
+
+void KeyframeParams::validate() const {
+  if (criterion != "entropy_ratio" && criterion != "distance")
+    throw Error("tracker.keyframe_criterion = '" + criterion + "' is unknown; use entropy_ratio or distance");
+  require(std::isfinite(entropy_ratio) && entropy_ratio > 0 && entropy_ratio < 1, "keyframe_entropy_ratio",
+          entropy_ratio, "between 0 and 1");
+  require(std::isfinite(max_translation) && max_translation > 0, "keyframe_max_translation", max_translation,
+          "positive");
+  require(std::isfinite(max_rotation_deg) && max_rotation_deg > 0 && max_rotation_deg <= 180,
+          "keyframe_max_rotation_deg", max_rotation_deg, "in (0, 180]");
+}
+
+void LostParams::validate() const {
+  require(min_valid_depth_fraction >= 0 && min_valid_depth_fraction < 1, "lost_min_valid_depth_fraction",
+          min_valid_depth_fraction, "in [0, 1)");
+  require(min_mean_intensity >= 0 && min_mean_intensity < 1, "lost_min_mean_intensity", min_mean_intensity,
+          "in [0, 1)");
+  require(min_overlap >= 0 && min_overlap < 1, "lost_min_overlap", min_overlap, "in [0, 1)");
+  require(std::isfinite(max_frame_translation) && max_frame_translation > 0, "lost_max_frame_translation",
+          max_frame_translation, "positive");
+  require(std::isfinite(max_frame_rotation_deg) && max_frame_rotation_deg > 0, "lost_max_frame_rotation_deg",
+          max_frame_rotation_deg, "positive");
+  require(std::isfinite(max_intensity_sigma) && max_intensity_sigma > 0, "lost_max_intensity_sigma",
+          max_intensity_sigma, "positive");
+  require(max_lost_frames >= 1, "lost_max_frames", max_lost_frames, "at least 1");
+}
+
+void TrackerParams::validate() const {
+  aligner.validate();
+  keyframe.validate();
+  lost.validate();
+}
+
+TrackerParams trackerParamsFromConfig(const Config& c) {
+  TrackerParams p;
+  p.aligner.finest_level = c.getInt("tracker.finest_level");
+  p.aligner.coarsest_level = c.getInt("tracker.coarsest_level");
+  p.aligner.max_iterations = c.getInt("tracker.max_iterations");
+  p.aligner.convergence_step = c.getDouble("tracker.convergence_step");
+  p.aligner.t_dof = c.getDouble("tracker.t_dof");
+  p.aligner.min_gradient = c.getDouble("tracker.min_gradient");
+  p.aligner.min_depth = c.getDouble("tracker.min_depth");
+  p.aligner.max_depth = c.getDouble("tracker.max_depth");
+  p.aligner.max_depth_step = c.getDouble("tracker.max_depth_step");
+  p.aligner.min_valid_pixels = c.getInt("tracker.min_valid_pixels");
+  p.aligner.use_depth = c.getBool("tracker.use_depth");
+  p.keyframe.criterion = c.getString("tracker.keyframe_criterion");
+  p.keyframe.entropy_ratio = c.getDouble("tracker.keyframe_entropy_ratio");
+  p.keyframe.max_translation = c.getDouble("tracker.keyframe_max_translation");
+  p.keyframe.max_rotation_deg = c.getDouble("tracker.keyframe_max_rotation_deg");
+  p.lost.min_valid_depth_fraction = c.getDouble("tracker.lost_min_valid_depth_fraction");
+  p.lost.min_mean_intensity = c.getDouble("tracker.lost_min_mean_intensity");
+  p.lost.min_overlap = c.getDouble("tracker.lost_min_overlap");
+  p.lost.max_frame_translation = c.getDouble("tracker.lost_max_frame_translation");
+  p.lost.max_frame_rotation_deg = c.getDouble("tracker.lost_max_frame_rotation_deg");
+  p.lost.max_intensity_sigma = c.getDouble("tracker.lost_max_intensity_sigma");
+  p.lost.max_lost_frames = c.getInt("tracker.lost_max_frames");
+  p.validate();
+  return p;
+}
+
+}  // namespace rekon::tracker

@@ -1,0 +1,152 @@
+#include "rekon/tracker/rgbd_pyramid.hpp"
+
+#include <cmath>
+#include <limits>
+#include <string>
+
+#include "rekon/common/error.hpp"
+
+namespace rekon::tracker {
+namespace {
+
+constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+// ITU-R BT.601 luma of 8-bit values, scaled to 0..1.
+constexpr float kWr = 0.299f / 255.f, kWg = 0.587f / 255.f, kWb = 0.114f / 255.f;
+
+void checkFrame(const RgbdFrame& frame, const Intrinsics& k) {
+  const std::string what = "frame " + std::to_string(frame.id);
+  if (frame.depth.type() != CV_16UC1)
+    throw Error(what + ": depth must be 16-bit single-channel (CV_16UC1); convert it before tracking");
+  if (frame.color.type() != CV_8UC3)
+    throw Error(what + ": color must be 8-bit BGR (CV_8UC3); convert it before tracking");
+  if (frame.depth.cols != k.width || frame.depth.rows != k.height || frame.color.cols != k.width ||
+      frame.color.rows != k.height)
+    throw Error(what + ": image size differs from the camera's " + std::to_string(k.width) + "x" +
+                std::to_string(k.height) + "; fix camera.yaml or the images");
+}
+
+// Mean of the valid depths of a 2x2 block; missing when fewer than two are
+// valid or they straddle an occlusion edge (averaging would invent a surface).
+inline float blockDepth(float a, float b, float c, float d) {
+  float sum = 0.f, lo = std::numeric_limits<float>::max(), hi = 0.f;
+  int n = 0;
+  for (float z : {a, b, c, d}) {
+    if (!std::isnan(z)) {
+      sum += z;
+      lo = std::min(lo, z);
+      hi = std::max(hi, z);
+      ++n;
+    }
+  }
+  if (n < 2 || hi - lo > 0.1f * lo) return kNaN;
+  return sum / static_cast<float>(n);
+}
+
+void downsample(const PyramidLevel& src, PyramidLevel& dst) {
+  const int w = dst.k.width, h = dst.k.height, sw = src.k.width;
+  dst.intensity.resize(static_cast<size_t>(w) * h);
+  dst.depth.resize(static_cast<size_t>(w) * h);
+  for (int y = 0; y < h; ++y) {
+    const float* i0 = src.intensity.data() + static_cast<size_t>(2 * y) * sw;
+    const float* i1 = i0 + sw;
+    const float* d0 = src.depth.data() + static_cast<size_t>(2 * y) * sw;
+    const float* d1 = d0 + sw;
+    float* io = dst.intensity.data() + static_cast<size_t>(y) * w;
+    float* dout = dst.depth.data() + static_cast<size_t>(y) * w;
+    for (int x = 0; x < w; ++x) {
+      io[x] = 0.25f * (i0[2 * x] + i0[2 * x + 1] + i1[2 * x] + i1[2 * x + 1]);
+      dout[x] = blockDepth(d0[2 * x], d0[2 * x + 1], d1[2 * x], d1[2 * x + 1]);
+    }
+  }
+}
+
+}  // namespace
+
+const PyramidLevel& RgbdPyramid::level(int l) const {
+  if (!hasLevel(l))
+    throw Error("pyramid level " + std::to_string(l) + " was not built (levels " + std::to_string(finest_) + ".." +
+                std::to_string(coarsest_) + "); build the pyramid with the levels the aligner uses");
+  return levels_[l];
+}
+
+void RgbdPyramid::build(const RgbdFrame& frame, const Intrinsics& k, int finest, int coarsest, double min_depth,
+                        double max_depth) {
+  checkFrame(frame, k);
+  if (finest < 0 || coarsest < finest || (k.width >> coarsest) < 8 || (k.height >> coarsest) < 8)
+    throw Error("pyramid levels " + std::to_string(finest) + ".." + std::to_string(coarsest) +
+                " do not fit a " + std::to_string(k.width) + "x" + std::to_string(k.height) +
+                " image; use 0 <= finest <= coarsest with at least 8x8 pixels at the coarsest");
+  finest_ = finest;
+  coarsest_ = coarsest;
+  if (static_cast<int>(levels_.size()) < coarsest + 1) levels_.resize(coarsest + 1);
+  for (int l = 0; l <= coarsest; ++l) levels_[l].k = k.atLevel(l);
+  for (int l = 0; l < finest; ++l) {
+    levels_[l].intensity.clear();
+    levels_[l].depth.clear();
+  }
+
+  const float to_m = static_cast<float>(1.0 / k.depth_scale);
+  const float zmin = static_cast<float>(min_depth), zmax = static_cast<float>(max_depth);
+  auto depthAt = [&](uint16_t raw) {
+    const float z = static_cast<float>(raw) * to_m;
+    return (raw == 0 || z < zmin || z > zmax) ? kNaN : z;
+  };
+
+  // Full resolution: either stored as level 0, or folded straight into level 1
+  // so that a 3 -> 1 pyramid never materialises the 640x480 planes.
+  const int w = k.width, h = k.height;
+  size_t valid = 0;
+  double intensity_sum = 0.0;
+  if (finest == 0) {
+    PyramidLevel& l0 = levels_[0];
+    l0.intensity.resize(static_cast<size_t>(w) * h);
+    l0.depth.resize(static_cast<size_t>(w) * h);
+    for (int y = 0; y < h; ++y) {
+      const uint8_t* c = frame.color.ptr<uint8_t>(y);
+      const uint16_t* d = frame.depth.ptr<uint16_t>(y);
+      float* io = l0.intensity.data() + static_cast<size_t>(y) * w;
+      float* dout = l0.depth.data() + static_cast<size_t>(y) * w;
+      float row_sum = 0.f;
+      for (int x = 0; x < w; ++x) {
+        io[x] = kWb * c[3 * x] + kWg * c[3 * x + 1] + kWr * c[3 * x + 2];
+        row_sum += io[x];
+        dout[x] = depthAt(d[x]);
+        valid += d[x] != 0;
+      }
+      intensity_sum += row_sum;
+    }
+  } else {
+    PyramidLevel& l1 = levels_[1];
+    const int w1 = l1.k.width, h1 = l1.k.height;
+    l1.intensity.resize(static_cast<size_t>(w1) * h1);
+    l1.depth.resize(static_cast<size_t>(w1) * h1);
+    for (int y = 0; y < h1; ++y) {
+      const uint8_t* c0 = frame.color.ptr<uint8_t>(2 * y);
+      const uint8_t* c1 = frame.color.ptr<uint8_t>(2 * y + 1);
+      const uint16_t* d0 = frame.depth.ptr<uint16_t>(2 * y);
+      const uint16_t* d1 = frame.depth.ptr<uint16_t>(2 * y + 1);
+      float* io = l1.intensity.data() + static_cast<size_t>(y) * w1;
+      float* dout = l1.depth.data() + static_cast<size_t>(y) * w1;
+      float row_sum = 0.f;
+      for (int x = 0; x < w1; ++x) {
+        const int a = 6 * x;
+        const int b = (c0[a] + c0[a + 3] + c1[a] + c1[a + 3]);
+        const int g = (c0[a + 1] + c0[a + 4] + c1[a + 1] + c1[a + 4]);
+        const int r = (c0[a + 2] + c0[a + 5] + c1[a + 2] + c1[a + 5]);
+        io[x] = 0.25f * (kWb * static_cast<float>(b) + kWg * static_cast<float>(g) + kWr * static_cast<float>(r));
+        row_sum += io[x];
+        const uint16_t r00 = d0[2 * x], r01 = d0[2 * x + 1], r10 = d1[2 * x], r11 = d1[2 * x + 1];
+        valid += (r00 != 0) + (r01 != 0) + (r10 != 0) + (r11 != 0);
+        dout[x] = blockDepth(depthAt(r00), depthAt(r01), depthAt(r10), depthAt(r11));
+      }
+      intensity_sum += row_sum;
+    }
+    intensity_sum *= 4.0;  // each level-1 pixel stands for four input pixels
+  }
+  const double n = static_cast<double>(w) * h;
+  valid_depth_fraction_ = static_cast<double>(valid) / n;
+  mean_intensity_ = intensity_sum / n;
+  for (int l = finest == 0 ? 1 : 2; l <= coarsest; ++l) downsample(levels_[l - 1], levels_[l]);
+}
+
+}  // namespace rekon::tracker

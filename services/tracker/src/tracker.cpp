@@ -1,0 +1,151 @@
+#include "rekon/tracker/tracker.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <cmath>
+#include <numbers>
+
+namespace rekon::tracker {
+namespace {
+
+double radians(double deg) { return deg * std::numbers::pi / 180.0; }
+
+double rotationAngleOf(const Pose& p) { return rotationAngle(Pose::Identity(), p); }
+
+}  // namespace
+
+const char* toString(LostReason reason) {
+  switch (reason) {
+    case LostReason::None: return "none";
+    case LostReason::NoDepth: return "no valid depth";
+    case LostReason::BlackImage: return "black image";
+    case LostReason::AlignmentFailed: return "alignment failed";
+    case LostReason::TooLittleOverlap: return "too little overlap with the keyframe";
+    case LostReason::JumpBeyondBasin: return "jump beyond the convergence basin";
+    case LostReason::LargeResidual: return "large residual after alignment";
+  }
+  return "unknown";
+}
+
+Tracker::Tracker(const TrackerParams& params) : params_(params), aligner_(params.aligner) { params_.validate(); }
+
+std::shared_ptr<const Keyframe> Tracker::makeKeyframe(const RgbdFrame& frame, const Pose& pose_world) {
+  auto kf = std::make_shared<Keyframe>();
+  kf->id = next_keyframe_id_++;
+  kf->frame_id = frame.id;
+  kf->timestamp = frame.timestamp;
+  kf->pose_world = orthonormalised(pose_world);  // products of many poses drift off SO(3)
+  kf->pyramid = current_;
+  kf->reference = KeyframeReference(kf->pyramid, params_.aligner);
+  last_in_keyframe_ = Pose::Identity();
+  reference_entropy_.reset();
+  return kf;
+}
+
+bool Tracker::keyframeDue(const AlignResult& aligned) const {
+  const auto& kp = params_.keyframe;
+  if (aligned.pose.translation().norm() > kp.max_translation) return true;
+  if (rotationAngleOf(aligned.pose) > radians(kp.max_rotation_deg)) return true;
+  if (kp.criterion != "entropy_ratio" || !reference_entropy_) return false;
+  // H(kf,t) / H(kf,kf+1) < threshold, written so that it also holds when the
+  // entropies are positive (few pixels, large covariance): the estimate's
+  // entropy grew by more than (1 - threshold) of the reference's magnitude.
+  return aligned.entropy - *reference_entropy_ > (1.0 - kp.entropy_ratio) * std::abs(*reference_entropy_);
+}
+
+TrackResult Tracker::track(const RgbdFrame& frame, const Intrinsics& k) {
+  const auto& ap = params_.aligner;
+  const auto& lp = params_.lost;
+  current_.build(frame, k, ap.finest_level, ap.coarsest_level, ap.min_depth, ap.max_depth);
+
+  TrackResult r;
+  r.frame_id = frame.id;
+  r.timestamp = frame.timestamp;
+  LostReason reason = LostReason::None;
+  if (current_.validDepthFraction() < lp.min_valid_depth_fraction)
+    reason = LostReason::NoDepth;
+  else if (current_.meanIntensity() < lp.min_mean_intensity)
+    reason = LostReason::BlackImage;
+  const bool trackable = reason == LostReason::None;
+
+  if (!keyframe_) {
+    if (trackable) {
+      keyframe_ = makeKeyframe(frame, Pose::Identity());
+      r.state = TrackingState::Ok;
+      r.new_keyframe = true;
+      r.keyframe_id = keyframe_->id;
+    } else {
+      r.lost_reason = reason;
+    }
+    return r;
+  }
+
+  AlignResult aligned;
+  if (trackable) {
+    const Pose prediction = last_in_keyframe_ * velocity_;
+    aligned = aligner_.align(keyframe_->reference, current_, prediction);
+    r.entropy = aligned.entropy;
+    r.valid_pixels = aligned.valid_pixels;
+    r.iterations = aligned.iterations;
+    const Pose correction = prediction.inverse() * aligned.pose;
+    if (!aligned.valid)
+      reason = LostReason::AlignmentFailed;
+    else if (aligned.valid_pixels < lp.min_overlap * aligned.selected_pixels)
+      reason = LostReason::TooLittleOverlap;
+    else if (correction.translation().norm() > lp.max_frame_translation ||
+             rotationAngleOf(correction) > radians(lp.max_frame_rotation_deg))
+      reason = LostReason::JumpBeyondBasin;
+    else if (aligned.intensity_sigma > lp.max_intensity_sigma)
+      reason = LostReason::LargeResidual;
+  }
+
+  if (reason != LostReason::None) {
+    ++lost_in_a_row_;
+    velocity_ = Pose::Identity();
+    r.state = TrackingState::Lost;
+    r.lost_reason = reason;
+    spdlog::debug("frame {}: lost ({})", frame.id, toString(reason));
+    if (trackable && lost_in_a_row_ >= lp.max_lost_frames) {
+      // Re-initialising from the last good keyframe has not worked for too
+      // long: restart from this frame at the last good pose.
+      spdlog::warn("frame {}: lost for {} frames, new keyframe at the last good pose", frame.id, lost_in_a_row_);
+      keyframe_ = makeKeyframe(frame, keyframe_->pose_world * last_in_keyframe_);
+      lost_in_a_row_ = 0;
+      r.new_keyframe = true;
+      r.keyframe_reset = true;
+    } else {
+      r.covariance = Matrix6d::Identity() * kLostVariance;
+    }
+    r.keyframe_id = keyframe_->id;
+    r.pose_in_keyframe = last_in_keyframe_;
+    r.keyframe_pose_world = keyframe_->pose_world;
+    r.pose_world = keyframe_->pose_world * last_in_keyframe_;
+    return r;
+  }
+
+  lost_in_a_row_ = 0;
+  velocity_ = last_in_keyframe_.inverse() * aligned.pose;
+  r.state = TrackingState::Ok;
+  if (!reference_entropy_) reference_entropy_ = aligned.entropy;
+  r.entropy_ratio = aligned.entropy / *reference_entropy_;
+  if (keyframeDue(aligned)) {
+    OdometryConstraint c;
+    c.from_id = keyframe_->id;
+    c.relative = aligned.pose;
+    c.information = aligned.information;
+    keyframe_ = makeKeyframe(frame, keyframe_->pose_world * aligned.pose);
+    c.to_id = keyframe_->id;
+    r.odometry = c;
+    r.new_keyframe = true;
+  } else {
+    last_in_keyframe_ = aligned.pose;
+    r.pose_in_keyframe = aligned.pose;
+    r.covariance = aligned.covariance();
+  }
+  r.keyframe_id = keyframe_->id;
+  r.keyframe_pose_world = keyframe_->pose_world;
+  r.pose_world = keyframe_->pose_world * r.pose_in_keyframe;
+  return r;
+}
+
+}  // namespace rekon::tracker

@@ -1,0 +1,20 @@
+#pragma once
+// Trajectory error metrics for the tracker's tests and benchmark (until
+// `rekon eval traj` lands): absolute trajectory error after a rigid Horn
+// alignment, and relative pose error over one-second windows (Sturm et al.
+// IROS 2012).
+#include "rekon/common/pose.hpp"
+
+namespace rekon::tracker::test {
+
+struct TrajectoryErrors {
+  int matched = 0;                  // estimated poses with ground truth within 20 ms
+  double ate_rmse_m = 0.0;          // after the best rigid alignment (no scale)
+  double rpe_trans_m_per_s = 0.0;   // RMSE of the translation drift over 1 s windows
+  double rpe_rot_deg_per_s = 0.0;   // RMSE of the rotation drift over 1 s windows
+  double path_length_m = 0.0;       // of the matched ground truth
+};
+
+TrajectoryErrors compareTrajectories(const Trajectory& estimate, const Trajectory& ground_truth);
+
+}  // namespace rekon::tracker::test
