@@ -1,0 +1,389 @@
+#pragma once
+// The per-voxel and per-pixel maths of the TSDF volume, written once and
+// called from the CPU backend's loops and from the CUDA kernels in cuda/.
+// Plain structs only (no Eigen, no STL) so nvcc compiles it without flags.
+#include <cmath>
+#include <cstdint>
+
+#ifdef __CUDACC__
+#define REKON_HD __host__ __device__
+#else
+#define REKON_HD
+#endif
+
+namespace rekon::volume {
+
+constexpr int kBlockSide = 8;  // voxels per block edge (Voxel Hashing's 8^3 blocks)
+constexpr int kBlockVoxels = kBlockSide * kBlockSide * kBlockSide;
+
+// The truncated signed distance tsdf in [-1, 1] (units of the truncation
+// distance) is quantised to integer steps of 1/kSdfSteps. Storing weighted
+// *sums* of integers, not averages, makes de-integration (paper eq. 2) exact
+// and independent of order: subtraction undoes addition bit for bit.
+constexpr int32_t kSdfSteps = 1023;
+// |sdf_sum| <= weight * kSdfSteps must fit in int32, so the weight is capped
+// here; exceeding it is reported as an error, never clamped silently.
+constexpr uint32_t kMaxVoxelWeight = (1u << 21) - 1;
+
+// 12 bytes. Color is a weighted running average (8 bits per channel): its
+// de-integration follows eq. 2 with rounding, so color alone is approximate.
+struct Voxel {
+  int32_t sdf_sum;  // sum of weight_units * round(tsdf * kSdfSteps)
+  uint32_t weight;  // sum of weight_units; 0 = unobserved
+  uint8_t r, g, b;  // weighted average color
+  uint8_t unused;
+};
+static_assert(sizeof(Voxel) == 12, "the voxel layout is part of the memory budget");
+
+struct Vec3f {
+  float x, y, z;
+};
+REKON_HD inline Vec3f operator+(Vec3f a, Vec3f b) { return {a.x + b.x, a.y + b.y, a.z + b.z}; }
+REKON_HD inline Vec3f operator-(Vec3f a, Vec3f b) { return {a.x - b.x, a.y - b.y, a.z - b.z}; }
+REKON_HD inline Vec3f operator*(float s, Vec3f a) { return {s * a.x, s * a.y, s * a.z}; }
+REKON_HD inline float dot(Vec3f a, Vec3f b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+
+struct BlockCoord {
+  int32_t x, y, z;
+};
+REKON_HD inline bool operator==(BlockCoord a, BlockCoord b) { return a.x == b.x && a.y == b.y && a.z == b.z; }
+
+// Spatial hash of Teschner et al., as in Voxel Hashing.
+REKON_HD inline uint32_t hashBlock(BlockCoord c) {
+  return (static_cast<uint32_t>(c.x) * 73856093u) ^ (static_cast<uint32_t>(c.y) * 19349669u) ^
+         (static_cast<uint32_t>(c.z) * 83492791u);
+}
+
+// Open-addressing (linear probing) table from block coordinate to pool slot.
+// The host owns and edits it; kernels only look up.
+struct HashEntry {
+  BlockCoord coord;
+  int32_t slot;  // kEmptySlot when the entry is free
+};
+constexpr int32_t kEmptySlot = -1;
+
+struct HashView {
+  const HashEntry* entries;
+  uint32_t mask;  // table size - 1 (a power of two)
+};
+
+REKON_HD inline int32_t findBlock(HashView table, BlockCoord c) {
+  uint32_t i = hashBlock(c) & table.mask;
+  while (true) {
+    const HashEntry& e = table.entries[i];
+    if (e.slot == kEmptySlot) return kEmptySlot;
+    if (e.coord == c) return e.slot;
+    i = (i + 1) & table.mask;
+  }
+}
+
+REKON_HD inline int floorDiv(int a, int b) { return (a >= 0) ? a / b : -((-a + b - 1) / b); }
+REKON_HD inline int localIndex(int x, int y, int z) { return (z * kBlockSide + y) * kBlockSide + x; }
+
+// A pinhole camera at a pose, in float: world-to-camera rotation (row-major)
+// and translation plus intrinsics.
+struct CameraView {
+  float r[9];
+  float t[3];
+  float fx, fy, cx, cy;
+  int width, height;
+};
+
+REKON_HD inline Vec3f worldToCamera(const CameraView& c, Vec3f p) {
+  return {c.r[0] * p.x + c.r[1] * p.y + c.r[2] * p.z + c.t[0], c.r[3] * p.x + c.r[4] * p.y + c.r[5] * p.z + c.t[1],
+          c.r[6] * p.x + c.r[7] * p.y + c.r[8] * p.z + c.t[2]};
+}
+// Inverse of worldToCamera (R^T (p - t)).
+REKON_HD inline Vec3f cameraToWorld(const CameraView& c, Vec3f p) {
+  const Vec3f q = p - Vec3f{c.t[0], c.t[1], c.t[2]};
+  return {c.r[0] * q.x + c.r[3] * q.y + c.r[6] * q.z, c.r[1] * q.x + c.r[4] * q.y + c.r[7] * q.z,
+          c.r[2] * q.x + c.r[5] * q.y + c.r[8] * q.z};
+}
+REKON_HD inline Vec3f cameraCentre(const CameraView& c) { return cameraToWorld(c, {0.f, 0.f, 0.f}); }
+REKON_HD inline Vec3f cameraDirectionToWorld(const CameraView& c, Vec3f d) {
+  return {c.r[0] * d.x + c.r[3] * d.y + c.r[6] * d.z, c.r[1] * d.x + c.r[4] * d.y + c.r[7] * d.z,
+          c.r[2] * d.x + c.r[5] * d.y + c.r[8] * d.z};
+}
+
+// The inputs of one (de-)integration, as device or host pointers to dense rows.
+struct FrameImages {
+  const float* depth;    // metres, 0 or non-finite = no measurement
+  const uint8_t* bgr;    // may be null: color is then left unchanged
+  const float* weights;  // may be null: every pixel weighs 1
+  int width, height;
+};
+
+struct IntegrationSettings {
+  float voxel_size;
+  float truncation;
+  float max_depth;
+  float weight_units;  // integer weight units per unit of pixel weight
+};
+
+REKON_HD inline bool validDepth(float z, float max_depth) { return z > 0.f && z <= max_depth; }  // false for NaN
+
+REKON_HD inline uint32_t pixelWeightUnits(const FrameImages& f, int pixel, float weight_units) {
+  if (f.weights == nullptr) return static_cast<uint32_t>(weight_units + 0.5f);
+  const float w = f.weights[pixel];
+  if (!(w > 0.f)) return 0u;
+  const float units = w * weight_units + 0.5f;
+  return units >= static_cast<float>(kMaxVoxelWeight) ? kMaxVoxelWeight : static_cast<uint32_t>(units);
+}
+
+// What one frame says about one voxel. `weight == 0` means nothing.
+struct Observation {
+  int32_t sdf;      // round(tsdf * kSdfSteps)
+  uint32_t weight;  // weight units
+  int pixel;        // for the color; -1 without color
+};
+
+// Projective (along z) truncated signed distance of the voxel at camera
+// coordinates `pc`, as in KinectFusion and the paper's eq. 2.
+REKON_HD inline Observation observe(const FrameImages& f, const CameraView& cam, const IntegrationSettings& s, Vec3f pc) {
+  Observation none{0, 0u, -1};
+  if (pc.z <= 0.f) return none;
+  const float inv_z = 1.f / pc.z;
+  const float uf = cam.fx * pc.x * inv_z + cam.cx;
+  const float vf = cam.fy * pc.y * inv_z + cam.cy;
+  if (!(uf > -0.5f && vf > -0.5f && uf < cam.width - 0.5f && vf < cam.height - 0.5f)) return none;
+  const int u = static_cast<int>(uf + 0.5f);
+  const int v = static_cast<int>(vf + 0.5f);
+  const int pixel = v * f.width + u;
+  const float depth = f.depth[pixel];
+  if (!validDepth(depth, s.max_depth)) return none;
+  const float sdf = depth - pc.z;
+  if (sdf < -s.truncation) return none;
+  const uint32_t w = pixelWeightUnits(f, pixel, s.weight_units);
+  if (w == 0u) return none;
+  float tsdf = sdf / s.truncation;
+  tsdf = tsdf > 1.f ? 1.f : tsdf;
+  const float q = tsdf * static_cast<float>(kSdfSteps);
+  return {static_cast<int32_t>(q >= 0.f ? q + 0.5f : q - 0.5f), w, f.bgr ? pixel : -1};
+}
+
+enum UpdateStatus : int { kUpdated = 0, kWeightOverflow = 1, kWeightUnderflow = 2 };
+
+REKON_HD inline uint8_t blendChannel(uint8_t old_value, uint32_t old_weight, int sample, int64_t signed_weight,
+                                     uint32_t new_weight) {
+  const int64_t num = static_cast<int64_t>(old_value) * old_weight + static_cast<int64_t>(sample) * signed_weight;
+  if (num <= 0) return 0;
+  const int64_t avg = (num + new_weight / 2) / new_weight;
+  return static_cast<uint8_t>(avg > 255 ? 255 : avg);
+}
+
+// Adds (sign = +1) or removes (sign = -1) one observation: the weighted running
+// average of the paper's integration and its inverse, eq. 2.
+REKON_HD inline int applyObservation(Voxel& v, const Observation& o, const uint8_t* bgr, int sign) {
+  if (sign > 0) {
+    if (v.weight > kMaxVoxelWeight - o.weight) return kWeightOverflow;
+  } else if (v.weight < o.weight) {
+    return kWeightUnderflow;
+  }
+  const int64_t sw = sign > 0 ? static_cast<int64_t>(o.weight) : -static_cast<int64_t>(o.weight);
+  const uint32_t new_weight = sign > 0 ? v.weight + o.weight : v.weight - o.weight;
+  if (o.pixel >= 0 && new_weight > 0u) {
+    const uint8_t* c = bgr + 3 * o.pixel;
+    v.r = blendChannel(v.r, v.weight, c[2], sw, new_weight);
+    v.g = blendChannel(v.g, v.weight, c[1], sw, new_weight);
+    v.b = blendChannel(v.b, v.weight, c[0], sw, new_weight);
+  }
+  v.sdf_sum += static_cast<int32_t>(sw) * o.sdf;
+  v.weight = new_weight;
+  if (new_weight == 0u) {
+    v.r = v.g = v.b = 0;
+  }
+  return kUpdated;
+}
+
+// Camera coordinates of a block's voxels: origin plus integer steps along
+// the three voxel axes (one add per voxel instead of a full transform).
+struct BlockInCamera {
+  Vec3f origin, dx, dy, dz;
+};
+
+REKON_HD inline BlockInCamera blockInCamera(const CameraView& cam, BlockCoord coord, float vs) {
+  const Vec3f origin{coord.x * kBlockSide * vs, coord.y * kBlockSide * vs, coord.z * kBlockSide * vs};
+  return {worldToCamera(cam, origin), {cam.r[0] * vs, cam.r[3] * vs, cam.r[6] * vs},
+          {cam.r[1] * vs, cam.r[4] * vs, cam.r[7] * vs}, {cam.r[2] * vs, cam.r[5] * vs, cam.r[8] * vs}};
+}
+REKON_HD inline Vec3f voxelInCamera(const BlockInCamera& b, int x, int y, int z) {
+  return (b.origin + static_cast<float>(y) * b.dy + static_cast<float>(z) * b.dz) + static_cast<float>(x) * b.dx;
+}
+
+// Updates one voxel (the body both backends run per voxel); returns an UpdateStatus.
+REKON_HD inline int updateVoxel(Voxel& v, const BlockInCamera& b, int x, int y, int z, const FrameImages& f,
+                                const CameraView& cam, const IntegrationSettings& s, int sign) {
+  const Observation o = observe(f, cam, s, voxelInCamera(b, x, y, z));
+  return o.weight != 0u ? applyObservation(v, o, f.bgr, sign) : static_cast<int>(kUpdated);
+}
+
+// Result of updating one block: which statuses occurred and whether any
+// voxel still carries weight (a block with none is freed).
+struct BlockUpdateResult {
+  int overflow;
+  int underflow;
+  int occupied;
+};
+
+REKON_HD inline BlockUpdateResult updateBlock(Voxel* voxels, BlockCoord coord, const FrameImages& f,
+                                              const CameraView& cam, const IntegrationSettings& s, int sign) {
+  BlockUpdateResult result{0, 0, 0};
+  const BlockInCamera b = blockInCamera(cam, coord, s.voxel_size);
+  for (int z = 0; z < kBlockSide; ++z) {
+    for (int y = 0; y < kBlockSide; ++y) {
+      for (int x = 0; x < kBlockSide; ++x) {
+        Voxel& v = voxels[localIndex(x, y, z)];
+        const int status = updateVoxel(v, b, x, y, z, f, cam, s, sign);
+        result.overflow |= status == kWeightOverflow;
+        result.underflow |= status == kWeightUnderflow;
+        result.occupied |= v.weight != 0u;
+      }
+    }
+  }
+  return result;
+}
+
+// Block coordinates crossed by the truncation band of one depth pixel: the
+// segment of its ray between depth - truncation and depth + truncation, walked
+// through the block grid (Amanatides & Woo). Calls emit(BlockCoord) for each.
+template <typename Emit>
+REKON_HD inline void visitBandBlocks(const FrameImages& f, const CameraView& cam, const IntegrationSettings& s, int u,
+                                     int v, Emit&& emit) {
+  const int pixel = v * f.width + u;
+  const float depth = f.depth[pixel];
+  if (!validDepth(depth, s.max_depth)) return;
+  if (pixelWeightUnits(f, pixel, s.weight_units) == 0u) return;
+  const Vec3f ray{(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, 1.f};
+  const float z0 = depth - s.truncation > 1e-3f ? depth - s.truncation : 1e-3f;
+  const float z1 = depth + s.truncation;
+  const float block_size = kBlockSide * s.voxel_size;
+  const Vec3f a = (1.f / block_size) * cameraToWorld(cam, z0 * ray);
+  const Vec3f b = (1.f / block_size) * cameraToWorld(cam, z1 * ray);
+  int ix = static_cast<int>(floorf(a.x)), iy = static_cast<int>(floorf(a.y)), iz = static_cast<int>(floorf(a.z));
+  const int ex = static_cast<int>(floorf(b.x)), ey = static_cast<int>(floorf(b.y)), ez = static_cast<int>(floorf(b.z));
+  const Vec3f d = b - a;
+  const int sx = d.x > 0.f ? 1 : -1, sy = d.y > 0.f ? 1 : -1, sz = d.z > 0.f ? 1 : -1;
+  const float big = 1e30f;
+  const float tdx = d.x != 0.f ? fabsf(1.f / d.x) : big;
+  const float tdy = d.y != 0.f ? fabsf(1.f / d.y) : big;
+  const float tdz = d.z != 0.f ? fabsf(1.f / d.z) : big;
+  float tx = d.x != 0.f ? ((sx > 0 ? (ix + 1 - a.x) : (a.x - ix)) * tdx) : big;
+  float ty = d.y != 0.f ? ((sy > 0 ? (iy + 1 - a.y) : (a.y - iy)) * tdy) : big;
+  float tz = d.z != 0.f ? ((sz > 0 ? (iz + 1 - a.z) : (a.z - iz)) * tdz) : big;
+  // The segment spans at most |ex-ix|+|ey-iy|+|ez-iz| block boundaries.
+  const int steps = (ex > ix ? ex - ix : ix - ex) + (ey > iy ? ey - iy : iy - ey) + (ez > iz ? ez - iz : iz - ez);
+  emit(BlockCoord{ix, iy, iz});
+  for (int i = 0; i < steps; ++i) {
+    if (tx <= ty && tx <= tz) {
+      ix += sx;
+      tx += tdx;
+    } else if (ty <= tz) {
+      iy += sy;
+      ty += tdy;
+    } else {
+      iz += sz;
+      tz += tdz;
+    }
+    emit(BlockCoord{ix, iy, iz});
+  }
+}
+
+// ---- Reading the volume (ray casting) ----
+
+struct VolumeView {
+  HashView table;
+  const Voxel* pool;  // slot * kBlockVoxels + localIndex
+  float voxel_size;
+  float truncation;
+};
+
+// Voxel at integer lattice coordinates, or null when its block is absent.
+REKON_HD inline const Voxel* voxelAt(const VolumeView& vol, int x, int y, int z) {
+  const BlockCoord bc{floorDiv(x, kBlockSide), floorDiv(y, kBlockSide), floorDiv(z, kBlockSide)};
+  const int32_t slot = findBlock(vol.table, bc);
+  if (slot == kEmptySlot) return nullptr;
+  return vol.pool + static_cast<int64_t>(slot) * kBlockVoxels +
+         localIndex(x - bc.x * kBlockSide, y - bc.y * kBlockSide, z - bc.z * kBlockSide);
+}
+
+REKON_HD inline float voxelSdf(const Voxel& v, float truncation) {
+  return static_cast<float>(v.sdf_sum) / (static_cast<float>(v.weight) * kSdfSteps) * truncation;
+}
+
+// Trilinear signed distance (metres) at world point p; false when any of the
+// eight surrounding voxels is unobserved.
+REKON_HD inline bool sampleSdf(const VolumeView& vol, Vec3f p, float& sdf) {
+  const Vec3f g = (1.f / vol.voxel_size) * p;
+  const int x0 = static_cast<int>(floorf(g.x)), y0 = static_cast<int>(floorf(g.y)), z0 = static_cast<int>(floorf(g.z));
+  const float fx = g.x - x0, fy = g.y - y0, fz = g.z - z0;
+  float acc = 0.f;
+  for (int c = 0; c < 8; ++c) {
+    const int ox = c & 1, oy = (c >> 1) & 1, oz = (c >> 2) & 1;
+    const Voxel* v = voxelAt(vol, x0 + ox, y0 + oy, z0 + oz);
+    if (v == nullptr || v->weight == 0u) return false;
+    const float w = (ox ? fx : 1.f - fx) * (oy ? fy : 1.f - fy) * (oz ? fz : 1.f - fz);
+    acc += w * voxelSdf(*v, vol.truncation);
+  }
+  sdf = acc;
+  return true;
+}
+
+struct RaycastPixel {
+  float depth;  // along the camera z axis; 0 = no surface
+  Vec3f normal; // world frame, unit; zero without a surface
+  uint8_t b, g, r;
+};
+
+// Marches the ray of pixel (u, v) from the camera to max_depth and returns the
+// first zero crossing from positive (free) to negative (behind the surface).
+REKON_HD inline RaycastPixel raycastPixel(const VolumeView& vol, const CameraView& cam, float max_depth, int u, int v) {
+  RaycastPixel out{0.f, {0.f, 0.f, 0.f}, 0, 0, 0};
+  const Vec3f ray_cam{(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, 1.f};
+  const float ray_len = sqrtf(dot(ray_cam, ray_cam));
+  const Vec3f dir = (1.f / ray_len) * cameraDirectionToWorld(cam, ray_cam);
+  const Vec3f origin = cameraCentre(cam);
+  const float t_max = max_depth * ray_len;
+  const float min_step = vol.voxel_size * 0.5f;
+  float t = vol.voxel_size;
+  float prev_t = 0.f, prev_sdf = 0.f;
+  bool have_prev = false;
+  while (t < t_max) {
+    float sdf;
+    if (!sampleSdf(vol, origin + t * dir, sdf)) {
+      have_prev = false;
+      t += vol.truncation * 0.5f;  // unobserved space: jump within the band's width
+      continue;
+    }
+    if (have_prev && prev_sdf > 0.f && sdf <= 0.f) {
+      const float ts = prev_t + (t - prev_t) * prev_sdf / (prev_sdf - sdf);
+      const Vec3f p = origin + ts * dir;
+      out.depth = ts / ray_len;
+      const float h = vol.voxel_size;
+      float sx0, sx1, sy0, sy1, sz0, sz1;
+      if (sampleSdf(vol, p + Vec3f{h, 0, 0}, sx1) && sampleSdf(vol, p - Vec3f{h, 0, 0}, sx0) &&
+          sampleSdf(vol, p + Vec3f{0, h, 0}, sy1) && sampleSdf(vol, p - Vec3f{0, h, 0}, sy0) &&
+          sampleSdf(vol, p + Vec3f{0, 0, h}, sz1) && sampleSdf(vol, p - Vec3f{0, 0, h}, sz0)) {
+        const Vec3f n{sx1 - sx0, sy1 - sy0, sz1 - sz0};
+        const float len = sqrtf(dot(n, n));
+        if (len > 0.f) out.normal = (1.f / len) * n;
+      }
+      const Vec3f g = (1.f / vol.voxel_size) * p;
+      const Voxel* near_voxel = voxelAt(vol, static_cast<int>(floorf(g.x + 0.5f)), static_cast<int>(floorf(g.y + 0.5f)),
+                                        static_cast<int>(floorf(g.z + 0.5f)));
+      if (near_voxel != nullptr && near_voxel->weight != 0u) {
+        out.r = near_voxel->r;
+        out.g = near_voxel->g;
+        out.b = near_voxel->b;
+      }
+      return out;
+    }
+    prev_t = t;
+    prev_sdf = sdf;
+    have_prev = true;
+    const float step = sdf * 0.8f;
+    t += step > min_step ? step : min_step;
+  }
+  return out;
+}
+
+}  // namespace rekon::volume
