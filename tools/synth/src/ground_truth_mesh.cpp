@@ -12,6 +12,16 @@ namespace {
 
 // Cells whose centre is this close to the inside of another solid are hidden.
 constexpr float kHiddenMarginM = 1e-3f;
+// Largest distance between a curved surface and its chords.
+constexpr float kMaxSagittaM = 2e-4f;
+
+// Segments around a circle of radius r: at most `spacing` long and at most kMaxSagittaM off the circle.
+int segmentsAround(float r, float spacing) {
+  const float pi = std::numbers::pi_v<float>;
+  const int by_spacing = static_cast<int>(std::ceil(2 * pi * r / spacing));
+  const int by_sagitta = r > kMaxSagittaM ? static_cast<int>(std::ceil(pi / std::acos(1.0f - kMaxSagittaM / r))) : 3;
+  return std::max({12, by_spacing, by_sagitta});
+}
 
 class MeshBuilder {
  public:
@@ -149,7 +159,7 @@ Mesh triangulate(const SceneModel& model, const std::vector<Material>& materials
       case Shape::Cylinder: {
         const float r = q.half.x, z0 = q.center.z - q.half.z, z1 = q.center.z + q.half.z;
         const float pi = std::numbers::pi_v<float>;
-        const int around = std::max(24, mb.cells(2 * pi * r));
+        const int around = segmentsAround(r, static_cast<float>(spacing_m));
         mb.patch(owner, around, mb.cells(z1 - z0),
                  [=](float a, float b) {
                    const float th = -pi + 2 * pi * a;
@@ -169,7 +179,7 @@ Mesh triangulate(const SceneModel& model, const std::vector<Material>& materials
       }
       case Shape::Sphere: {
         const float r = q.half.x, pi = std::numbers::pi_v<float>;
-        const int around = std::max(24, mb.cells(2 * pi * r)), along = std::max(12, mb.cells(pi * r));
+        const int around = segmentsAround(r, static_cast<float>(spacing_m)), along = std::max(6, around / 2);
         mb.patch(owner, around, along,
                  [=](float a, float b) {
                    const float th = -pi + 2 * pi * a, ph = -0.5f * pi + pi * b;

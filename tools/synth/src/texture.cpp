@@ -32,14 +32,28 @@ inline float squareWave(float x, float period, float footprint) {
   return k * std::clamp(tri * period / (4.0f * footprint), -1.0f, 1.0f);
 }
 
+// Permutation table of the classic Perlin noise, widened to 1024 entries so
+// the finest octave repeats only every ~13 m.
+constexpr int kPermSize = 1024;
+struct Permutation {
+  uint16_t p[2 * kPermSize];
+  Permutation() {
+    uint32_t state = 0x1234567u;
+    for (int i = 0; i < kPermSize; ++i) p[i] = static_cast<uint16_t>(i);
+    for (int i = kPermSize - 1; i > 0; --i) {
+      state = state * 1664525u + 1013904223u;
+      const int j = static_cast<int>((state >> 8) % static_cast<uint32_t>(i + 1));
+      std::swap(p[i], p[j]);
+    }
+    for (int i = 0; i < kPermSize; ++i) p[kPermSize + i] = p[i];
+  }
+};
+const Permutation kPerm;
+
 inline uint32_t hash(int32_t x, int32_t y, uint32_t seed) {
-  uint32_t h = seed * 0x9E3779B1u ^ static_cast<uint32_t>(x) * 0x85EBCA77u ^ static_cast<uint32_t>(y) * 0xC2B2AE3Du;
-  h ^= h >> 15;
-  h *= 0x2C1B3C6Du;
-  h ^= h >> 12;
-  h *= 0x297A2D39u;
-  h ^= h >> 15;
-  return h;
+  const uint32_t xi = (static_cast<uint32_t>(x) + seed) & (kPermSize - 1);
+  const uint32_t yi = static_cast<uint32_t>(y) & (kPermSize - 1);
+  return kPerm.p[kPerm.p[xi] + yi];
 }
 
 // 2D gradient (Perlin) noise, roughly in [-1, 1].
@@ -71,7 +85,7 @@ V3 shade(const Material& m, const SurfacePoint& s, float footprint_m) {
     value += m.checker_weight * squareWave(s.u, m.checker_period, w) * squareWave(s.v, m.checker_period, w);
   }
   if (m.stripe_period > 0.0f && m.stripe_weight > 0.0f) {
-    const float x = s.u * std::cos(m.stripe_angle) + s.v * std::sin(m.stripe_angle);
+    const float x = s.u * m.stripe_cos + s.v * m.stripe_sin;
     value += m.stripe_weight * squareWave(x, m.stripe_period, w);
   }
   if (m.noise_weight > 0.0f) {
@@ -80,7 +94,7 @@ V3 shade(const Material& m, const SurfacePoint& s, float footprint_m) {
       const float k = keep(kOctavePeriod[o], w);
       if (k <= 0.0f) continue;
       const float inv = 1.0f / kOctavePeriod[o];
-      n += k * kOctaveAmplitude[o] * gradientNoise(s.u * inv, s.v * inv, m.seed + 101u * static_cast<uint32_t>(o));
+      n += k * kOctaveAmplitude[o] * gradientNoise(s.u * inv, s.v * inv, m.seed + 211u * static_cast<uint32_t>(o));
     }
     value += m.noise_weight * n;
   }

@@ -16,7 +16,8 @@ struct Material {
   V3 color_b{0.9f, 0.9f, 0.9f};
   float checker_period = 0.0f;  // metres; 0 = no checker
   float stripe_period = 0.0f;   // metres; 0 = no stripes
-  float stripe_angle = 0.0f;    // radians
+  float stripe_cos = 1.0f;      // direction of the stripe wave
+  float stripe_sin = 0.0f;
   float checker_weight = 0.0f;
   float stripe_weight = 0.0f;
   float noise_weight = 0.6f;

@@ -31,7 +31,7 @@ class Scene {
   // The exact scene surface with colors: every surface a camera inside the
   // scene can see (faces resting on the floor or against a wall, and the floor
   // under objects, are left out), triangulated with vertices a scene-specific
-  // spacing apart (tabletop 1 cm, room 2 cm, corridor 3 cm). Planar faces are
+  // spacing apart (tabletop and room 2 cm, corridor 3 cm). Planar faces are
   // exact; curved ones are within 0.2 mm. Vertex colors are the texture of
   // render() (Noise::None) filtered at the vertex spacing.
   virtual Mesh groundTruthMesh() const = 0;
