@@ -79,11 +79,11 @@ __global__ void updateKernel(Voxel* pool, const BlockRef* blocks, FrameImages fr
   if (x == 0 && y == 0 && z == 0) empty[blockIdx.x] = occupied ? 0 : 1;
 }
 
-__global__ void raycastKernel(VolumeView vol, CameraView cam, float max_depth, RaycastPixel* out) {
+__global__ void raycastKernel(VolumeView vol, CameraView cam, TileDepthRanges ranges, float max_depth, RaycastPixel* out) {
   const int u = blockIdx.x * blockDim.x + threadIdx.x;
   const int v = blockIdx.y * blockDim.y + threadIdx.y;
   if (u >= cam.width || v >= cam.height) return;
-  out[v * cam.width + u] = raycastPixel(vol, cam, max_depth, u, v);
+  out[v * cam.width + u] = raycastPixel(vol, cam, ranges, max_depth, u, v);
 }
 
 class CudaBackend final : public VolumeBackend {
@@ -168,8 +168,14 @@ class CudaBackend final : public VolumeBackend {
   }
   const Voxel* hostPool() const override { return nullptr; }
 
-  void raycast(const std::vector<HashEntry>& table, uint64_t table_version, const CameraView& cam, float voxel_size,
-               float truncation, float max_depth, RaycastPixel* out) override {
+  void raycast(const std::vector<HashEntry>& table, uint64_t table_version, const CameraView& cam,
+               const TileDepthRanges& host_ranges, int tiles, float voxel_size, float truncation, float max_depth,
+               RaycastPixel* out) override {
+    range_near_.ensure(tiles);
+    range_far_.ensure(tiles);
+    check(cudaMemcpy(range_near_.data(), host_ranges.near, tiles * sizeof(float), cudaMemcpyHostToDevice), "ranges upload");
+    check(cudaMemcpy(range_far_.data(), host_ranges.far, tiles * sizeof(float), cudaMemcpyHostToDevice), "ranges upload");
+    const TileDepthRanges ranges{range_near_.data(), range_far_.data(), host_ranges.tiles_x, host_ranges.tile};
     if (table_version != mirrored_version_ || table_.size() != table.size()) {
       table_.resize(table.size(), false);
       check(cudaMemcpy(table_.data(), table.data(), table.size() * sizeof(HashEntry), cudaMemcpyHostToDevice),
@@ -180,14 +186,14 @@ class CudaBackend final : public VolumeBackend {
     image_.ensure(pixels);
     const VolumeView vol{{table_.data(), static_cast<uint32_t>(table.size() - 1)}, pool_.data(), voxel_size, truncation};
     const dim3 threads(16, 16), grid((cam.width + 15) / 16, (cam.height + 15) / 16);
-    raycastKernel<<<grid, threads>>>(vol, cam, max_depth, image_.data());
+    raycastKernel<<<grid, threads>>>(vol, cam, ranges, max_depth, image_.data());
     check(cudaGetLastError(), "raycast launch");
     check(cudaMemcpy(out, image_.data(), pixels * sizeof(RaycastPixel), cudaMemcpyDeviceToHost), "raycast download");
   }
 
  private:
   DeviceArray<Voxel> pool_;
-  DeviceArray<float> depth_, weights_;
+  DeviceArray<float> depth_, weights_, range_near_, range_far_;
   DeviceArray<uint8_t> color_, empty_;
   DeviceArray<BlockCoord> candidates_;
   DeviceArray<BlockRef> refs_;

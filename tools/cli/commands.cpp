@@ -1,7 +1,5 @@
 #include "commands.hpp"
 
-#include "rekon/eval/eval_command.hpp"
-
 #include "rekon/tracker/odometry_command.hpp"
 
 #include "rekon/synth/synth.hpp"
@@ -10,7 +8,6 @@ namespace rekon {
 
 const std::vector<Command>& commands() {
   static const std::vector<Command> table = {
-      {"eval", "trajectory (ATE, RPE) and surface (CORR, COMPL) errors against ground truth", &eval::evalCommand},
       {"odometry", "dense RGB-D odometry (DVO) in-process on a dataset; writes a TUM trajectory", tracker::odometryMain},
       {"synth", "write a synthetic RGB-D sequence with exact ground truth", &synth::synthCommand},
   };

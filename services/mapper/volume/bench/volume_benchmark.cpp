@@ -4,6 +4,8 @@
 //   rekon_volume_benchmark [--dataset DIR] [--frames N] [--backend auto|cpu|cuda]
 #include <spdlog/spdlog.h>
 
+#include <sys/resource.h>
+
 #include <chrono>
 #include <cstdio>
 
@@ -17,6 +19,13 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 double msSince(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
+// CPU time of all threads (ms): with other processes on the machine, wall time
+// varies run to run, CPU time much less; ideal wall time is CPU time / cores.
+double cpuMs() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return (u.ru_utime.tv_sec + u.ru_stime.tv_sec) * 1e3 + (u.ru_utime.tv_usec + u.ru_stime.tv_usec) * 1e-3;
+}
 
 struct Frame {
   cv::Mat depth, color;
@@ -31,7 +40,8 @@ int main(int argc, char** argv) try {
   args.option("dataset", "TUM-layout dataset with groundtruth.txt", REKON_DEFAULT_DATASET)
       .option("frames", "frames to use (0 = all)", "0")
       .option("backend", "auto, cpu or cuda", "auto")
-      .option("threads", "CPU threads (0 = all)", "0");
+      .option("threads", "CPU threads (0 = all)", "0")
+      .option("stride", "allocation pixel stride", std::to_string(rekon::volume::VolumeParams::kDefaultAllocationStride));
   if (!args.parse(argc, argv)) return 0;
   rekon::DatasetOptions options;
   options.max_frames = args.getInt("frames");
@@ -51,11 +61,18 @@ int main(int argc, char** argv) try {
   rekon::volume::VolumeParams params;  // voxel 1 cm, truncation 4 cm, max depth 4 m
   params.backend = args.get("backend");
   params.cpu_threads = args.getInt("threads");
+  params.allocation_stride = args.getInt("stride");
   rekon::volume::TsdfVolume volume(params);
 
   auto t = Clock::now();
-  for (const Frame& f : frames) volume.integrate(f.depth, f.color, cv::Mat(), k, f.pose);
+  double cpu = cpuMs();
+  int64_t updated_blocks = 0;
+  for (const Frame& f : frames) {
+    volume.integrate(f.depth, f.color, cv::Mat(), k, f.pose);
+    updated_blocks += volume.stats().last_update_blocks;
+  }
   const double integrate_ms = msSince(t) / frames.size();
+  const double integrate_cpu_ms = (cpuMs() - cpu) / frames.size();
   const rekon::volume::VolumeStats s = volume.stats();
 
   t = Clock::now();
@@ -63,18 +80,29 @@ int main(int argc, char** argv) try {
   const double mesh_s = msSince(t) / 1000.0;
 
   t = Clock::now();
+  cpu = cpuMs();
   const rekon::volume::RaycastImages ray = volume.raycast(k, frames.front().pose);
-  const double raycast_ms = msSince(t);
+  const double raycast_ms = msSince(t), raycast_cpu_ms = cpuMs() - cpu;
+  int hits = 0;
+  for (int v = 0; v < ray.depth.rows; ++v) {
+    for (int u = 0; u < ray.depth.cols; ++u) hits += ray.depth.at<float>(v, u) > 0.f;
+  }
 
   // De-integrate in reverse order: the volume must end empty.
   t = Clock::now();
+  cpu = cpuMs();
   for (auto it = frames.rbegin(); it != frames.rend(); ++it) volume.deintegrate(it->depth, it->color, cv::Mat(), k, it->pose);
   const double deintegrate_ms = msSince(t) / frames.size();
+  const double deintegrate_cpu_ms = (cpuMs() - cpu) / frames.size();
 
-  std::printf("dataset=%s frames=%zu backend=%s voxel=%.3f truncation=%.3f max_depth=%.1f\n", args.get("dataset").c_str(),
-              frames.size(), s.backend.c_str(), params.voxel_size, params.truncation, params.max_depth);
+  std::printf("dataset=%s frames=%zu backend=%s voxel=%.3f truncation=%.3f max_depth=%.1f allocation_stride=%d\n",
+              args.get("dataset").c_str(), frames.size(), s.backend.c_str(), params.voxel_size, params.truncation,
+              params.max_depth, params.allocation_stride);
   std::printf("integrate_ms_per_frame=%.2f deintegrate_ms_per_frame=%.2f mesh_s=%.3f raycast_ms=%.1f\n", integrate_ms,
               deintegrate_ms, mesh_s, raycast_ms);
+  std::printf("raycast_cpu_ms=%.1f raycast_hit_pixels=%d\n", raycast_cpu_ms, hits);
+  std::printf("integrate_cpu_ms_per_frame=%.2f deintegrate_cpu_ms_per_frame=%.2f (all threads) blocks_per_frame=%.0f\n",
+              integrate_cpu_ms, deintegrate_cpu_ms, static_cast<double>(updated_blocks) / frames.size());
   std::printf("blocks=%lld peak_active=%lld mesh_vertices=%zu mesh_triangles=%zu bytes_per_voxel=%d "
               "voxel_memory_mib=%.1f blocks_after_deintegration=%lld\n",
               static_cast<long long>(s.blocks), static_cast<long long>(s.peak_active_blocks), mesh.vertices.size(),

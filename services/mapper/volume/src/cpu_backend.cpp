@@ -28,9 +28,11 @@ class CpuBackend final : public VolumeBackend {
                          std::vector<BlockCoord>& out) override {
     const int rows = (frame_.height + stride - 1) / stride;
     std::vector<std::vector<BlockCoord>> per_worker(parallelWorkers());
+    std::vector<std::vector<BlockCoord>> recent_per_worker(parallelWorkers());
     parallelFor(rows, kRowsPerChunk, threads_, [&](int begin, int end, int worker) {
       auto& found = per_worker[worker];
-      std::vector<BlockCoord> recent(kRecentBlocks, BlockCoord{INT_MIN, INT_MIN, INT_MIN});
+      auto& recent = recent_per_worker[worker];
+      if (recent.empty()) recent.assign(kRecentBlocks, BlockCoord{INT_MIN, INT_MIN, INT_MIN});
       auto emit = [&](BlockCoord c) {
         BlockCoord& slot = recent[hashBlock(c) & (kRecentBlocks - 1)];
         if (slot == c) return;
@@ -83,11 +85,12 @@ class CpuBackend final : public VolumeBackend {
   const Voxel* hostPool() const override { return pool_.data(); }
 
   void raycast(const std::vector<HashEntry>& table, uint64_t /*table_version*/, const CameraView& cam,
-               float voxel_size, float truncation, float max_depth, RaycastPixel* out) override {
+               const TileDepthRanges& ranges, int /*tiles*/, float voxel_size, float truncation, float max_depth,
+               RaycastPixel* out) override {
     const VolumeView vol{{table.data(), static_cast<uint32_t>(table.size() - 1)}, pool_.data(), voxel_size, truncation};
     parallelFor(cam.height, kRowsPerChunk, threads_, [&](int begin, int end, int) {
       for (int v = begin; v < end; ++v) {
-        for (int u = 0; u < cam.width; ++u) out[v * cam.width + u] = raycastPixel(vol, cam, max_depth, u, v);
+        for (int u = 0; u < cam.width; ++u) out[v * cam.width + u] = raycastPixel(vol, cam, ranges, max_depth, u, v);
       }
     });
   }

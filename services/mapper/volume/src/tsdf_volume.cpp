@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <opencv2/core.hpp>
 #include <thread>
 #include <tuple>
@@ -117,6 +118,7 @@ void TsdfVolume::update(const cv::Mat& depth_m, const cv::Mat& color, const cv::
   const std::vector<BlockRef> blocks = resolveBandBlocks(candidates, sign > 0);
   std::vector<uint8_t> empty;
   const FrameUpdateReport report = backend_->updateBlocks(cam, settings, blocks, sign, empty);
+  last_update_blocks_ = static_cast<int64_t>(blocks.size());
   for (size_t i = 0; i < blocks.size(); ++i) {
     if (empty[i]) releaseSlot(blocks[i].slot);
   }
@@ -323,8 +325,53 @@ Mesh TsdfVolume::extractMesh() const {
 RaycastImages TsdfVolume::raycast(const Intrinsics& k, const Pose& camera_to_world) const {
   requireValidPose(camera_to_world, "volume raycast camera_to_world");
   k.validate("volume raycast");
+  const CameraView cam = cameraView(k, camera_to_world);
+  // Depth range per tile from the projections of the active blocks' corners.
+  constexpr int kTile = 8;
+  const int tiles_x = (k.width + kTile - 1) / kTile, tiles_y = (k.height + kTile - 1) / kTile;
+  std::vector<float> near(tiles_x * tiles_y, std::numeric_limits<float>::max()), far(tiles_x * tiles_y, 0.f);
+  const float side = static_cast<float>(kBlockSide * params_.voxel_size);
+  for (size_t s = 0; s < slot_used_.size(); ++s) {
+    if (!slot_used_[s]) continue;
+    const BlockCoord& c = slot_coord_[s];
+    float z_min = std::numeric_limits<float>::max(), z_max = 0.f, u_min = 1e9f, u_max = -1e9f, v_min = 1e9f, v_max = -1e9f;
+    bool behind = false;
+    for (int corner = 0; corner < 8; ++corner) {
+      const Vec3f p = worldToCamera(cam, {(c.x + (corner & 1)) * side, (c.y + ((corner >> 1) & 1)) * side,
+                                          (c.z + ((corner >> 2) & 1)) * side});
+      z_min = std::min(z_min, p.z);
+      z_max = std::max(z_max, p.z);
+      if (p.z <= 1e-3f) {
+        behind = true;
+        continue;
+      }
+      const float u = cam.fx * p.x / p.z + cam.cx, v = cam.fy * p.y / p.z + cam.cy;
+      u_min = std::min(u_min, u);
+      u_max = std::max(u_max, u);
+      v_min = std::min(v_min, v);
+      v_max = std::max(v_max, v);
+    }
+    if (z_max <= 1e-3f) continue;  // wholly behind the camera
+    if (behind) {                   // straddles the camera plane: may cover any pixel
+      u_min = v_min = -1e9f;
+      u_max = v_max = 1e9f;
+      z_min = 0.f;
+    }
+    const int tx0 = std::max(0, static_cast<int>(std::floor(u_min)) / kTile);
+    const int tx1 = std::min(tiles_x - 1, static_cast<int>(std::min(u_max, 1e8f)) / kTile);
+    const int ty0 = std::max(0, static_cast<int>(std::floor(v_min)) / kTile);
+    const int ty1 = std::min(tiles_y - 1, static_cast<int>(std::min(v_max, 1e8f)) / kTile);
+    if (u_max < 0.f || v_max < 0.f) continue;
+    for (int ty = ty0; ty <= ty1; ++ty) {
+      for (int tx = tx0; tx <= tx1; ++tx) {
+        near[ty * tiles_x + tx] = std::min(near[ty * tiles_x + tx], z_min);
+        far[ty * tiles_x + tx] = std::max(far[ty * tiles_x + tx], z_max);
+      }
+    }
+  }
+  const TileDepthRanges ranges{near.data(), far.data(), tiles_x, kTile};
   std::vector<RaycastPixel> pixels(static_cast<size_t>(k.width) * k.height);
-  backend_->raycast(table_, table_version_, cameraView(k, camera_to_world), static_cast<float>(params_.voxel_size),
+  backend_->raycast(table_, table_version_, cam, ranges, tiles_x * tiles_y, static_cast<float>(params_.voxel_size),
                     static_cast<float>(params_.truncation), static_cast<float>(params_.max_depth), pixels.data());
   RaycastImages out;
   out.depth.create(k.height, k.width, CV_32FC1);
@@ -350,6 +397,7 @@ VolumeStats TsdfVolume::stats() const {
   s.block_capacity = static_cast<int64_t>(slot_used_.size());
   s.streamed_out = streamed_out_;
   s.streamed_in = streamed_in_;
+  s.last_update_blocks = last_update_blocks_;
   s.backend = backend_name_;
   return s;
 }

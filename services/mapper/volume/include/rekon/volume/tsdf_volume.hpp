@@ -55,6 +55,7 @@ struct VolumeStats {
   int64_t block_capacity = 0;
   int64_t streamed_out = 0;  // blocks moved active -> host store, in total
   int64_t streamed_in = 0;   // blocks moved host store -> active, in total
+  int64_t last_update_blocks = 0;  // blocks the last (de-)integration updated
   int bytes_per_voxel = static_cast<int>(sizeof(Voxel));
   std::string backend;
 };
@@ -134,6 +135,7 @@ class TsdfVolume {
   int64_t peak_active_blocks_ = 0;
   int64_t streamed_out_ = 0;
   int64_t streamed_in_ = 0;
+  int64_t last_update_blocks_ = 0;
   HostStore host_store_;
 };
 

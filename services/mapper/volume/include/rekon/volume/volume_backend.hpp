@@ -51,10 +51,11 @@ class VolumeBackend {
   virtual const Voxel* hostPool() const = 0;
 
   // Ray casts the active volume; `table` is the host hash table (the CUDA
-  // backend mirrors it when `table_version` changed). Outputs are host arrays
-  // of width*height pixels.
+  // backend mirrors it when `table_version` changed); `host_ranges` holds
+  // `tiles` host entries. Outputs are host arrays of width*height pixels.
   virtual void raycast(const std::vector<HashEntry>& table, uint64_t table_version, const CameraView& cam,
-                       float voxel_size, float truncation, float max_depth, RaycastPixel* out) = 0;
+                       const TileDepthRanges& host_ranges, int tiles, float voxel_size, float truncation,
+                       float max_depth, RaycastPixel* out) = 0;
 };
 
 std::unique_ptr<VolumeBackend> makeCpuBackend(int threads);

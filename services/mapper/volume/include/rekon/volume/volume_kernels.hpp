@@ -163,12 +163,10 @@ REKON_HD inline Observation observe(const FrameImages& f, const CameraView& cam,
 
 enum UpdateStatus : int { kUpdated = 0, kWeightOverflow = 1, kWeightUnderflow = 2 };
 
-REKON_HD inline uint8_t blendChannel(uint8_t old_value, uint32_t old_weight, int sample, int64_t signed_weight,
-                                     uint32_t new_weight) {
-  const int64_t num = static_cast<int64_t>(old_value) * old_weight + static_cast<int64_t>(sample) * signed_weight;
-  if (num <= 0) return 0;
-  const int64_t avg = (num + new_weight / 2) / new_weight;
-  return static_cast<uint8_t>(avg > 255 ? 255 : avg);
+REKON_HD inline uint8_t blendChannel(uint8_t old_value, double old_weight, int sample, double signed_weight,
+                                     double inv_new_weight) {
+  const double avg = (old_value * old_weight + sample * signed_weight) * inv_new_weight + 0.5;
+  return static_cast<uint8_t>(avg <= 0.0 ? 0.0 : (avg >= 255.0 ? 255.0 : avg));
 }
 
 // Adds (sign = +1) or removes (sign = -1) one observation: the weighted running
@@ -182,10 +180,13 @@ REKON_HD inline int applyObservation(Voxel& v, const Observation& o, const uint8
   const int64_t sw = sign > 0 ? static_cast<int64_t>(o.weight) : -static_cast<int64_t>(o.weight);
   const uint32_t new_weight = sign > 0 ? v.weight + o.weight : v.weight - o.weight;
   if (o.pixel >= 0 && new_weight > 0u) {
+    // One division per voxel: integer division of 64-bit sums costs more
+    // than the rest of the update together.
     const uint8_t* c = bgr + 3 * o.pixel;
-    v.r = blendChannel(v.r, v.weight, c[2], sw, new_weight);
-    v.g = blendChannel(v.g, v.weight, c[1], sw, new_weight);
-    v.b = blendChannel(v.b, v.weight, c[0], sw, new_weight);
+    const double old_weight = v.weight, inv = 1.0 / new_weight, w = static_cast<double>(sw);
+    v.r = blendChannel(v.r, old_weight, c[2], w, inv);
+    v.g = blendChannel(v.g, old_weight, c[1], w, inv);
+    v.b = blendChannel(v.b, old_weight, c[0], w, inv);
   }
   v.sdf_sum += static_cast<int32_t>(sw) * o.sdf;
   v.weight = new_weight;
@@ -311,15 +312,24 @@ REKON_HD inline float voxelSdf(const Voxel& v, float truncation) {
 }
 
 // Trilinear signed distance (metres) at world point p; false when any of the
-// eight surrounding voxels is unobserved.
+// eight surrounding voxels is unobserved or its block absent.
 REKON_HD inline bool sampleSdf(const VolumeView& vol, Vec3f p, float& sdf) {
   const Vec3f g = (1.f / vol.voxel_size) * p;
   const int x0 = static_cast<int>(floorf(g.x)), y0 = static_cast<int>(floorf(g.y)), z0 = static_cast<int>(floorf(g.z));
   const float fx = g.x - x0, fy = g.y - y0, fz = g.z - z0;
+  const BlockCoord bc{floorDiv(x0, kBlockSide), floorDiv(y0, kBlockSide), floorDiv(z0, kBlockSide)};
+  const int lx = x0 - bc.x * kBlockSide, ly = y0 - bc.y * kBlockSide, lz = z0 - bc.z * kBlockSide;
+  // Most samples have all eight corners in one block: one hash look-up.
+  const Voxel* block = nullptr;
+  if (lx < kBlockSide - 1 && ly < kBlockSide - 1 && lz < kBlockSide - 1) {
+    const int32_t slot = findBlock(vol.table, bc);
+    if (slot == kEmptySlot) return false;
+    block = vol.pool + static_cast<int64_t>(slot) * kBlockVoxels;
+  }
   float acc = 0.f;
   for (int c = 0; c < 8; ++c) {
     const int ox = c & 1, oy = (c >> 1) & 1, oz = (c >> 2) & 1;
-    const Voxel* v = voxelAt(vol, x0 + ox, y0 + oy, z0 + oz);
+    const Voxel* v = block ? block + localIndex(lx + ox, ly + oy, lz + oz) : voxelAt(vol, x0 + ox, y0 + oy, z0 + oz);
     if (v == nullptr || v->weight == 0u) return false;
     const float w = (ox ? fx : 1.f - fx) * (oy ? fy : 1.f - fy) * (oz ? fz : 1.f - fz);
     acc += w * voxelSdf(*v, vol.truncation);
@@ -328,30 +338,71 @@ REKON_HD inline bool sampleSdf(const VolumeView& vol, Vec3f p, float& sdf) {
   return true;
 }
 
+// Ray parameter at which the ray leaves the block containing origin + t * dir.
+REKON_HD inline float blockExit(const VolumeView& vol, Vec3f origin, Vec3f dir, float t) {
+  const float side = kBlockSide * vol.voxel_size;
+  const Vec3f p = origin + t * dir;
+  float exit = 1e30f;
+  const float o[3] = {origin.x, origin.y, origin.z}, d[3] = {dir.x, dir.y, dir.z}, q[3] = {p.x, p.y, p.z};
+  for (int a = 0; a < 3; ++a) {
+    if (d[a] == 0.f) continue;
+    // Voxel lattice points sit at multiples of voxel_size, so block b covers
+    // [b * side, (b + 1) * side) in lattice terms, shifted by half a voxel for sampling.
+    const float cell = floorf(q[a] / side);
+    const float boundary = (d[a] > 0.f ? cell + 1.f : cell) * side;
+    const float ta = (boundary - o[a]) / d[a];
+    exit = ta < exit ? ta : exit;
+  }
+  return exit;
+}
+
 struct RaycastPixel {
   float depth;  // along the camera z axis; 0 = no surface
   Vec3f normal; // world frame, unit; zero without a surface
   uint8_t b, g, r;
 };
 
-// Marches the ray of pixel (u, v) from the camera to max_depth and returns the
-// first zero crossing from positive (free) to negative (behind the surface).
-REKON_HD inline RaycastPixel raycastPixel(const VolumeView& vol, const CameraView& cam, float max_depth, int u, int v) {
+// Camera-depth interval per square image tile that contains every allocated
+// block projecting into the tile (InfiniTAM's min/max depth image): rays
+// march only there.
+struct TileDepthRanges {
+  const float* near;  // per tile; near > far when no block projects there
+  const float* far;
+  int tiles_x;
+  int tile;  // pixels per tile side
+};
+
+// Marches the ray of pixel (u, v) through its tile's depth range (at most
+// max_depth) and returns the first zero crossing from positive (free space)
+// to negative (behind the surface).
+REKON_HD inline RaycastPixel raycastPixel(const VolumeView& vol, const CameraView& cam, const TileDepthRanges& ranges,
+                                          float max_depth, int u, int v) {
   RaycastPixel out{0.f, {0.f, 0.f, 0.f}, 0, 0, 0};
+  const int tile = (v / ranges.tile) * ranges.tiles_x + u / ranges.tile;
+  const float z_near = ranges.near[tile], z_far = ranges.far[tile] < max_depth ? ranges.far[tile] : max_depth;
+  if (z_near > z_far) return out;
   const Vec3f ray_cam{(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, 1.f};
   const float ray_len = sqrtf(dot(ray_cam, ray_cam));
   const Vec3f dir = (1.f / ray_len) * cameraDirectionToWorld(cam, ray_cam);
   const Vec3f origin = cameraCentre(cam);
-  const float t_max = max_depth * ray_len;
+  const float t_max = z_far * ray_len;
   const float min_step = vol.voxel_size * 0.5f;
-  float t = vol.voxel_size;
+  float t = z_near * ray_len > vol.voxel_size ? z_near * ray_len : vol.voxel_size;
   float prev_t = 0.f, prev_sdf = 0.f;
   bool have_prev = false;
   while (t < t_max) {
     float sdf;
     if (!sampleSdf(vol, origin + t * dir, sdf)) {
+      // Unobserved here: if the whole block is absent skip to its far side,
+      // else move half a truncation on, which cannot jump over the observed
+      // positive half of a surface's band (a full truncation deep).
       have_prev = false;
-      t += vol.truncation * 0.5f;  // unobserved space: jump within the band's width
+      const Vec3f p = origin + t * dir;
+      const Vec3f g = (1.f / vol.voxel_size) * p;
+      const BlockCoord bc{floorDiv(static_cast<int>(floorf(g.x)), kBlockSide), floorDiv(static_cast<int>(floorf(g.y)), kBlockSide),
+                          floorDiv(static_cast<int>(floorf(g.z)), kBlockSide)};
+      const float exit = blockExit(vol, origin, dir, t);
+      t = findBlock(vol.table, bc) == kEmptySlot && exit > t ? exit + 1e-4f : t + 0.5f * vol.truncation;
       continue;
     }
     if (have_prev && prev_sdf > 0.f && sdf <= 0.f) {
