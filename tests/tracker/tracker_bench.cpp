@@ -3,8 +3,12 @@
 // frames, and ATE / RPE against the dataset's ground truth. Prints numbers;
 // asserts nothing.
 //   tracker_bench DATASET [FRAMES] [tracker.key=value ...]
+#include <time.h>
+
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
 #include <iostream>
 #include <string>
 #include <vector>
@@ -41,18 +45,48 @@ int main(int argc, char** argv) {
     rekon::Trajectory trajectory;
     int lost = 0;
     double worst_ms = 0.0;
+    // CPU time of this thread as well as wall time: other processes on a
+    // shared machine inflate the wall time but not the thread's own CPU time.
+    auto cpuSeconds = [] {
+      timespec ts{};
+      clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+      return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
+    };
+    long long iterations = 0;
+    std::vector<double> sigma_i, sigma_z, ratios;
+    const double cpu0 = cpuSeconds();
     const auto t0 = std::chrono::steady_clock::now();
     for (const auto& f : frames) {
       const auto a = std::chrono::steady_clock::now();
       const auto r = tracker.track(f, dataset.intrinsics());
       worst_ms = std::max(worst_ms, std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - a).count());
+      iterations += r.iterations;
+      if (r.state == rekon::tracker::TrackingState::Ok && r.iterations > 0) {
+        sigma_i.push_back(r.intensity_sigma);
+        sigma_z.push_back(r.depth_sigma);
+        ratios.push_back(r.entropy_ratio);
+      }
       lost += r.state == rekon::tracker::TrackingState::Lost;
       trajectory.push_back({f.timestamp, r.pose_world});
     }
     const double ms =
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count() / frames.size();
-    std::printf("frames=%zu keyframes=%lld lost=%d ms_per_frame=%.2f worst_ms=%.2f load_ms_per_frame=%.2f\n",
-                frames.size(), static_cast<long long>(tracker.keyframeCount()), lost, ms, worst_ms, load_ms);
+    const double cpu_ms = 1e3 * (cpuSeconds() - cpu0) / frames.size();
+    std::printf(
+        "frames=%zu keyframes=%lld lost=%d ms_per_frame=%.2f cpu_ms_per_frame=%.2f worst_ms=%.2f "
+        "iterations_per_frame=%.1f load_ms_per_frame=%.2f\n",
+        frames.size(), static_cast<long long>(tracker.keyframeCount()), lost, ms, cpu_ms, worst_ms,
+        static_cast<double>(iterations) / frames.size(), load_ms);
+    auto percentile = [](std::vector<double> v, double q) {
+      if (v.empty()) return 0.0;
+      std::sort(v.begin(), v.end());
+      return v[static_cast<size_t>(q * (v.size() - 1))];
+    };
+    std::printf("intensity_sigma median=%.4f p99=%.4f max=%.4f  depth_sigma median=%.4f p99=%.4f max=%.4f\n",
+                percentile(sigma_i, 0.5), percentile(sigma_i, 0.99), percentile(sigma_i, 1.0),
+                percentile(sigma_z, 0.5), percentile(sigma_z, 0.99), percentile(sigma_z, 1.0));
+    std::printf("entropy_ratio min=%.3f p01=%.3f median=%.3f\n", percentile(ratios, 0.0), percentile(ratios, 0.01),
+                percentile(ratios, 0.5));
     if (dataset.hasGroundTruth()) {
       const auto e = rekon::tracker::test::compareTrajectories(trajectory, dataset.groundTruth());
       std::printf("matched=%d ate_rmse_cm=%.2f rpe_trans_cm_per_s=%.2f rpe_rot_deg_per_s=%.2f path_m=%.2f\n",

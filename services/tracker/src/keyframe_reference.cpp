@@ -1,5 +1,6 @@
 #include "rekon/tracker/keyframe_reference.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <string>
 
@@ -31,6 +32,26 @@ void selectLevel(const PyramidLevel& src, const AlignerParams& p, KeyframeRefere
   const float max_step = static_cast<float>(2.0 * p.max_depth_step);
   const float* I = src.intensity.data();
   const float* D = src.depth.data();
+  // With a pixel budget, raise the gradient threshold to the budget's
+  // quantile: the strongest gradients carry most of the information.
+  float grad2_threshold = min_grad2;
+  if (p.max_pixels_per_level > 0) {
+    std::vector<float> grad2;
+    grad2.reserve(static_cast<size_t>(w) * h);
+    for (int y = 1; y < h - 1; ++y) {
+      for (int x = 1; x < w - 1; ++x) {
+        const int o = y * w + x;
+        if (std::isnan(D[o])) continue;
+        const float gx = 0.5f * (I[o + 1] - I[o - 1]), gy = 0.5f * (I[o + w] - I[o - w]);
+        if (gx * gx + gy * gy >= min_grad2) grad2.push_back(gx * gx + gy * gy);
+      }
+    }
+    const auto budget = static_cast<size_t>(p.max_pixels_per_level);
+    if (grad2.size() > budget) {
+      std::nth_element(grad2.begin(), grad2.begin() + (grad2.size() - budget), grad2.end());
+      grad2_threshold = std::max(min_grad2, grad2[grad2.size() - budget]);
+    }
+  }
   out.k = k;
   out.points.clear();
   out.jacobians.clear();
@@ -45,7 +66,7 @@ void selectLevel(const PyramidLevel& src, const AlignerParams& p, KeyframeRefere
       const float zgx = 0.5f * (zr - zl), zgy = 0.5f * (zd - zu);
       if (std::abs(zgx) > max_step * z || std::abs(zgy) > max_step * z) continue;
       const float gx = 0.5f * (I[o + 1] - I[o - 1]), gy = 0.5f * (I[o + w] - I[o - w]);
-      if (gx * gx + gy * gy < min_grad2) continue;
+      if (gx * gx + gy * gy < grad2_threshold) continue;
       const float px = (static_cast<float>(x) - cx) * z / fx;
       const float py = (static_cast<float>(y) - cy) * z / fy;
       out.points.insert(out.points.end(), {px, py, z, I[o]});

@@ -22,6 +22,8 @@ void AlignerParams::validate() const {
   require(std::isfinite(convergence_step) && convergence_step > 0, "convergence_step", convergence_step, "positive");
   require(std::isfinite(t_dof) && t_dof > 0, "t_dof", t_dof, "positive");
   require(std::isfinite(min_gradient) && min_gradient >= 0, "min_gradient", min_gradient, "zero or positive");
+  require(max_pixels_per_level == 0 || max_pixels_per_level >= min_valid_pixels, "max_pixels_per_level",
+          max_pixels_per_level, "0 (no budget) or at least min_valid_pixels");
   require(std::isfinite(min_depth) && min_depth > 0, "min_depth", min_depth, "positive");
   require(std::isfinite(max_depth) && max_depth > min_depth, "max_depth", max_depth, "greater than min_depth");
   require(std::isfinite(max_depth_step) && max_depth_step > 0, "max_depth_step", max_depth_step, "positive");
@@ -51,6 +53,8 @@ void LostParams::validate() const {
           max_frame_rotation_deg, "positive");
   require(std::isfinite(max_intensity_sigma) && max_intensity_sigma > 0, "lost_max_intensity_sigma",
           max_intensity_sigma, "positive");
+  require(std::isfinite(max_depth_sigma) && max_depth_sigma > 0, "lost_max_depth_sigma", max_depth_sigma,
+          "positive");
   require(max_lost_frames >= 1, "lost_max_frames", max_lost_frames, "at least 1");
 }
 
@@ -68,6 +72,7 @@ TrackerParams trackerParamsFromConfig(const Config& c) {
   p.aligner.convergence_step = c.getDouble("tracker.convergence_step");
   p.aligner.t_dof = c.getDouble("tracker.t_dof");
   p.aligner.min_gradient = c.getDouble("tracker.min_gradient");
+  p.aligner.max_pixels_per_level = c.getInt("tracker.max_pixels_per_level");
   p.aligner.min_depth = c.getDouble("tracker.min_depth");
   p.aligner.max_depth = c.getDouble("tracker.max_depth");
   p.aligner.max_depth_step = c.getDouble("tracker.max_depth_step");
@@ -83,6 +88,7 @@ TrackerParams trackerParamsFromConfig(const Config& c) {
   p.lost.max_frame_translation = c.getDouble("tracker.lost_max_frame_translation");
   p.lost.max_frame_rotation_deg = c.getDouble("tracker.lost_max_frame_rotation_deg");
   p.lost.max_intensity_sigma = c.getDouble("tracker.lost_max_intensity_sigma");
+  p.lost.max_depth_sigma = c.getDouble("tracker.lost_max_depth_sigma");
   p.lost.max_lost_frames = c.getInt("tracker.lost_max_frames");
   p.validate();
   return p;

@@ -87,6 +87,9 @@ TrackResult Tracker::track(const RgbdFrame& frame, const Intrinsics& k) {
     r.entropy = aligned.entropy;
     r.valid_pixels = aligned.valid_pixels;
     r.iterations = aligned.iterations;
+    r.intensity_sigma = aligned.intensity_sigma;
+    r.depth_sigma = aligned.depth_sigma;
+    if (reference_entropy_ && aligned.valid) r.entropy_ratio = aligned.entropy / *reference_entropy_;
     const Pose correction = prediction.inverse() * aligned.pose;
     if (!aligned.valid)
       reason = LostReason::AlignmentFailed;
@@ -95,7 +98,7 @@ TrackResult Tracker::track(const RgbdFrame& frame, const Intrinsics& k) {
     else if (correction.translation().norm() > lp.max_frame_translation ||
              rotationAngleOf(correction) > radians(lp.max_frame_rotation_deg))
       reason = LostReason::JumpBeyondBasin;
-    else if (aligned.intensity_sigma > lp.max_intensity_sigma)
+    else if (aligned.intensity_sigma > lp.max_intensity_sigma || aligned.depth_sigma > lp.max_depth_sigma)
       reason = LostReason::LargeResidual;
   }
 

@@ -56,7 +56,7 @@ class DenseAligner {
   void accumulate(const KeyframeReference::Level& ref, int n, const Scale& scale, Matrix6d& h, Vector6d& b);
 
   AlignerParams params_;
-  std::vector<float> res_i_, res_z_, weight_;
+  std::vector<float> res_i_, res_z_, weight_, block_;
   std::vector<int> index_;
 };
 

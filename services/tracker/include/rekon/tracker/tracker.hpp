@@ -73,6 +73,8 @@ struct TrackResult {
   double entropy_ratio = 1.0;                   // H(kf, t) / H(kf, kf+1)
   int valid_pixels = 0;
   int iterations = 0;
+  double intensity_sigma = 0.0;  // robust residual scales of the alignment
+  double depth_sigma = 0.0;
 };
 
 class Tracker {

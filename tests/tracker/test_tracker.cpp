@@ -1,0 +1,193 @@
+// The tracker on rendered sequences: keyframes, lost frames and recovery.
+#include <gtest/gtest.h>
+
+#include <numbers>
+
+#include "rekon/common/config.hpp"
+#include "rekon/common/error.hpp"
+#include "rekon/tracker/tracker.hpp"
+#include "synthetic_views.hpp"
+#include "trajectory_metrics.hpp"
+
+namespace rekon::tracker {
+namespace {
+
+constexpr double kDeg = std::numbers::pi / 180.0;
+
+class TrackerTest : public ::testing::Test {
+ protected:
+  test::RoomViews room;
+  Trajectory truth = room.trajectory(12);
+  RgbdFrame frameAt(int i) const { return room.render(truth[i].pose, synth::Noise::None, i); }
+  // The tracker puts the first keyframe at the origin.
+  Pose truthFromFirst(int i) const { return truth[0].pose.inverse() * truth[i].pose; }
+  double errorM(const TrackResult& r, int i) const { return translationDistance(r.pose_world, truthFromFirst(i)); }
+
+  static void expectSafePose(const TrackResult& r) {
+    EXPECT_TRUE(isValidPose(r.pose_in_keyframe));
+    EXPECT_TRUE(isValidPose(r.pose_world));
+    EXPECT_TRUE(r.covariance.allFinite());
+  }
+
+  // Tracks frames 0..3, then `bad` as frame 4, then frames 5 and 6; expects
+  // frame 4 lost for `reason` and frames 5 and 6 back on track.
+  void expectLostThenRecovered(const RgbdFrame& bad, LostReason reason) {
+    Tracker tracker;
+    for (int i = 0; i < 4; ++i) ASSERT_EQ(tracker.track(frameAt(i), room.intrinsics()).state, TrackingState::Ok);
+    const TrackResult lost = tracker.track(bad, room.intrinsics());
+    EXPECT_EQ(lost.state, TrackingState::Lost);
+    if (reason != LostReason::None) {
+      EXPECT_EQ(lost.lost_reason, reason) << toString(lost.lost_reason);
+    }
+    expectSafePose(lost);
+    // The last good pose is published for the lost frame.
+    EXPECT_LT(errorM(lost, 3), 0.003);
+    for (int i = 5; i < 7; ++i) {
+      const TrackResult r = tracker.track(frameAt(i), room.intrinsics());
+      EXPECT_EQ(r.state, TrackingState::Ok) << "frame " << i;
+      expectSafePose(r);
+      // Re-initialised from the last good keyframe: back within 3 mm.
+      EXPECT_LT(errorM(r, i), 0.003) << "frame " << i;
+    }
+  }
+};
+
+TEST_F(TrackerTest, FirstFrameStartsKeyframeZeroAtTheOrigin) {
+  Tracker tracker;
+  const TrackResult r = tracker.track(frameAt(0), room.intrinsics());
+  EXPECT_EQ(r.state, TrackingState::Ok);
+  EXPECT_TRUE(r.new_keyframe);
+  EXPECT_EQ(r.keyframe_id, 0);
+  EXPECT_FALSE(r.odometry.has_value());
+  EXPECT_TRUE(r.pose_world.isApprox(Pose::Identity()));
+}
+
+TEST_F(TrackerTest, TracksARenderedSequenceWithin2mm) {
+  Tracker tracker;
+  for (int i = 0; i < 10; ++i) {
+    const TrackResult r = tracker.track(frameAt(i), room.intrinsics());
+    ASSERT_EQ(r.state, TrackingState::Ok) << "frame " << i << ": " << toString(r.lost_reason);
+    // Noise-free frames: the alignment error is far below a millimetre per
+    // frame, so ten frames stay within 2 mm.
+    EXPECT_LT(errorM(r, i), 0.002) << "frame " << i;
+  }
+}
+
+TEST_F(TrackerTest, EmptyDepthIsLostWithAFinitePoseAndTrackingRecovers) {
+  expectLostThenRecovered(test::withoutDepth(frameAt(4)), LostReason::NoDepth);
+}
+
+TEST_F(TrackerTest, BlackImageIsLostWithAFinitePoseAndTrackingRecovers) {
+  expectLostThenRecovered(test::blackImage(frameAt(4)), LostReason::BlackImage);
+}
+
+TEST_F(TrackerTest, JumpBeyondTheConvergenceBasinIsLostAndTrackingRecovers) {
+  // One frame from 1.2 m away, turned 70 degrees: no alignment from the
+  // constant-velocity prediction can reach it.
+  Pose jump = Pose::Identity();
+  jump.linear() = Eigen::AngleAxisd(70 * kDeg, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  jump.translation() = Eigen::Vector3d(0.8, 0.1, -0.9);
+  RgbdFrame far = room.render(truth[4].pose * jump, synth::Noise::None, 4);
+  expectLostThenRecovered(far, LostReason::None);
+}
+
+TEST_F(TrackerTest, TooManyLostFramesInARowRestartAtTheLastGoodPose) {
+  TrackerParams p;
+  p.lost.max_lost_frames = 2;
+  Tracker tracker(p);
+  for (int i = 0; i < 3; ++i) tracker.track(frameAt(i), room.intrinsics());
+  Pose jump = Pose::Identity();
+  jump.linear() = Eigen::AngleAxisd(90 * kDeg, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  const RgbdFrame far = room.render(truth[3].pose * jump, synth::Noise::None, 3);
+  const TrackResult first = tracker.track(far, room.intrinsics());
+  EXPECT_EQ(first.state, TrackingState::Lost);
+  EXPECT_FALSE(first.new_keyframe);
+  const TrackResult second = tracker.track(far, room.intrinsics());
+  EXPECT_EQ(second.state, TrackingState::Lost);
+  EXPECT_TRUE(second.new_keyframe);
+  EXPECT_TRUE(second.keyframe_reset);
+  EXPECT_FALSE(second.odometry.has_value());  // nothing links it to the old keyframe
+  EXPECT_EQ(second.keyframe_id, 1);
+  EXPECT_LT(errorM(second, 2), 0.003);  // started at the last good pose
+  EXPECT_EQ(tracker.track(far, room.intrinsics()).state, TrackingState::Ok);
+}
+
+TEST(TrackerParams, DefaultConfigGivesTheNamedDefaults) {
+  const TrackerParams p = trackerParamsFromConfig(Config::load());
+  const TrackerParams d;
+  EXPECT_EQ(p.aligner.finest_level, d.aligner.finest_level);
+  EXPECT_EQ(p.aligner.coarsest_level, d.aligner.coarsest_level);
+  EXPECT_EQ(p.aligner.max_iterations, d.aligner.max_iterations);
+  EXPECT_DOUBLE_EQ(p.aligner.convergence_step, d.aligner.convergence_step);
+  EXPECT_DOUBLE_EQ(p.aligner.t_dof, d.aligner.t_dof);
+  EXPECT_DOUBLE_EQ(p.aligner.min_gradient, d.aligner.min_gradient);
+  EXPECT_EQ(p.aligner.max_pixels_per_level, d.aligner.max_pixels_per_level);
+  EXPECT_DOUBLE_EQ(p.aligner.min_depth, d.aligner.min_depth);
+  EXPECT_DOUBLE_EQ(p.aligner.max_depth, d.aligner.max_depth);
+  EXPECT_DOUBLE_EQ(p.aligner.max_depth_step, d.aligner.max_depth_step);
+  EXPECT_EQ(p.aligner.min_valid_pixels, d.aligner.min_valid_pixels);
+  EXPECT_EQ(p.aligner.use_depth, d.aligner.use_depth);
+  EXPECT_EQ(p.keyframe.criterion, d.keyframe.criterion);
+  EXPECT_DOUBLE_EQ(p.keyframe.entropy_ratio, d.keyframe.entropy_ratio);
+  EXPECT_DOUBLE_EQ(p.keyframe.max_translation, d.keyframe.max_translation);
+  EXPECT_DOUBLE_EQ(p.keyframe.max_rotation_deg, d.keyframe.max_rotation_deg);
+  EXPECT_DOUBLE_EQ(p.lost.min_valid_depth_fraction, d.lost.min_valid_depth_fraction);
+  EXPECT_DOUBLE_EQ(p.lost.min_mean_intensity, d.lost.min_mean_intensity);
+  EXPECT_DOUBLE_EQ(p.lost.min_overlap, d.lost.min_overlap);
+  EXPECT_DOUBLE_EQ(p.lost.max_frame_translation, d.lost.max_frame_translation);
+  EXPECT_DOUBLE_EQ(p.lost.max_frame_rotation_deg, d.lost.max_frame_rotation_deg);
+  EXPECT_DOUBLE_EQ(p.lost.max_intensity_sigma, d.lost.max_intensity_sigma);
+  EXPECT_DOUBLE_EQ(p.lost.max_depth_sigma, d.lost.max_depth_sigma);
+  EXPECT_EQ(p.lost.max_lost_frames, d.lost.max_lost_frames);
+}
+
+TEST(TrackerParams, OutOfRangeValueIsAnErrorNamingTheKey) {
+  try {
+    trackerParamsFromConfig(Config::load("", {"tracker.coarsest_level=0", "tracker.finest_level=1"}));
+    FAIL() << "coarsest below finest was accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("tracker.coarsest_level"), std::string::npos) << e.what();
+  }
+  EXPECT_THROW(trackerParamsFromConfig(Config::load("", {"tracker.keyframe_criterion=sometimes"})), Error);
+}
+
+// Keyframe selection on the room's loop with Kinect-like noise: 150 frames
+// (5 s, 1.6 m, about 90 degrees of turning).
+TEST(TrackerKeyframes, SelectionFiresAtASensibleRateOnTheRoomAndChainsConstraints) {
+  test::RoomViews room;
+  const Trajectory truth = room.trajectory(150);
+  Tracker tracker;
+  Trajectory estimate;
+  int keyframes = 0, lost = 0;
+  int64_t previous_keyframe = -1;
+  for (int i = 0; i < static_cast<int>(truth.size()); ++i) {
+    const TrackResult r = tracker.track(room.render(truth[i].pose, synth::Noise::Kinect, i), room.intrinsics());
+    lost += r.state == TrackingState::Lost;
+    if (r.new_keyframe) {
+      ++keyframes;
+      if (r.odometry) {
+        EXPECT_EQ(r.odometry->from_id, previous_keyframe);
+        EXPECT_EQ(r.odometry->to_id, r.keyframe_id);
+        EXPECT_EQ(Eigen::LLT<Matrix6d>(r.odometry->information).info(), Eigen::Success);
+      }
+      previous_keyframe = r.keyframe_id;
+    }
+    estimate.push_back({truth[i].timestamp, r.pose_world});
+  }
+  EXPECT_EQ(lost, 0);
+  // The distance limit alone forces a keyframe every 0.2 m: 7 or 8 on this
+  // 1.6 m (measured: 8). The entropy ratio may add some, but a keyframe
+  // every frame or two would defeat its purpose (at most 50: one per 3 frames).
+  EXPECT_GE(keyframes, 6);
+  EXPECT_LE(keyframes, 50);
+  const auto errors = test::compareTrajectories(estimate, truth);
+  // Exact geometry and white sensor noise: measured 0.1 mm; 1 cm is the
+  // whole loop's goal with loop closures (issue 5), odometry must beat it here.
+  EXPECT_LT(errors.ate_rmse_m, 0.01);
+  RecordProperty("keyframes", keyframes);
+  std::printf("room 150 frames: keyframes=%d ate_cm=%.2f rpe_cm_per_s=%.2f\n", keyframes, 100 * errors.ate_rmse_m,
+              100 * errors.rpe_trans_m_per_s);
+}
+
+}  // namespace
+}  // namespace rekon::tracker
