@@ -1,5 +1,7 @@
 #include "commands.hpp"
 
+#include "rekon/render/render.hpp"
+
 #include "rekon/volume/fuse_command.hpp"
 #include "rekon/tracker/odometry_command.hpp"
 
@@ -9,6 +11,7 @@ namespace rekon {
 
 const std::vector<Command>& commands() {
   static const std::vector<Command> table = {
+      {"render", "offscreen shaded image of a colored mesh (PLY to PNG)", &render::renderCommand},
       {"fuse", "integrate a dataset at given poses into the TSDF volume and write its mesh", volume::fuseMain},
       {"odometry", "dense RGB-D odometry (DVO) in-process on a dataset; writes a TUM trajectory", tracker::odometryMain},
       {"synth", "write a synthetic RGB-D sequence with exact ground truth", &synth::synthCommand},
