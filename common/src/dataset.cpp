@@ -90,14 +90,29 @@ TumDataset::TumDataset(const std::string& dir, const DatasetOptions& options) : 
 
 double TumDataset::duration() const { return entries_.back().timestamp - entries_.front().timestamp; }
 
-RgbdFrame TumDataset::load(size_t i) const {
+RgbdFrame TumDataset::load(size_t i) const { return decode(i, loadEncoded(i)); }
+
+EncodedFrame TumDataset::loadEncoded(size_t i) const {
+  const Entry& e = entries_.at(i);
+  const fs::path root(dir_);
+  EncodedFrame f;
+  f.depth_png = readFileBytes((root / e.depth).string());
+  f.color = readFileBytes((root / e.rgb).string());
+  const std::string ext = fs::path(e.rgb).extension().string();
+  f.color_format = (ext == ".jpg" || ext == ".jpeg" || ext == ".JPG") ? "jpeg" : "png";
+  return f;
+}
+
+RgbdFrame TumDataset::decode(size_t i, const EncodedFrame& encoded) const {
   const Entry& e = entries_.at(i);
   const fs::path root(dir_);
   RgbdFrame f;
   f.id = static_cast<int64_t>(i);
   f.timestamp = e.timestamp;
-  f.depth = readDepthImage((root / e.depth).string(), intrinsics_.width, intrinsics_.height);
-  f.color = readColorImage((root / e.rgb).string(), intrinsics_.width, intrinsics_.height);
+  f.depth = decodeDepthPng(encoded.depth_png.data(), encoded.depth_png.size(), intrinsics_.width, intrinsics_.height,
+                           (root / e.depth).string());
+  f.color = decodeColor(encoded.color.data(), encoded.color.size(), intrinsics_.width, intrinsics_.height,
+                        (root / e.rgb).string());
   return f;
 }
 

@@ -11,12 +11,6 @@
 namespace rekon {
 namespace {
 
-std::vector<uint8_t> readBytes(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw Error(path + ": cannot open image; check that the file exists and is readable");
-  return std::vector<uint8_t>(std::istreambuf_iterator<char>(in), {});
-}
-
 void requireSize(const cv::Mat& m, int width, int height, const std::string& what) {
   if (m.cols != width || m.rows != height) {
     throw Error(what + ": image is " + std::to_string(m.cols) + "x" + std::to_string(m.rows) + " but the camera is " +
@@ -38,6 +32,12 @@ cv::Mat decode(const uint8_t* data, size_t size, int flags, const std::string& w
 
 }  // namespace
 
+std::vector<uint8_t> readFileBytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw Error(path + ": cannot open file; check that it exists and is readable");
+  return std::vector<uint8_t>(std::istreambuf_iterator<char>(in), {});
+}
+
 cv::Mat decodeDepthPng(const uint8_t* data, size_t size, int width, int height, const std::string& what) {
   cv::Mat m = decode(data, size, cv::IMREAD_ANYDEPTH | cv::IMREAD_GRAYSCALE, what);
   if (m.type() != CV_16UC1) {
@@ -56,12 +56,12 @@ cv::Mat decodeColor(const uint8_t* data, size_t size, int width, int height, con
 }
 
 cv::Mat readDepthImage(const std::string& path, int width, int height) {
-  const auto bytes = readBytes(path);
+  const auto bytes = readFileBytes(path);
   return decodeDepthPng(bytes.data(), bytes.size(), width, height, path);
 }
 
 cv::Mat readColorImage(const std::string& path, int width, int height) {
-  const auto bytes = readBytes(path);
+  const auto bytes = readFileBytes(path);
   return decodeColor(bytes.data(), bytes.size(), width, height, path);
 }
 

@@ -4,6 +4,8 @@
 
 #include "rekon/volume/fuse_command.hpp"
 #include "rekon/tracker/odometry_command.hpp"
+#include "launcher.hpp"
+#include "listen.hpp"
 
 #include "rekon/synth/synth.hpp"
 
@@ -15,6 +17,9 @@ const std::vector<Command>& commands() {
       {"fuse", "integrate a dataset at given poses into the TSDF volume and write its mesh", volume::fuseMain},
       {"odometry", "dense RGB-D odometry (DVO) in-process on a dataset; writes a TUM trajectory", tracker::odometryMain},
       {"synth", "write a synthetic RGB-D sequence with exact ground truth", &synth::synthCommand},
+      {"run", "run the whole pipeline on a dataset (every service as its own process)", &runMain},
+      {"demo", "run the whole pipeline on the built-in default scene", &demoMain},
+      {"listen", "receive frames from the bus as a consumer and log their hashes", &listenMain},
   };
   return table;
 }

@@ -34,6 +34,10 @@ class TumDataset {
 
   // Loads frame i from disk (checks decoding, bit depth and size).
   RgbdFrame load(size_t i) const;
+  // The files of frame i as they are on disk (no decoding).
+  EncodedFrame loadEncoded(size_t i) const;
+  // Decodes what loadEncoded(i) returned, with the same checks as load(i).
+  RgbdFrame decode(size_t i, const EncodedFrame& encoded) const;
 
   // Ground truth, when groundtruth.txt exists.
   bool hasGroundTruth() const { return !ground_truth_.empty(); }

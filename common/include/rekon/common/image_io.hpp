@@ -9,6 +9,9 @@
 
 namespace rekon {
 
+// The bytes of a file; throws rekon::Error naming it when it cannot be read.
+std::vector<uint8_t> readFileBytes(const std::string& path);
+
 // 16-bit single-channel PNG depth of exactly width x height.
 cv::Mat readDepthImage(const std::string& path, int width, int height);
 // 8-bit color (PNG or JPEG; gray is expanded to BGR) of exactly width x height.

@@ -5,6 +5,8 @@
 #include <opencv2/core/mat.hpp>
 
 #include <cstdint>
+#include <string>
+#include <vector>
 
 namespace rekon {
 
@@ -13,6 +15,18 @@ struct RgbdFrame {
   double timestamp = 0.0;
   cv::Mat depth;  // CV_16UC1
   cv::Mat color;  // CV_8UC3, BGR
+};
+
+// FNV-1a hash of the depth and color pixels: equal hashes mean bit-identical
+// images (used to prove that frames cross the transport unchanged).
+uint64_t frameHash(const RgbdFrame& frame);
+
+// The encoded images of one frame, as stored on disk: 16-bit depth PNG and
+// color as JPEG or PNG.
+struct EncodedFrame {
+  std::vector<uint8_t> depth_png;
+  std::vector<uint8_t> color;
+  std::string color_format;  // "jpeg" or "png"
 };
 
 }  // namespace rekon

@@ -1,0 +1,119 @@
+#pragma once
+// The LCM message bus every rekon service talks over. Channel names carry a
+// configurable prefix; messages are decoded here, once, with a one-line error
+// for a wrong fingerprint, a truncated buffer, an absurd array length or an
+// unknown schema version (the message is dropped, the service goes on).
+#include <atomic>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <new>
+#include <stdexcept>
+#include <string>
+
+namespace rekon {
+
+class Config;
+
+// Bump when any messages/*.lcm changes.
+inline constexpr int32_t kSchemaVersion = 1;
+
+// Channel names (after the prefix), one place for all of them.
+namespace channel {
+inline constexpr const char* kFrames = "FRAMES";
+inline constexpr const char* kEndOfStream = "END_OF_STREAM";
+inline constexpr const char* kFrameAck = "FRAME_ACK";
+inline constexpr const char* kTrackedFrames = "TRACKED_FRAMES";
+inline constexpr const char* kKeyframes = "KEYFRAMES";
+inline constexpr const char* kConstraints = "CONSTRAINTS";
+inline constexpr const char* kGraphUpdates = "GRAPH_UPDATES";
+inline constexpr const char* kHeartbeat = "HEARTBEAT";
+inline constexpr const char* kStats = "STATS";
+inline constexpr const char* kShutdown = "SHUTDOWN";
+}  // namespace channel
+
+struct BusOptions {
+  std::string url = "udpm://239.255.76.67:7667?ttl=0";
+  std::string prefix = "REKON_";
+  double drop_fraction = 0.0;  // test hook: drop this fraction of received messages
+  uint64_t drop_seed = 1;
+  static BusOptions fromConfig(const Config& config);
+};
+
+// Decodes an LCM message of type Msg; returns false with `why` set for
+// anything malformed (never throws, never trusts array lengths blindly).
+template <class Msg>
+bool decodeMessage(const void* data, int size, Msg* out, std::string* why) {
+  if (size <= 0) {
+    *why = "empty message";
+    return false;
+  }
+  try {
+    if (out->decode(data, 0, size) < 0) {
+      *why = "does not decode as " + std::string(Msg::getTypeName()) + " (wrong fingerprint, truncated or absurd lengths)";
+      return false;
+    }
+  } catch (const std::bad_alloc&) {
+    *why = "declares an array too large to allocate";
+    return false;
+  } catch (const std::length_error&) {
+    *why = "declares a negative or absurd array length";
+    return false;
+  }
+  if (out->schema_version != kSchemaVersion) {
+    *why = "schema_version " + std::to_string(out->schema_version) + " but this build speaks " +
+           std::to_string(kSchemaVersion) + "; run the same rekon version everywhere";
+    return false;
+  }
+  return true;
+}
+
+class Bus {
+ public:
+  // Throws rekon::Error when LCM cannot start (e.g. no multicast route).
+  explicit Bus(const BusOptions& options);
+  ~Bus();
+  Bus(const Bus&) = delete;
+  Bus& operator=(const Bus&) = delete;
+
+  std::string channel(const std::string& name) const { return prefix_ + name; }
+
+  template <class Msg>
+  void publish(const std::string& name, Msg msg) {
+    msg.schema_version = kSchemaVersion;
+    std::string buf(static_cast<size_t>(msg.getEncodedSize()), '\0');
+    msg.encode(buf.data(), 0, static_cast<int>(buf.size()));
+    publishRaw(name, buf.data(), static_cast<int>(buf.size()));
+  }
+  void publishRaw(const std::string& name, const void* data, int size);
+
+  // Handlers run on the thread that calls handle()/spin().
+  template <class Msg>
+  void subscribe(const std::string& name, std::function<void(const Msg&)> handler) {
+    subscribeRaw(name, [this, name, handler = std::move(handler)](const void* data, int size) {
+      Msg msg;
+      std::string why;
+      if (decodeMessage(data, size, &msg, &why)) handler(msg);
+      else reportMalformed(name, why);
+    });
+  }
+  void subscribeRaw(const std::string& name, std::function<void(const void*, int)> handler);
+
+  // Dispatches at most one message; false when none came within timeout_ms.
+  bool handle(int timeout_ms);
+  // Dispatches messages until `stop` becomes true.
+  void spin(const std::atomic<bool>& stop);
+
+  uint64_t malformedCount() const { return malformed_; }
+  uint64_t droppedCount() const { return dropped_; }
+
+ private:
+  void reportMalformed(const std::string& name, const std::string& why);
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+  std::string prefix_;
+  std::atomic<uint64_t> malformed_{0};
+  std::atomic<uint64_t> dropped_{0};
+};
+
+}  // namespace rekon

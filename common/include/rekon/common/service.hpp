@@ -1,0 +1,66 @@
+#pragma once
+// What every rekon service process shares: its command line (--config, --set,
+// --out, --help), logging, the bus with a thread that dispatches messages, a
+// heartbeat, stopping on SIGINT/SIGTERM or a shutdown message, and writing
+// its statistics (<out>/<name>_stats.json, with peak_rss_mb) at exit.
+#include <atomic>
+#include <functional>
+#include <memory>
+#include <string>
+
+#include "rekon/common/bus.hpp"
+#include "rekon/common/cli.hpp"
+#include "rekon/common/config.hpp"
+#include "rekon/common/json.hpp"
+
+namespace rekon {
+
+class ServiceContext {
+ public:
+  ServiceContext(std::string name, Config config, std::string out_dir, const ArgParser& args);
+  ~ServiceContext();
+
+  const std::string& name() const { return name_; }
+  const Config& config() const { return config_; }
+  const std::string& outDir() const { return out_dir_; }  // "" when not given
+  const ArgParser& args() const { return args_; }
+  Bus& bus() { return *bus_; }
+
+  // True once SIGINT/SIGTERM or a shutdown message arrived.
+  bool stopRequested() const;
+  void requestStop();
+  // Reported in heartbeats.
+  void setState(const std::string& state);
+  void setLastFrame(int64_t frame_id) { last_frame_ = frame_id; }
+
+  // Filled by the service; written to <out>/<name>_stats.json at exit.
+  JsonObject& stats() { return stats_; }
+  void writeStats();
+
+  // Starts the bus thread (handlers run there) and the heartbeat thread.
+  void start();
+  void stopThreads();
+
+ private:
+  struct Threads;
+  std::string name_;
+  Config config_;
+  std::string out_dir_;
+  const ArgParser& args_;
+  std::unique_ptr<Bus> bus_;
+  std::atomic<int64_t> last_frame_{-1};
+  std::unique_ptr<Threads> threads_;
+  JsonObject stats_;
+};
+
+// Runs a service: parses the common options plus those `add_options` adds,
+// sets everything up, calls `body` (which returns when the service's work is
+// done or ctx.stopRequested()), then writes stats. Returns the exit code:
+// 0, or 1 after logging a rekon::Error as one line.
+int runService(int argc, char** argv, const std::string& name, const std::string& summary,
+               const std::function<void(ArgParser&)>& add_options, const std::function<void(ServiceContext&)>& body);
+
+// Peak resident set size of this process in MiB.
+double peakRssMb();
+
+}  // namespace rekon

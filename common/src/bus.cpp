@@ -1,0 +1,91 @@
+#include "rekon/common/bus.hpp"
+
+#include <lcm/lcm.h>
+#include <spdlog/spdlog.h>
+
+#include <random>
+#include <vector>
+
+#include "rekon/common/config.hpp"
+#include "rekon/common/error.hpp"
+
+namespace rekon {
+
+BusOptions BusOptions::fromConfig(const Config& config) {
+  BusOptions o;
+  o.url = config.getString("lcm.url");
+  o.prefix = config.getString("lcm.channel_prefix");
+  o.drop_fraction = config.getDouble("lcm.drop_fraction");
+  if (o.drop_fraction < 0 || o.drop_fraction >= 1) throw Error("lcm.drop_fraction must be in [0, 1)");
+  return o;
+}
+
+struct Bus::Impl {
+  struct Subscription {
+    Bus* bus;
+    std::function<void(const void*, int)> handler;
+  };
+  lcm_t* lcm = nullptr;
+  std::vector<std::unique_ptr<Subscription>> subscriptions;
+  double drop_fraction = 0;
+  std::mt19937_64 rng;
+  std::uniform_real_distribution<double> uniform{0.0, 1.0};
+};
+
+Bus::Bus(const BusOptions& options) : impl_(std::make_unique<Impl>()), prefix_(options.prefix) {
+  impl_->lcm = lcm_create(options.url.c_str());
+  if (!impl_->lcm) {
+    throw Error("LCM could not start on " + options.url +
+                "; check that a multicast route exists (ip route add 224.0.0.0/4 dev lo) and lcm.url is valid");
+  }
+  impl_->drop_fraction = options.drop_fraction;
+  impl_->rng.seed(options.drop_seed);
+}
+
+Bus::~Bus() {
+  if (impl_->lcm) lcm_destroy(impl_->lcm);
+}
+
+void Bus::publishRaw(const std::string& name, const void* data, int size) {
+  if (lcm_publish(impl_->lcm, channel(name).c_str(), data, static_cast<unsigned>(size)) != 0) {
+    spdlog::warn("LCM publish on {} failed ({} bytes); the message is lost", channel(name), size);
+  }
+}
+
+void Bus::subscribeRaw(const std::string& name, std::function<void(const void*, int)> handler) {
+  auto sub = std::make_unique<Impl::Subscription>(Impl::Subscription{this, std::move(handler)});
+  auto trampoline = [](const lcm_recv_buf_t* rbuf, const char*, void* user) {
+    auto* s = static_cast<Impl::Subscription*>(user);
+    Impl& impl = *s->bus->impl_;
+    if (impl.drop_fraction > 0 && impl.uniform(impl.rng) < impl.drop_fraction) {
+      ++s->bus->dropped_;
+      return;
+    }
+    s->handler(rbuf->data, static_cast<int>(rbuf->data_size));
+  };
+  // LCM channel names are regular expressions; ours are plain words.
+  std::string pattern = channel(name);
+  pattern.insert(0, 1, '^').push_back('$');
+  lcm_subscribe(impl_->lcm, pattern.c_str(), trampoline, sub.get());
+  impl_->subscriptions.push_back(std::move(sub));
+}
+
+bool Bus::handle(int timeout_ms) {
+  const int r = lcm_handle_timeout(impl_->lcm, timeout_ms);
+  if (r < 0) throw Error("LCM receive failed; the bus is down (check the network namespace and multicast route)");
+  return r > 0;
+}
+
+void Bus::spin(const std::atomic<bool>& stop) {
+  while (!stop.load()) handle(100);
+}
+
+void Bus::reportMalformed(const std::string& name, const std::string& why) {
+  const uint64_t n = ++malformed_;
+  // The first few are logged each; a flood is summarised instead of drowning the log.
+  if (n <= 10 || n % 1000 == 0) {
+    spdlog::error("dropped a malformed message on {}: {} ({} malformed so far)", channel(name), why, n);
+  }
+}
+
+}  // namespace rekon

@@ -1,0 +1,150 @@
+#include "rekon/common/service.hpp"
+
+#include <signal.h>
+#include <spdlog/spdlog.h>
+#include <sys/resource.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <filesystem>
+#include <iostream>
+#include <mutex>
+#include <thread>
+
+#include "rekon/common/error.hpp"
+#include "rekon/common/logging.hpp"
+#include "rekon_msgs/heartbeat_t.hpp"
+#include "rekon_msgs/shutdown_t.hpp"
+
+namespace rekon {
+namespace {
+
+std::atomic<bool> g_signal_stop{false};
+void onSignal(int) { g_signal_stop.store(true); }
+
+std::string hostName() {
+  char buf[256] = {0};
+  gethostname(buf, sizeof(buf) - 1);
+  return buf;
+}
+
+int64_t nowMicros() {
+  return std::chrono::duration_cast<std::chrono::microseconds>(std::chrono::system_clock::now().time_since_epoch()).count();
+}
+
+}  // namespace
+
+double peakRssMb() {
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  return static_cast<double>(usage.ru_maxrss) / 1024.0;
+}
+
+struct ServiceContext::Threads {
+  std::atomic<bool> stop_requested{false};
+  std::atomic<bool> threads_stop{false};
+  std::mutex state_mutex;
+  std::string state = "starting";
+  std::thread bus_thread, heartbeat_thread;
+};
+
+ServiceContext::ServiceContext(std::string name, Config config, std::string out_dir, const ArgParser& args)
+    : name_(std::move(name)), config_(std::move(config)), out_dir_(std::move(out_dir)), args_(args),
+      bus_(std::make_unique<Bus>(BusOptions::fromConfig(config_))), threads_(std::make_unique<Threads>()) {
+  bus_->subscribe<rekon_msgs::shutdown_t>(channel::kShutdown, [this](const rekon_msgs::shutdown_t& m) {
+    spdlog::info("shutdown requested ({})", m.reason);
+    requestStop();
+  });
+}
+
+ServiceContext::~ServiceContext() { stopThreads(); }
+
+bool ServiceContext::stopRequested() const { return threads_->stop_requested.load() || g_signal_stop.load(); }
+void ServiceContext::requestStop() { threads_->stop_requested.store(true); }
+
+void ServiceContext::setState(const std::string& state) {
+  std::lock_guard<std::mutex> lock(threads_->state_mutex);
+  threads_->state = state;
+}
+
+void ServiceContext::start() {
+  threads_->bus_thread = std::thread([this] {
+    try {
+      bus_->spin(threads_->threads_stop);
+    } catch (const Error& e) {
+      spdlog::error("{}", e.what());
+      requestStop();
+    }
+  });
+  threads_->heartbeat_thread = std::thread([this] {
+    const std::string host = hostName();
+    while (!threads_->threads_stop.load()) {
+      rekon_msgs::heartbeat_t hb{};
+      hb.service = name_;
+      hb.pid = getpid();
+      hb.host = host;
+      hb.utime = nowMicros();
+      hb.last_frame_id = last_frame_.load();
+      {
+        std::lock_guard<std::mutex> lock(threads_->state_mutex);
+        hb.state = threads_->state;
+      }
+      bus_->publish(channel::kHeartbeat, hb);
+      for (int i = 0; i < 5 && !threads_->threads_stop.load(); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+  });
+}
+
+void ServiceContext::stopThreads() {
+  threads_->threads_stop.store(true);
+  if (threads_->bus_thread.joinable()) threads_->bus_thread.join();
+  if (threads_->heartbeat_thread.joinable()) threads_->heartbeat_thread.join();
+}
+
+void ServiceContext::writeStats() {
+  stats_.set("peak_rss_mb", peakRssMb());
+  if (bus_->malformedCount() > 0) stats_.set("malformed_messages", static_cast<long long>(bus_->malformedCount()));
+  if (bus_->droppedCount() > 0) stats_.set("dropped_messages", static_cast<long long>(bus_->droppedCount()));
+  if (out_dir_.empty()) return;
+  stats_.save((std::filesystem::path(out_dir_) / (name_ + "_stats.json")).string());
+}
+
+int runService(int argc, char** argv, const std::string& name, const std::string& summary,
+               const std::function<void(ArgParser&)>& add_options, const std::function<void(ServiceContext&)>& body) {
+  ArgParser args("rekon-" + name, summary);
+  args.option("config", "YAML config laid over config/default.yaml")
+      .repeated("set", "override one config key, e.g. --set log.level=debug")
+      .option("out", "folder for this service's outputs and stats (created if missing)");
+  if (add_options) add_options(args);
+  std::unique_ptr<ServiceContext> ctx;
+  try {
+    if (!args.parse(argc, argv)) return 0;
+    Config config = Config::load(args.get("config"), args.all("set"));
+    setupLogging(name, config.getString("log.level"));
+    const std::string out = args.get("out");
+    if (!out.empty()) std::filesystem::create_directories(out);
+    signal(SIGINT, onSignal);
+    signal(SIGTERM, onSignal);
+    signal(SIGPIPE, SIG_IGN);
+    ctx = std::make_unique<ServiceContext>(name, std::move(config), out, args);
+    ctx->start();
+    body(*ctx);
+    ctx->setState("finished");
+    ctx->stopThreads();
+    ctx->writeStats();
+    return 0;
+  } catch (const Error& e) {
+    if (spdlog::default_logger()) spdlog::error("{}", e.what());
+    else std::cerr << "rekon-" << name << ": error: " << e.what() << "\n";
+    if (ctx) {
+      ctx->stopThreads();
+      try {
+        ctx->writeStats();  // whatever was measured before the error is kept
+      } catch (const Error&) {
+      }
+    }
+    return 1;
+  }
+}
+
+}  // namespace rekon

@@ -1,0 +1,238 @@
+#include "launcher.hpp"
+
+#include <signal.h>
+#include <spdlog/spdlog.h>
+#include <unistd.h>
+#include <yaml-cpp/yaml.h>
+
+#include <algorithm>
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <thread>
+
+#include "process.hpp"
+#include "rekon/common/cli.hpp"
+#include "rekon/common/config.hpp"
+#include "rekon/common/error.hpp"
+#include "rekon/common/frame_ring.hpp"
+#include "rekon/common/json.hpp"
+#include "rekon/common/logging.hpp"
+
+namespace rekon {
+namespace fs = std::filesystem;
+namespace {
+
+using Clock = std::chrono::steady_clock;
+std::atomic<bool> g_interrupted{false};
+void onInterrupt(int) { g_interrupted.store(true); }
+
+std::string quotedJson(const std::string& s) {
+  const std::string object = JsonObject().set("v", s).str(0);  // {"v":"..."}
+  return object.substr(5, object.size() - 6);
+}
+
+// A stats file written by a service, as JSON text (services write JSON; YAML reads it).
+std::string jsonOf(const YAML::Node& node) {
+  if (node.IsMap()) {
+    JsonObject o;
+    for (const auto& kv : node) o.setRaw(kv.first.as<std::string>(), jsonOf(kv.second));
+    return o.str(0);
+  }
+  if (node.IsScalar()) {
+    const std::string s = node.Scalar();
+    if (node.Tag() == "!") return quotedJson(s);  // a quoted string in the file stays a string
+    try {
+      size_t used = 0;
+      std::stod(s, &used);
+      if (used == s.size()) return s;
+    } catch (const std::exception&) {
+    }
+    if (s == "true" || s == "false" || s == "null") return s;
+    return quotedJson(s);
+  }
+  return "null";
+}
+
+struct RunOptions {
+  std::string dataset, out, config_file;
+  std::vector<std::string> sets;
+};
+
+int launch(const RunOptions& opt) {
+  Config config = Config::load(opt.config_file, opt.sets);
+  setupLogging("run", config.getString("log.level"));
+  fs::create_directories(opt.out);
+  const std::string out = fs::canonical(opt.out).string();
+  const std::string bin = executableDir();
+
+  // One frame ring per run, so runs side by side never meet.
+  const std::string segment = config.getString("transport.segment") + "_" + std::to_string(getpid());
+  config.set("transport.segment", segment);
+
+  std::vector<std::string> services;
+  for (const auto& s : config.getStringList("run.services")) {
+    if (fs::exists(bin + "/rekon-" + s)) services.push_back(s);
+    else spdlog::warn("rekon-{} is not part of this build; running without it", s);
+  }
+  if (std::find(services.begin(), services.end(), "player") == services.end()) {
+    throw Error("run.services has no player; rekon run needs a frame source");
+  }
+  // The player waits only for consumers that this run starts.
+  std::vector<std::string> wait_for;
+  for (const auto& s : config.getStringList("player.wait_for")) {
+    if (std::find(services.begin(), services.end(), s) != services.end()) wait_for.push_back(s);
+  }
+  std::string list = "[";
+  for (size_t i = 0; i < wait_for.size(); ++i) list += (i ? ", " : "") + wait_for[i];
+  config.set("player.wait_for", list + "]");
+  const std::string config_path = out + "/config.yaml";
+  config.save(config_path);
+
+  // Consumers first; the player waits for their heartbeats before it sends.
+  std::stable_partition(services.begin(), services.end(), [](const std::string& s) { return s != "player"; });
+  std::vector<ChildProcess> children;
+  for (const auto& s : services) {
+    std::vector<std::string> args = {"--config", config_path, "--out", out};
+    if (s == "player") args.insert(args.end(), {"--dataset", opt.dataset});
+    children.emplace_back(s, bin + "/rekon-" + s, args, out + "/" + s + ".log");
+  }
+
+  signal(SIGINT, onInterrupt);
+  signal(SIGTERM, onInterrupt);
+  const auto start = Clock::now();
+  int exit_code = 0;
+  std::string failure;
+  try {
+    for (auto& c : children) {
+      fs::remove(c.logPath());
+      c.start();
+      spdlog::info("started rekon-{} (pid {}), log {}", c.name(), c.pid(), c.logPath());
+    }
+  } catch (const Error& e) {
+    failure = e.what();
+  }
+  const double shutdown_timeout = config.getDouble("run.shutdown_timeout_s");
+  std::optional<Clock::time_point> player_done;
+  bool stopping = !failure.empty();
+  auto stopAll = [&] {
+    for (auto& c : children) c.terminate();
+    stopping = true;
+  };
+  if (stopping) stopAll();
+  const auto stop_deadline_after = [&](double seconds) { return Clock::now() + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(seconds)); };
+  Clock::time_point kill_deadline = stop_deadline_after(1e6);
+  if (stopping) kill_deadline = stop_deadline_after(10);
+  while (true) {
+    bool any_running = false;
+    for (auto& c : children) {
+      const auto st = c.poll();
+      if (!st) {
+        any_running = true;
+        continue;
+      }
+      if (c.name() == "player" && *st == 0 && !player_done) {
+        player_done = Clock::now();
+        spdlog::info("the player reached the end of the data; waiting for the services to finish");
+      }
+      if (*st != 0 && failure.empty() && !g_interrupted.load()) {
+        failure = "rekon-" + c.name() + " exited with status " + std::to_string(*st) + "; see " + c.logPath();
+        spdlog::error("{}", failure);
+        if (!stopping) {
+          stopAll();
+          kill_deadline = stop_deadline_after(10);
+        }
+      }
+    }
+    if (!any_running) break;
+    if (g_interrupted.load() && !stopping) {
+      spdlog::warn("interrupted: stopping every service (outputs so far are kept)");
+      stopAll();
+      kill_deadline = stop_deadline_after(10);
+    }
+    if (player_done && !stopping && Clock::now() > *player_done + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(shutdown_timeout))) {
+      failure = "services did not finish within run.shutdown_timeout_s = " + std::to_string(int(shutdown_timeout)) + " s after the end of the data";
+      spdlog::error("{}", failure);
+      stopAll();
+      kill_deadline = stop_deadline_after(10);
+    }
+    if (stopping && Clock::now() > kill_deadline) {
+      for (auto& c : children) {
+        if (c.running()) {
+          spdlog::error("rekon-{} did not stop after SIGTERM; killing it", c.name());
+          c.kill();
+        }
+      }
+      kill_deadline = stop_deadline_after(1e6);
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  const double wall = std::chrono::duration<double>(Clock::now() - start).count();
+  if (removeFrameRing(segment)) spdlog::info("removed the frame ring '{}' left by a stopped player", segment);
+
+  // stats.json: run-level figures plus each service's own stats file.
+  JsonObject stats;
+  double sequence_seconds = 0;
+  long long frames = 0;
+  std::vector<std::pair<std::string, std::string>> per_service;
+  for (const auto& c : children) {
+    const std::string path = out + "/" + c.name() + "_stats.json";
+    if (!fs::exists(path)) continue;
+    try {
+      const YAML::Node node = YAML::LoadFile(path);
+      if (c.name() == "player") {
+        frames = node["frames"].as<long long>(0);
+        sequence_seconds = node["sequence_seconds"].as<double>(0.0);
+      }
+      per_service.emplace_back(c.name(), jsonOf(node));
+    } catch (const YAML::Exception& e) {
+      spdlog::warn("{}: unreadable stats ({}); left out of stats.json", path, e.msg);
+    }
+  }
+  stats.set("frames", frames).set("wall_seconds", wall);
+  if (sequence_seconds > 0) stats.set("realtime_factor", sequence_seconds / wall);
+  for (const auto& [name, json] : per_service) stats.setRaw(name, json);
+  stats.save(out + "/stats.json");
+
+  spdlog::info("outputs in {}:", out);
+  for (const char* f : {"trajectory.txt", "mesh.ply", "stats.json", "config.yaml"}) {
+    if (fs::exists(out + "/" + f)) spdlog::info("  {}/{}", out, f);
+  }
+  spdlog::info("  logs: {}/<service>.log", out);
+  if (!failure.empty()) {
+    spdlog::error("{}", failure);
+    exit_code = 1;
+  } else if (g_interrupted.load()) {
+    exit_code = 130;
+  }
+  return exit_code;
+}
+
+}  // namespace
+
+int runMain(int argc, char** argv) {
+  ArgParser args("rekon run", "Runs the whole pipeline (every service as its own process) on a dataset.");
+  args.option("dataset", "TUM RGB-D folder with camera.yaml (required)")
+      .option("out", "output folder (required)")
+      .option("config", "YAML config laid over config/default.yaml")
+      .repeated("set", "override one config key, e.g. --set mapper.voxel_size=0.02");
+  if (!args.parse(argc, argv)) return 0;
+  if (args.get("dataset").empty() || args.get("out").empty()) throw Error("--dataset and --out are required; see rekon run --help");
+  if (!fs::is_directory(args.get("dataset"))) throw Error(args.get("dataset") + ": dataset folder not found");
+  return launch({args.get("dataset"), args.get("out"), args.get("config"), args.all("set")});
+}
+
+int demoMain(int argc, char** argv) {
+  ArgParser args("rekon demo", "Runs the whole pipeline on the built-in default scene and prints where the outputs are.");
+  const fs::path root = fs::path(executableDir()).parent_path().parent_path();
+  args.option("out", "output folder", (root / "out" / "demo").string());
+  if (!args.parse(argc, argv)) return 0;
+  const fs::path data = root.parent_path() / "shared" / "data" / "7scenes_loop_1000";
+  if (!fs::is_directory(data)) {
+    throw Error(data.string() + " is absent; the demo needs it until the scene generator lands (see README)");
+  }
+  spdlog::info("demo: the scene generator is not part of this build yet; playing the first 100 frames of {}", data.string());
+  return launch({data.string(), args.get("out"), "", {"player.max_frames=100"}});
+}
+
+}  // namespace rekon

@@ -1,0 +1,32 @@
+#pragma once
+// The dataset player: announces every frame of a TUM RGB-D dataset on the bus,
+// at the recorded rate, a multiple of it, or as fast as its consumers
+// acknowledge (`rate: max`, back-pressure, never a dropped frame).
+#include <string>
+#include <vector>
+
+#include "rekon/common/service.hpp"
+
+namespace rekon {
+
+struct PlayerParams {
+  std::string dataset;
+  double rate = 0.0;  // multiple of the recorded rate; 0 = max (acknowledged)
+  std::vector<std::string> wait_for;
+  double wait_timeout_s = 60.0;
+  int max_frames = 0;
+  int first_frame = 0;
+  std::string transport_mode = "auto";  // shm | lcm | auto
+  std::string segment;
+  int slots = 8;
+  int max_width = 640;
+  int max_height = 480;
+
+  static PlayerParams fromConfig(const Config& config, const std::string& dataset);
+};
+
+// Plays the whole dataset; returns when done or when ctx.stopRequested().
+// Throws rekon::Error when a consumer stays silent beyond wait_timeout_s.
+void runPlayer(ServiceContext& ctx, const PlayerParams& params);
+
+}  // namespace rekon
