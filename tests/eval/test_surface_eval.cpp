@@ -1,0 +1,117 @@
+// `evaluateSurface`: CORR and COMPL of the paper's Section 5.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <numbers>
+
+#include "rekon/common/error.hpp"
+#include "rekon/eval/surface_eval.hpp"
+#include "test_support.hpp"
+
+namespace {
+
+using rekon::Mesh;
+
+// A size x size square in the plane z = `z`, n x n cells.
+Mesh plane(double size, int n, float z) {
+  Mesh m;
+  for (int j = 0; j <= n; ++j)
+    for (int i = 0; i <= n; ++i) m.vertices.emplace_back(size * i / n, size * j / n, z);
+  for (int j = 0; j < n; ++j) {
+    for (int i = 0; i < n; ++i) {
+      const int a = j * (n + 1) + i;
+      m.triangles.emplace_back(a, a + 1, a + n + 2);
+      m.triangles.emplace_back(a, a + n + 2, a + n + 1);
+    }
+  }
+  return m;
+}
+
+Mesh sphere(double r, int n) {
+  Mesh m;
+  const double pi = std::numbers::pi;
+  for (int j = 0; j <= n; ++j) {
+    for (int i = 0; i <= 2 * n; ++i) {
+      const double th = pi * i / n, ph = -0.5 * pi + pi * j / n;
+      m.vertices.emplace_back(r * std::cos(ph) * std::cos(th), r * std::cos(ph) * std::sin(th), r * std::sin(ph));
+    }
+  }
+  for (int j = 0; j < n; ++j) {
+    for (int i = 0; i < 2 * n; ++i) {
+      const int a = j * (2 * n + 1) + i;
+      m.triangles.emplace_back(a, a + 1, a + 2 * n + 2);
+      m.triangles.emplace_back(a, a + 2 * n + 2, a + 2 * n + 1);
+    }
+  }
+  return m;
+}
+
+TEST(EvalSurface, AMeshAgainstItselfHasNoError) {
+  const Mesh m = plane(1.0, 50, 0.0f);
+  const auto e = rekon::eval::evaluateSurface(m, m);
+  EXPECT_NEAR(e.corr_m, 0.0, 1e-7);
+  EXPECT_NEAR(e.compl_m, 0.0, 1e-7);
+  EXPECT_DOUBLE_EQ(e.corr_within_1cm, 1.0);
+  EXPECT_EQ(e.reference_samples, 10000u);  // 1 m^2 at 1 per cm^2
+}
+
+TEST(EvalSurface, APlaneShiftedBy5mmIs5mmOff) {
+  const auto e = rekon::eval::evaluateSurface(plane(1.0, 50, 0.005f), plane(1.0, 20, 0.0f));
+  EXPECT_NEAR(e.corr_m, 0.005, 1e-6);
+  EXPECT_NEAR(e.compl_m, 0.005, 1e-6);
+  EXPECT_DOUBLE_EQ(e.corr_within_1cm, 1.0);
+}
+
+TEST(EvalSurface, ASphereGrownBy5mmIs5mmOff) {
+  // Vertices 5 mm outside a finely tessellated sphere of 0.3 m (chord error < 0.1 mm).
+  const auto e = rekon::eval::evaluateSurface(sphere(0.305, 120), sphere(0.3, 160));
+  EXPECT_NEAR(e.corr_m, 0.005, 1e-4);
+  EXPECT_NEAR(e.compl_m, 0.005, 1e-4);
+}
+
+TEST(EvalSurface, DistancesAreCapped) {
+  rekon::eval::SurfaceEvalOptions o;
+  o.cap_m = 0.05;
+  const auto e = rekon::eval::evaluateSurface(plane(1.0, 10, 1.0f), plane(1.0, 10, 0.0f), o);
+  EXPECT_NEAR(e.corr_m, 0.05, 1e-9);
+  EXPECT_NEAR(e.compl_m, 0.05, 1e-9);
+  EXPECT_DOUBLE_EQ(e.corr_within_2cm, 0.0);
+}
+
+TEST(EvalSurface, HalfAReferenceMissingHalvesCompleteness) {
+  // The reconstruction covers half the reference: COMPL averages 0 and the cap.
+  const Mesh half = plane(0.5, 25, 0.0f);
+  Mesh ref = plane(1.0, 50, 0.0f);
+  for (auto& v : ref.vertices) v.y() = v.y() * 0.5f;  // 1 x 0.5 m; `half` covers x in [0, 0.5]
+  const auto e = rekon::eval::evaluateSurface(half, ref);
+  EXPECT_NEAR(e.corr_m, 0.0, 1e-7);
+  EXPECT_NEAR(e.compl_within_1cm, 0.51, 0.02);  // half, plus the 1 cm strip next to the border
+  EXPECT_GT(e.compl_m, 0.02);
+}
+
+TEST(EvalSurface, AMeshWithoutTrianglesIsComparedByItsPoints) {
+  Mesh cloud = plane(1.0, 100, 0.003f);
+  cloud.triangles.clear();
+  const auto e = rekon::eval::evaluateSurface(cloud, plane(1.0, 10, 0.0f));
+  EXPECT_NEAR(e.corr_m, 0.003, 1e-6);
+  EXPECT_LT(e.compl_m, 0.006);  // to the nearest of points 1 cm apart, 3 mm above
+}
+
+TEST(EvalSurface, AnEmptyMeshIsAnError) { EXPECT_THROW(rekon::eval::evaluateSurface(Mesh{}, plane(1, 1, 0)), rekon::Error); }
+
+TEST(EvalCommand, SurfaceEndsWithKeyValues) {
+  rekon::test::TempDir dir;
+  rekon::writePly(plane(1.0, 20, 0.005f), dir / "mesh.ply");
+  rekon::writePly(plane(1.0, 20, 0.0f), dir / "ref.ply");
+  std::string out;
+  ASSERT_EQ(rekon::test::runCommand(rekon::test::binDir() + "/rekon eval surface " + (dir / "mesh.ply") + " " + (dir / "ref.ply"), &out), 0)
+      << out;
+  const std::string last = out.substr(out.rfind('\n', out.size() - 2) + 1);
+  double corr = 0, compl_ = 0;
+  ASSERT_EQ(std::sscanf(last.c_str(), "corr_m=%lf compl_m=%lf", &corr, &compl_), 2) << out;
+  EXPECT_NEAR(corr, 0.005, 1e-6);
+  EXPECT_NEAR(compl_, 0.005, 1e-6);
+}
+
+}  // namespace

@@ -1,0 +1,119 @@
+// `renderMesh` and `rekon render`: offscreen images of colored meshes.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include "rekon/common/error.hpp"
+#include "rekon/render/render.hpp"
+#include "test_support.hpp"
+
+namespace {
+
+using rekon::Mesh;
+using rekon::render::RenderOptions;
+
+// A unit cube centred at `c`, outward winding, every vertex of color `rgb`.
+Mesh cube(const Eigen::Vector3f& c, std::array<uint8_t, 3> rgb) {
+  Mesh m;
+  for (int i = 0; i < 8; ++i) {
+    m.vertices.push_back(c + Eigen::Vector3f((i & 1) ? 0.5f : -0.5f, (i & 2) ? 0.5f : -0.5f, (i & 4) ? 0.5f : -0.5f));
+    m.colors.push_back(rgb);
+  }
+  const int faces[6][4] = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4}, {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}};
+  for (const auto& f : faces) {
+    m.triangles.emplace_back(f[0], f[1], f[2]);
+    m.triangles.emplace_back(f[0], f[2], f[3]);
+  }
+  return m;
+}
+
+bool isBackground(const cv::Vec3b& px, const RenderOptions& o) { return px == o.background; }
+
+TEST(Render, AutoViewShowsTheMeshInTheCentre) {
+  RenderOptions o;
+  o.width = 320;
+  o.height = 240;
+  const cv::Mat image = rekon::render::renderMesh(cube({10, -3, 2}, {255, 0, 0}), o);
+  ASSERT_EQ(image.type(), CV_8UC3);
+  ASSERT_EQ(image.cols, 320);
+  const cv::Vec3b centre = image.at<cv::Vec3b>(120, 160);
+  EXPECT_FALSE(isBackground(centre, o));
+  EXPECT_GT(centre[2], 50);  // red (BGR), lit
+  EXPECT_EQ(centre[0], 0);
+  // The whole cube fits: the border stays background.
+  for (int x = 0; x < image.cols; ++x) EXPECT_TRUE(isBackground(image.at<cv::Vec3b>(0, x), o));
+}
+
+TEST(Render, AnExplicitViewLooksAtItsTarget) {
+  RenderOptions o;
+  o.width = 200;
+  o.height = 200;
+  o.view = rekon::render::View{Eigen::Vector3d(0, 0, 5), Eigen::Vector3d(3, 0, 0)};
+  o.up = Eigen::Vector3d::UnitY();
+  const cv::Mat image = rekon::render::renderMesh(cube({3, 0, 0}, {0, 255, 0}), o);
+  EXPECT_FALSE(isBackground(image.at<cv::Vec3b>(100, 100), o));
+  EXPECT_TRUE(isBackground(image.at<cv::Vec3b>(5, 5), o));
+}
+
+TEST(Render, BackFacesAreCulledSoARoomShowsItsInside) {
+  // A blue room (inward-facing box of 4 m) with a red box inside, seen from
+  // outside: culling back faces removes the near wall and shows the red box;
+  // without culling the near wall hides it.
+  Mesh scene = cube({0, 0, 0}, {0, 0, 255});
+  for (auto& v : scene.vertices) v *= 4.0f;
+  for (auto& t : scene.triangles) std::swap(t[1], t[2]);  // normals inwards
+  const Mesh inside = cube({0, 0, 0}, {255, 0, 0});
+  for (const auto& t : inside.triangles) scene.triangles.emplace_back(t + Eigen::Vector3i::Constant(8));
+  scene.vertices.insert(scene.vertices.end(), inside.vertices.begin(), inside.vertices.end());
+  scene.colors.insert(scene.colors.end(), inside.colors.begin(), inside.colors.end());
+  RenderOptions o;
+  o.width = 160;
+  o.height = 120;
+  o.view = rekon::render::View{Eigen::Vector3d(6, 0.5, 1), Eigen::Vector3d(0, 0, 0)};
+  const cv::Vec3b culled = rekon::render::renderMesh(scene, o).at<cv::Vec3b>(60, 80);
+  o.cull = rekon::render::Cull::None;
+  const cv::Vec3b all = rekon::render::renderMesh(scene, o).at<cv::Vec3b>(60, 80);
+  EXPECT_GT(culled[2], 0);  // red (BGR)
+  EXPECT_EQ(culled[0], 0);
+  EXPECT_GT(all[0], 0);  // blue
+  EXPECT_EQ(all[2], 0);
+}
+
+TEST(Render, ColorMapRunsFromBlueToRed) {
+  const auto c = rekon::render::colorMap({0.0f, 0.025f, 0.05f, 1.0f}, 0.0f, 0.05f);
+  EXPECT_EQ(c[0], (std::array<uint8_t, 3>{0, 0, 255}));
+  EXPECT_EQ(c[1], (std::array<uint8_t, 3>{0, 255, 0}));
+  EXPECT_EQ(c[2], (std::array<uint8_t, 3>{255, 0, 0}));
+  EXPECT_EQ(c[3], c[2]);  // clamped
+}
+
+TEST(RenderCommand, WritesANonEmptyPngWhoseCentreShowsTheMesh) {
+  rekon::test::TempDir dir;
+  rekon::writePly(cube({0, 0, 0}, {200, 180, 40}), dir / "cube.ply");
+  std::string out;
+  ASSERT_EQ(rekon::test::runCommand(rekon::test::binDir() + "/rekon render " + (dir / "cube.ply") + " --out " +
+                                        (dir / "cube.png") + " --width 256 --height 192",
+                                    &out),
+            0)
+      << out;
+  const cv::Mat image = cv::imread(dir / "cube.png", cv::IMREAD_COLOR);
+  ASSERT_FALSE(image.empty());
+  EXPECT_EQ(image.cols, 256);
+  EXPECT_NE(image.at<cv::Vec3b>(96, 128), cv::Vec3b(235, 235, 235));
+  EXPECT_NE(out.find("coverage="), std::string::npos) << out;
+}
+
+TEST(RenderCommand, RejectsAMalformedView) {
+  rekon::test::TempDir dir;
+  rekon::writePly(cube({0, 0, 0}, {1, 2, 3}), dir / "cube.ply");
+  std::string out;
+  EXPECT_NE(rekon::test::runCommand(rekon::test::binDir() + "/rekon render " + (dir / "cube.ply") + " --out " + (dir / "x.png") +
+                                        " --view 1,2,3",
+                                    &out),
+            0);
+  EXPECT_NE(out.find("x,y,z,tx,ty,tz"), std::string::npos) << out;
+}
+
+}  // namespace
