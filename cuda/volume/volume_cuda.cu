@@ -72,10 +72,12 @@ __global__ void updateKernel(Voxel* pool, const BlockRef* blocks, FrameImages fr
   const BlockRef ref = blocks[blockIdx.x];
   const int x = threadIdx.x, y = threadIdx.y, z = threadIdx.z;
   Voxel& v = pool[static_cast<size_t>(ref.slot) * kBlockVoxels + localIndex(x, y, z)];
-  const int status = updateVoxel(v, blockInCamera(cam, ref.coord, s.voxel_size), x, y, z, frame, cam, s, sign);
+  bool observed = false;
+  const int status =
+      updateVoxel(v, blockInCamera(cam, ref.coord, s.voxel_size), x, y, z, frame, cam, s, sign, observed);
   if (status == kWeightOverflow) atomicOr(flags, 1);
   if (status == kWeightUnderflow) atomicOr(flags, 2);
-  const int occupied = __syncthreads_or(v.weight != 0u);
+  const int occupied = __syncthreads_or(blockOccupiedAfter(v, status, observed, sign));
   if (x == 0 && y == 0 && z == 0) empty[blockIdx.x] = occupied ? 0 : 1;
 }
 

@@ -111,15 +111,18 @@ void TsdfVolume::update(const cv::Mat& depth_m, const cv::Mat& color, const cv::
                           weights_c.empty() ? nullptr : weights_c.ptr<float>(), k.width, k.height};
   const CameraView cam = cameraView(k, camera_to_world);
   const IntegrationSettings settings{static_cast<float>(params_.voxel_size), static_cast<float>(params_.truncation),
-                                     static_cast<float>(params_.max_depth), static_cast<float>(params_.weight_units)};
+                                     static_cast<float>(params_.max_depth), static_cast<float>(params_.weight_units),
+                                     static_cast<float>(1.0 / params_.truncation)};
   backend_->setFrame(frame);
   std::vector<BlockCoord> candidates;
   backend_->collectBandBlocks(cam, settings, params_.allocation_stride, candidates);
-  const std::vector<BlockRef> blocks = resolveBandBlocks(candidates, sign > 0);
+  size_t fresh_begin = 0;
+  const std::vector<BlockRef> blocks = resolveBandBlocks(candidates, sign > 0, &fresh_begin);
   std::vector<uint8_t> empty;
   const FrameUpdateReport report = backend_->updateBlocks(cam, settings, blocks, sign, empty);
   last_update_blocks_ = static_cast<int64_t>(blocks.size());
-  for (size_t i = 0; i < blocks.size(); ++i) {
+  // Integration frees fresh blocks it did not touch; de-integration every block left without weight.
+  for (size_t i = sign > 0 ? fresh_begin : 0; i < blocks.size(); ++i) {
     if (empty[i]) releaseSlot(blocks[i].slot);
   }
   if (report.weight_overflow) {
@@ -133,7 +136,8 @@ void TsdfVolume::update(const cv::Mat& depth_m, const cv::Mat& color, const cv::
   }
 }
 
-std::vector<BlockRef> TsdfVolume::resolveBandBlocks(const std::vector<BlockCoord>& candidates, bool allocate) {
+std::vector<BlockRef> TsdfVolume::resolveBandBlocks(const std::vector<BlockCoord>& candidates, bool allocate,
+                                                    size_t* fresh_begin) {
   if (++frame_stamp_ == 0) {
     std::fill(slot_stamp_.begin(), slot_stamp_.end(), 0);
     frame_stamp_ = 1;
@@ -163,6 +167,7 @@ std::vector<BlockRef> TsdfVolume::resolveBandBlocks(const std::vector<BlockCoord
   for (const BlockCoord& c : fresh) fresh_slots.push_back(takeSlot(c));
   backend_->writeBlocks(fresh_slots, nullptr);
   for (size_t i = 0; i < stored.size(); ++i) blocks.push_back({stored[i], slots[i]});
+  *fresh_begin = blocks.size();
   for (size_t i = 0; i < fresh.size(); ++i) blocks.push_back({fresh[i], fresh_slots[i]});
   for (size_t i = 0; i < stored.size() + fresh.size(); ++i) slot_stamp_[blocks[blocks.size() - 1 - i].slot] = frame_stamp_;
   return blocks;

@@ -27,10 +27,10 @@ struct VolumeParams {
   // A pixel weight of 1 counts as this many integer weight units. Weights are
   // quantised to 1/kDefaultWeightUnits so that sums stay exact integers.
   static constexpr double kDefaultWeightUnits = 16;
-  // Every stride-th pixel (in x and y) allocates blocks; at 4 m two pixels are
-  // 1.4 cm apart, far below the 8 cm block size. Integration then updates every
+  // Every stride-th pixel (in x and y) allocates blocks; at 4 m four pixels
+  // (f = 585) are 2.7 cm apart, well below the 8 cm block size. Integration then updates every
   // voxel of those blocks from its own pixel.
-  static constexpr int kDefaultAllocationStride = 2;
+  static constexpr int kDefaultAllocationStride = 4;
 
   double voxel_size = kDefaultVoxelSize;
   double truncation = kDefaultTruncation;
@@ -111,7 +111,8 @@ class TsdfVolume {
 
   void update(const cv::Mat& depth_m, const cv::Mat& color, const cv::Mat& weights, const Intrinsics& k,
               const Pose& camera_to_world, int sign);
-  std::vector<BlockRef> resolveBandBlocks(const std::vector<BlockCoord>& candidates, bool allocate);
+  // The band's blocks, those allocated for this frame last (from *fresh_begin on).
+  std::vector<BlockRef> resolveBandBlocks(const std::vector<BlockCoord>& candidates, bool allocate, size_t* fresh_begin);
   int32_t takeSlot(const BlockCoord& coord);
   void releaseSlot(int32_t slot);
   void ensureCapacity(int64_t active_needed);

@@ -38,7 +38,8 @@ class VolumeBackend {
   virtual void collectBandBlocks(const CameraView& cam, const IntegrationSettings& s, int stride,
                                  std::vector<BlockCoord>& out) = 0;
   // Integrates (sign +1) or de-integrates (-1) the current frame into the
-  // listed blocks; empty[i] = 1 when block i holds no weight afterwards.
+  // listed blocks; empty[i] = 1 when the frame updated no voxel of block i
+  // (integration) or block i holds no weight afterwards (de-integration).
   virtual FrameUpdateReport updateBlocks(const CameraView& cam, const IntegrationSettings& s,
                                          const std::vector<BlockRef>& blocks, int sign,
                                          std::vector<uint8_t>& empty) = 0;

@@ -118,6 +118,7 @@ struct IntegrationSettings {
   float truncation;
   float max_depth;
   float weight_units;  // integer weight units per unit of pixel weight
+  float inv_truncation;
 };
 
 REKON_HD inline bool validDepth(float z, float max_depth) { return z > 0.f && z <= max_depth; }  // false for NaN
@@ -155,7 +156,7 @@ REKON_HD inline Observation observe(const FrameImages& f, const CameraView& cam,
   if (sdf < -s.truncation) return none;
   const uint32_t w = pixelWeightUnits(f, pixel, s.weight_units);
   if (w == 0u) return none;
-  float tsdf = sdf / s.truncation;
+  float tsdf = sdf * s.inv_truncation;
   tsdf = tsdf > 1.f ? 1.f : tsdf;
   const float q = tsdf * static_cast<float>(kSdfSteps);
   return {static_cast<int32_t>(q >= 0.f ? q + 0.5f : q - 0.5f), w, f.bgr ? pixel : -1};
@@ -163,10 +164,12 @@ REKON_HD inline Observation observe(const FrameImages& f, const CameraView& cam,
 
 enum UpdateStatus : int { kUpdated = 0, kWeightOverflow = 1, kWeightUnderflow = 2 };
 
-REKON_HD inline uint8_t blendChannel(uint8_t old_value, double old_weight, int sample, double signed_weight,
-                                     double inv_new_weight) {
-  const double avg = (old_value * old_weight + sample * signed_weight) * inv_new_weight + 0.5;
-  return static_cast<uint8_t>(avg <= 0.0 ? 0.0 : (avg >= 255.0 ? 255.0 : avg));
+// Float suffices: the sum is divided straight back by the new weight, so its
+// relative rounding (1e-7) stays far below a color level.
+REKON_HD inline uint8_t blendChannel(uint8_t old_value, float old_weight, int sample, float signed_weight,
+                                     float inv_new_weight) {
+  const float avg = (old_value * old_weight + sample * signed_weight) * inv_new_weight + 0.5f;
+  return static_cast<uint8_t>(avg <= 0.f ? 0.f : (avg >= 255.f ? 255.f : avg));
 }
 
 // Adds (sign = +1) or removes (sign = -1) one observation: the weighted running
@@ -183,7 +186,8 @@ REKON_HD inline int applyObservation(Voxel& v, const Observation& o, const uint8
     // One division per voxel: integer division of 64-bit sums costs more
     // than the rest of the update together.
     const uint8_t* c = bgr + 3 * o.pixel;
-    const double old_weight = v.weight, inv = 1.0 / new_weight, w = static_cast<double>(sw);
+    const float old_weight = static_cast<float>(v.weight), inv = 1.f / static_cast<float>(new_weight);
+    const float w = static_cast<float>(sw);
     v.r = blendChannel(v.r, old_weight, c[2], w, inv);
     v.g = blendChannel(v.g, old_weight, c[1], w, inv);
     v.b = blendChannel(v.b, old_weight, c[0], w, inv);
@@ -213,18 +217,26 @@ REKON_HD inline Vec3f voxelInCamera(const BlockInCamera& b, int x, int y, int z)
 
 // Updates one voxel (the body both backends run per voxel); returns an UpdateStatus.
 REKON_HD inline int updateVoxel(Voxel& v, const BlockInCamera& b, int x, int y, int z, const FrameImages& f,
-                                const CameraView& cam, const IntegrationSettings& s, int sign) {
+                                const CameraView& cam, const IntegrationSettings& s, int sign, bool& observed) {
   const Observation o = observe(f, cam, s, voxelInCamera(b, x, y, z));
-  return o.weight != 0u ? applyObservation(v, o, f.bgr, sign) : static_cast<int>(kUpdated);
+  observed = o.weight != 0u;
+  return observed ? applyObservation(v, o, f.bgr, sign) : static_cast<int>(kUpdated);
 }
 
-// Result of updating one block: which statuses occurred and whether any
-// voxel still carries weight (a block with none is freed).
+// Result of updating one block: which statuses occurred, and `occupied`:
+// for integration whether the frame updated any voxel (only then does a
+// freshly allocated block hold data), for de-integration whether any voxel
+// still carries weight (a block with none is freed). Integration thus never
+// reads voxels it does not update.
 struct BlockUpdateResult {
   int overflow;
   int underflow;
   int occupied;
 };
+
+REKON_HD inline bool blockOccupiedAfter(const Voxel& v, int status, bool observed, int sign) {
+  return sign > 0 ? (observed && status == kUpdated) : v.weight != 0u;
+}
 
 REKON_HD inline BlockUpdateResult updateBlock(Voxel* voxels, BlockCoord coord, const FrameImages& f,
                                               const CameraView& cam, const IntegrationSettings& s, int sign) {
@@ -234,10 +246,11 @@ REKON_HD inline BlockUpdateResult updateBlock(Voxel* voxels, BlockCoord coord, c
     for (int y = 0; y < kBlockSide; ++y) {
       for (int x = 0; x < kBlockSide; ++x) {
         Voxel& v = voxels[localIndex(x, y, z)];
-        const int status = updateVoxel(v, b, x, y, z, f, cam, s, sign);
+        bool observed = false;
+        const int status = updateVoxel(v, b, x, y, z, f, cam, s, sign, observed);
         result.overflow |= status == kWeightOverflow;
         result.underflow |= status == kWeightUnderflow;
-        result.occupied |= v.weight != 0u;
+        result.occupied |= blockOccupiedAfter(v, status, observed, sign);
       }
     }
   }
