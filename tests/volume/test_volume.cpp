@@ -11,6 +11,7 @@
 #include "analytic_scene.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/volume/tsdf_volume.hpp"
+#include "rekon/volume/volume_config.hpp"
 #include "test_support.hpp"
 
 namespace {
@@ -292,6 +293,22 @@ TEST_P(VolumeTest, ImagesOfTheWrongSizeOrTypeAreRejected) {
 
 INSTANTIATE_TEST_SUITE_P(Backends, VolumeTest, ::testing::ValuesIn(rekon::volume::availableBackends()),
                          [](const ::testing::TestParamInfo<std::string>& p) { return p.param; });
+
+TEST(VolumeConfig, DefaultsMatchTheNamedDefaultsAndBadValuesNameTheKey) {
+  const VolumeParams p = rekon::volume::volumeParamsFromConfig(rekon::Config::load());
+  EXPECT_DOUBLE_EQ(p.voxel_size, VolumeParams::kDefaultVoxelSize);
+  EXPECT_DOUBLE_EQ(p.truncation, VolumeParams::kDefaultTruncation);
+  EXPECT_DOUBLE_EQ(p.max_depth, VolumeParams::kDefaultMaxDepth);
+  EXPECT_EQ(p.block_capacity, VolumeParams::kDefaultBlockCapacity);
+  EXPECT_EQ(p.allocation_stride, VolumeParams::kDefaultAllocationStride);
+  EXPECT_DOUBLE_EQ(p.weight_units, VolumeParams::kDefaultWeightUnits);
+  try {
+    rekon::volume::volumeParamsFromConfig(rekon::Config::load("", {"volume.truncation=0.001"}));
+    FAIL() << "a truncation below the voxel size must be rejected";
+  } catch (const rekon::Error& e) {
+    EXPECT_NE(std::string(e.what()).find("volume.truncation"), std::string::npos) << e.what();
+  }
+}
 
 TEST(DepthToMetres, DividesByTheDepthScale) {
   cv::Mat raw(2, 2, CV_16UC1, cv::Scalar(0));
