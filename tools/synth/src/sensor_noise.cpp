@@ -8,14 +8,9 @@
 namespace rekon::synth {
 namespace {
 
-uint16_t toRaw(double z, double depth_scale) {
-  const double raw = std::round(z * depth_scale);
-  return (raw >= 1.0 && raw <= 65535.0) ? static_cast<uint16_t>(raw) : 0;
-}
-
-double smoothstep(double e0, double e1, double x) {
-  const double t = std::clamp((x - e0) / (e1 - e0), 0.0, 1.0);
-  return t * t * (3.0 - 2.0 * t);
+uint16_t toRaw(float z, float depth_scale) {
+  const float raw = z * depth_scale + 0.5f;  // round to nearest; z >= 0
+  return (raw >= 1.0f && raw < 65535.5f) ? static_cast<uint16_t>(raw) : 0;
 }
 
 }  // namespace
@@ -54,9 +49,10 @@ uint64_t mixSeed(uint64_t a, uint64_t b) {
 
 cv::Mat exactDepth(const RayCastImage& image, double depth_scale) {
   cv::Mat depth(image.height, image.width, CV_16UC1);
+  const float scale = static_cast<float>(depth_scale);
   for (int y = 0; y < image.height; ++y) {
     auto* row = depth.ptr<uint16_t>(y);
-    for (int x = 0; x < image.width; ++x) row[x] = toRaw(image.depth[static_cast<size_t>(y) * image.width + x], depth_scale);
+    for (int x = 0; x < image.width; ++x) row[x] = toRaw(image.depth[static_cast<size_t>(y) * image.width + x], scale);
   }
   return depth;
 }
@@ -70,43 +66,57 @@ cv::Mat exactColor(const RayCastImage& image) {
 cv::Mat kinectDepth(const RayCastImage& image, double depth_scale, uint64_t seed, int threads) {
   using M = KinectModel;
   const int w = image.width, h = image.height;
+  // Nearest and farthest depth around each pixel (5 x 3 window, the
+  // projector's baseline is horizontal); pixels without depth count as far.
+  constexpr float kFar = 1e9f;
+  cv::Mat z(h, w, CV_32FC1, const_cast<float*>(image.depth.data()));
+  cv::Mat z_or_far = z.clone();
+  z_or_far.setTo(kFar, z <= 0.0f);
+  cv::Mat nearest, farthest;
+  const cv::Mat window = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(5, 3));
+  cv::erode(z_or_far, nearest, window, cv::Point(-1, -1), 1, cv::BORDER_REPLICATE);
+  cv::dilate(z_or_far, farthest, window, cv::Point(-1, -1), 1, cv::BORDER_REPLICATE);
+
   cv::Mat depth(h, w, CV_16UC1);
-  const double cos_start = std::cos(M::kGrazingStartDeg * std::numbers::pi / 180.0);
-  const double cos_end = std::cos(M::kGrazingEndDeg * std::numbers::pi / 180.0);
-  const double disparity_k = M::kBaselineM * M::kIrFocalPx;
+  const float cos_start = static_cast<float>(std::cos(M::kGrazingStartDeg * std::numbers::pi / 180.0));
+  const float cos_end = static_cast<float>(std::cos(M::kGrazingEndDeg * std::numbers::pi / 180.0));
+  const float disparity_k = static_cast<float>(M::kBaselineM * M::kIrFocalPx);
+  const float subpixels = static_cast<float>(M::kDisparitySubpixels);
+  const float scale = static_cast<float>(depth_scale);
+  constexpr float kUnit16 = 1.0f / 65536.0f;
   parallelRows(h, threads, [&](int y) {
     Rng rng(mixSeed(seed, static_cast<uint64_t>(y)));
+    const float* zr = z.ptr<float>(y);
+    const float* near_r = nearest.ptr<float>(y);
+    const float* far_r = farthest.ptr<float>(y);
+    const float* cos_r = image.cos_incidence.data() + static_cast<size_t>(y) * w;
     auto* row = depth.ptr<uint16_t>(y);
     for (int x = 0; x < w; ++x) {
-      const size_t i = static_cast<size_t>(y) * w + x;
-      const double z = image.depth[i];
-      // Draw every random number of the pixel up front so that each pixel
-      // consumes the same amount of the stream whatever the outcome.
-      const double u_grazing = rng.uniform(), u_edge = rng.uniform(), u_speckle = rng.uniform(), n = rng.fastNormal();
+      // Every pixel consumes the same two draws, whatever happens to it, so
+      // the noise of a pixel does not depend on its neighbours' fate.
+      const uint64_t bits = rng.next();
+      const float n = rng.fastNormal();
+      const float u_grazing = static_cast<float>(bits & 0xFFFF) * kUnit16;
+      const float u_edge = static_cast<float>((bits >> 16) & 0xFFFF) * kUnit16;
+      const float u_speckle = static_cast<float>((bits >> 32) & 0xFFFF) * kUnit16;
+      const float zc = zr[x];
       row[x] = 0;
-      if (z < M::kMinDepthM || z > M::kMaxDepthM) continue;
-      if (u_grazing < 1.0 - smoothstep(cos_end, cos_start, image.cos_incidence[i])) continue;
+      if (zc < M::kMinDepthM || zc > M::kMaxDepthM) continue;
+      const float t = std::clamp((cos_r[x] - cos_end) / (cos_start - cos_end), 0.0f, 1.0f);
+      if (u_grazing >= t * t * (3.0f - 2.0f * t)) continue;  // keep with probability smoothstep
       if (u_speckle < M::kSpeckleDropProbability) continue;
-      const double tau = M::kDiscontinuityRelative * z + M::kDiscontinuityAbsoluteM;
-      bool behind_edge = false, before_edge = false;
-      for (int dy = -1; dy <= 1; ++dy) {
-        const int yy = y + dy;
-        if (yy < 0 || yy >= h) continue;
-        for (int dx = -2; dx <= 2; ++dx) {
-          const int xx = x + dx;
-          if (xx < 0 || xx >= w) continue;
-          const double zn = image.depth[static_cast<size_t>(yy) * w + xx];
-          if (zn <= 0.0 || zn - z > tau) before_edge = true;
-          if (zn > 0.0 && z - zn > tau) behind_edge = true;
-        }
-      }
+      const float tau = static_cast<float>(M::kDiscontinuityRelative) * zc + static_cast<float>(M::kDiscontinuityAbsoluteM);
+      const bool behind_edge = zc - near_r[x] > tau;
+      const bool before_edge = far_r[x] - zc > tau;
       if (behind_edge && u_edge < M::kShadowDropProbability) continue;
       if (!behind_edge && before_edge && u_edge < M::kEdgeDropProbability) continue;
-      const double sigma = M::kSigmaBaseM + M::kSigmaQuadraticPerM * (z - 0.4) * (z - 0.4);
-      const double noisy = std::max(z + sigma * n, 0.05);
-      const double disparity = std::round(disparity_k / noisy * M::kDisparitySubpixels) / M::kDisparitySubpixels;
-      if (disparity <= 0.0) continue;
-      row[x] = toRaw(disparity_k / disparity, depth_scale);
+      const float sigma = static_cast<float>(M::kSigmaBaseM) +
+                          static_cast<float>(M::kSigmaQuadraticPerM) * (zc - 0.4f) * (zc - 0.4f);
+      const float noisy = std::max(zc + sigma * n, 0.05f);
+      const float disparity = static_cast<float>(static_cast<int32_t>(disparity_k / noisy * subpixels + 0.5f)) / subpixels;
+      if (disparity <= 0.0f) continue;
+      const float raw = disparity_k / disparity * scale + 0.5f;
+      row[x] = raw >= 1.0f && raw < 65535.5f ? static_cast<uint16_t>(raw) : 0;
     }
   });
   return depth;

@@ -13,6 +13,12 @@ constexpr float kOctaveAmplitude[kOctaves] = {0.55f, 0.5f, 0.45f, 0.4f, 0.35f};
 constexpr float kAmbient = 0.6f;
 constexpr float kDiffuse = 0.4f;
 
+// floor() without a libm call on the x86-64 baseline (no SSE4.1 roundss).
+inline float fastFloor(float x) {
+  const float t = static_cast<float>(static_cast<int32_t>(x));
+  return t > x ? t - 1.0f : t;
+}
+
 inline float smoothstep(float e0, float e1, float x) {
   const float t = std::clamp((x - e0) / (e1 - e0), 0.0f, 1.0f);
   return t * t * (3.0f - 2.0f * t);
@@ -27,7 +33,7 @@ inline float squareWave(float x, float period, float footprint) {
   const float k = keep(period, footprint);
   if (k <= 0.0f) return 0.0f;
   float f = x / period;
-  f -= std::floor(f);
+  f -= fastFloor(f);
   const float tri = 1.0f - 4.0f * std::abs(f - 0.5f);
   return k * std::clamp(tri * period / (4.0f * footprint), -1.0f, 1.0f);
 }
@@ -60,7 +66,7 @@ inline uint32_t hash(int32_t x, int32_t y, uint32_t seed) {
 inline float gradientNoise(float x, float y, uint32_t seed) {
   static const float gx[8] = {1.0f, -1.0f, 0.0f, 0.0f, 0.7071f, -0.7071f, 0.7071f, -0.7071f};
   static const float gy[8] = {0.0f, 0.0f, 1.0f, -1.0f, 0.7071f, 0.7071f, -0.7071f, -0.7071f};
-  const float fx = std::floor(x), fy = std::floor(y);
+  const float fx = fastFloor(x), fy = fastFloor(y);
   const int32_t ix = static_cast<int32_t>(fx), iy = static_cast<int32_t>(fy);
   const float rx = x - fx, ry = y - fy;
   auto corner = [&](int dx, int dy) {
