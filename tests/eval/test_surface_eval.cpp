@@ -115,3 +115,16 @@ TEST(EvalCommand, SurfaceEndsWithKeyValues) {
 }
 
 }  // namespace
+
+namespace {
+
+TEST(EvalSurface, DistancesToSurfaceArePerPointAndCapped) {
+  const std::vector<Eigen::Vector3f> points = {{0.5f, 0.5f, 0.004f}, {0.5f, 0.5f, -0.01f}, {0.5f, 0.5f, 3.0f}};
+  const auto d = rekon::eval::distancesToSurface(points, plane(1.0, 4, 0.0f), 0.05);
+  ASSERT_EQ(d.size(), 3u);
+  EXPECT_NEAR(d[0], 0.004, 1e-6);
+  EXPECT_NEAR(d[1], 0.01, 1e-6);
+  EXPECT_NEAR(d[2], 0.05, 1e-6);
+}
+
+}  // namespace

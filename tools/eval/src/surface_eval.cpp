@@ -55,7 +55,12 @@ struct DistanceStats {
   double mean = 0, within_1cm = 0, within_2cm = 0, median = 0;
 };
 
-DistanceStats distances(const std::vector<Eigen::Vector3f>& points, const ClosestPointIndex& index, double cap, int threads) {
+int threadCount(int requested) {
+  return requested > 0 ? requested : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+}
+
+std::vector<float> distancesTo(const std::vector<Eigen::Vector3f>& points, const ClosestPointIndex& index, double cap,
+                               int threads) {
   std::vector<float> d(points.size());
   std::atomic<size_t> next{0};
   constexpr size_t kChunk = 4096;
@@ -71,6 +76,11 @@ DistanceStats distances(const std::vector<Eigen::Vector3f>& points, const Closes
   for (int i = 1; i < threads; ++i) pool.emplace_back(work);
   work();
   for (auto& t : pool) t.join();
+  return d;
+}
+
+DistanceStats distances(const std::vector<Eigen::Vector3f>& points, const ClosestPointIndex& index, double cap, int threads) {
+  std::vector<float> d = distancesTo(points, index, cap, threads);
   DistanceStats s;
   if (d.empty()) return s;
   double sum = 0;
@@ -91,11 +101,18 @@ DistanceStats distances(const std::vector<Eigen::Vector3f>& points, const Closes
 
 }  // namespace
 
+std::vector<float> distancesToSurface(const std::vector<Eigen::Vector3f>& points, const Mesh& surface, double cap_m,
+                                      int threads) {
+  if (!(cap_m > 0)) throw Error("the distance cap must be positive, got " + std::to_string(cap_m));
+  const ClosestPointIndex index(surface);
+  return distancesTo(points, index, cap_m, threadCount(threads));
+}
+
 SurfaceErrors evaluateSurface(const Mesh& mesh, const Mesh& reference, const SurfaceEvalOptions& options) {
   if (mesh.vertices.empty()) throw Error("the evaluated mesh has no vertices; nothing to compare");
   if (reference.vertices.empty()) throw Error("the reference mesh has no vertices; give the ground-truth mesh");
   if (!(options.cap_m > 0)) throw Error("the distance cap must be positive, got " + std::to_string(options.cap_m));
-  const int threads = options.threads > 0 ? options.threads : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  const int threads = threadCount(options.threads);
   SurfaceErrors r;
   r.cap_m = options.cap_m;
   r.mesh_vertices = mesh.vertices.size();

@@ -7,6 +7,7 @@
 // regions count as the cap instead of dominating the mean.
 #include <cstddef>
 #include <cstdint>
+#include <vector>
 
 #include "rekon/common/mesh.hpp"
 
@@ -35,6 +36,11 @@ struct SurfaceErrors {
   size_t reference_samples = 0;
   double cap_m = 0.0;
 };
+
+// Distance from each point to the surface (to its points when it has no
+// triangles), at most cap_m; e.g. for coloring a reconstruction by its error.
+std::vector<float> distancesToSurface(const std::vector<Eigen::Vector3f>& points, const Mesh& surface, double cap_m,
+                                      int threads = 0);
 
 // Throws rekon::Error when either mesh is empty.
 SurfaceErrors evaluateSurface(const Mesh& mesh, const Mesh& reference, const SurfaceEvalOptions& options = {});
