@@ -265,9 +265,8 @@ void TsdfVolume::streamIn(const std::vector<BlockCoord>& coords, std::vector<int
   ensureCapacity(active_blocks_ + static_cast<int64_t>(coords.size()));
   std::vector<Voxel> data(coords.size() * kBlockVoxels);
   for (size_t i = 0; i < coords.size(); ++i) {
-    auto it = host_store_.find(coords[i]);
-    std::copy(it->second.begin(), it->second.end(), data.begin() + i * kBlockVoxels);
-    host_store_.erase(it);
+    const std::vector<Voxel> voxels = hostTake(coords[i]);
+    std::copy(voxels.begin(), voxels.end(), data.begin() + i * kBlockVoxels);
     slots.push_back(takeSlot(coords[i]));
   }
   backend_->writeBlocks(slots, data.data());
@@ -288,18 +287,47 @@ void TsdfVolume::streamAround(const Eigen::Vector3d& centre) {
     std::vector<Voxel> data(out_slots.size() * kBlockVoxels);
     backend_->readBlocks(out_slots, data.data());
     for (size_t i = 0; i < out_slots.size(); ++i) {
-      host_store_[slot_coord_[out_slots[i]]].assign(data.begin() + i * kBlockVoxels,
-                                                     data.begin() + (i + 1) * kBlockVoxels);
+      hostInsert(slot_coord_[out_slots[i]],
+                 std::vector<Voxel>(data.begin() + i * kBlockVoxels, data.begin() + (i + 1) * kBlockVoxels));
       releaseSlot(out_slots[i]);
     }
     streamed_out_ += static_cast<int64_t>(out_slots.size());
   }
   std::vector<BlockCoord> in_coords;
-  for (const auto& [coord, voxels] : host_store_) {
-    if ((blockCentre(coord, params_.voxel_size) - centre).norm() <= r) in_coords.push_back(coord);
+  const double cell_side = kCellBlocks * kBlockSide * params_.voxel_size;
+  const Eigen::Vector3i lo = ((centre.array() - r) / cell_side).floor().cast<int>();
+  const Eigen::Vector3i hi = ((centre.array() + r) / cell_side).floor().cast<int>();
+  for (int z = lo.z(); z <= hi.z(); ++z) {
+    for (int y = lo.y(); y <= hi.y(); ++y) {
+      for (int x = lo.x(); x <= hi.x(); ++x) {
+        const auto cell = host_cells_.find({x, y, z});
+        if (cell == host_cells_.end()) continue;
+        for (const BlockCoord& coord : cell->second) {
+          if ((blockCentre(coord, params_.voxel_size) - centre).norm() <= r) in_coords.push_back(coord);
+        }
+      }
+    }
   }
   std::vector<int32_t> slots;
   streamIn(in_coords, slots);
+}
+
+void TsdfVolume::hostInsert(const BlockCoord& coord, std::vector<Voxel> voxels) {
+  host_store_[coord] = std::move(voxels);
+  host_cells_[{floorDiv(coord.x, kCellBlocks), floorDiv(coord.y, kCellBlocks), floorDiv(coord.z, kCellBlocks)}].push_back(coord);
+}
+
+std::vector<Voxel> TsdfVolume::hostTake(const BlockCoord& coord) {
+  auto it = host_store_.find(coord);
+  std::vector<Voxel> voxels = std::move(it->second);
+  host_store_.erase(it);
+  const BlockCoord cell{floorDiv(coord.x, kCellBlocks), floorDiv(coord.y, kCellBlocks), floorDiv(coord.z, kCellBlocks)};
+  auto& members = host_cells_[cell];
+  const auto m = std::find(members.begin(), members.end(), coord);
+  *m = members.back();
+  members.pop_back();
+  if (members.empty()) host_cells_.erase(cell);
+  return voxels;
 }
 
 Mesh TsdfVolume::extractMesh() const {

@@ -138,6 +138,12 @@ class TsdfVolume {
   int64_t streamed_in_ = 0;
   int64_t last_update_blocks_ = 0;
   HostStore host_store_;
+  // The host store's blocks by coarse cell (kCellBlocks^3 blocks), so that
+  // stream-in visits only the cells the sphere overlaps, not the whole store.
+  static constexpr int kCellBlocks = 8;
+  std::unordered_map<BlockCoord, std::vector<BlockCoord>, CoordHash> host_cells_;
+  void hostInsert(const BlockCoord& coord, std::vector<Voxel> voxels);
+  std::vector<Voxel> hostTake(const BlockCoord& coord);
 };
 
 // Raw 16-bit depth (depth_scale units per metre, 0 = none) to CV_32F metres.
