@@ -1,5 +1,7 @@
 #include "commands.hpp"
 
+#include "rekon/eval/eval_command.hpp"
+
 #include "rekon/render/render.hpp"
 
 #include "rekon/volume/fuse_command.hpp"
@@ -13,6 +15,7 @@ namespace rekon {
 
 const std::vector<Command>& commands() {
   static const std::vector<Command> table = {
+      {"eval", "trajectory (ATE, RPE) and surface (CORR, COMPL) errors against ground truth", &eval::evalCommand},
       {"render", "offscreen shaded image of a colored mesh (PLY to PNG)", &render::renderCommand},
       {"fuse", "integrate a dataset at given poses into the TSDF volume and write its mesh", volume::fuseMain},
       {"odometry", "dense RGB-D odometry (DVO) in-process on a dataset; writes a TUM trajectory", tracker::odometryMain},
