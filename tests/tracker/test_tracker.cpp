@@ -138,6 +138,7 @@ TEST(TrackerParams, DefaultConfigGivesTheNamedDefaults) {
   EXPECT_DOUBLE_EQ(p.lost.max_frame_rotation_deg, d.lost.max_frame_rotation_deg);
   EXPECT_DOUBLE_EQ(p.lost.max_intensity_sigma, d.lost.max_intensity_sigma);
   EXPECT_DOUBLE_EQ(p.lost.max_depth_sigma, d.lost.max_depth_sigma);
+  EXPECT_DOUBLE_EQ(p.lost.residual_entropy_ratio, d.lost.residual_entropy_ratio);
   EXPECT_EQ(p.lost.max_lost_frames, d.lost.max_lost_frames);
 }
 

@@ -3,6 +3,8 @@
 // frames, and ATE / RPE against the dataset's ground truth. Prints numbers;
 // asserts nothing.
 //   tracker_bench DATASET [FRAMES] [tracker.key=value ...]
+// DATASET synth:SCENE renders rekon_synth's SCENE with Kinect-like noise in
+// process instead of reading a folder.
 #include <time.h>
 
 #include <algorithm>
@@ -16,6 +18,7 @@
 #include "rekon/common/config.hpp"
 #include "rekon/common/dataset.hpp"
 #include "rekon/common/error.hpp"
+#include "rekon/synth/synth.hpp"
 #include "rekon/tracker/tracker.hpp"
 #include "trajectory_metrics.hpp"
 
@@ -31,13 +34,29 @@ int main(int argc, char** argv) {
     const auto params = rekon::tracker::trackerParamsFromConfig(config);
     rekon::DatasetOptions options;
     options.max_frames = argc > 2 ? std::stoi(argv[2]) : 0;
-    const rekon::TumDataset dataset(argv[1], options);
-    // Decode everything first so that the timed loop touches no disk.
+    // Decode (or render) everything first so that the timed loop touches no disk.
     std::vector<rekon::RgbdFrame> frames;
+    rekon::Intrinsics intrinsics;
+    rekon::Trajectory ground_truth;
+    const std::string source = argv[1];
     const auto l0 = std::chrono::steady_clock::now();
-    for (size_t i = 0; i < dataset.size(); ++i) {
-      frames.push_back(dataset.load(i));
-      frames.back().id = static_cast<int64_t>(i);
+    if (source.rfind("synth:", 0) == 0) {
+      const auto scene = rekon::synth::Scene::make(source.substr(6));
+      intrinsics = rekon::synth::defaultIntrinsics();
+      ground_truth = scene->trajectory(options.max_frames > 0 ? options.max_frames : scene->defaultFrames(), 1);
+      for (size_t i = 0; i < ground_truth.size(); ++i) {
+        frames.push_back(scene->render(intrinsics, ground_truth[i].pose, rekon::synth::Noise::Kinect, i + 1));
+        frames.back().id = static_cast<int64_t>(i);
+        frames.back().timestamp = ground_truth[i].timestamp;
+      }
+    } else {
+      const rekon::TumDataset dataset(source, options);
+      intrinsics = dataset.intrinsics();
+      if (dataset.hasGroundTruth()) ground_truth = dataset.groundTruth();
+      for (size_t i = 0; i < dataset.size(); ++i) {
+        frames.push_back(dataset.load(i));
+        frames.back().id = static_cast<int64_t>(i);
+      }
     }
     const double load_ms =
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - l0).count() / frames.size();
@@ -58,7 +77,7 @@ int main(int argc, char** argv) {
     const auto t0 = std::chrono::steady_clock::now();
     for (const auto& f : frames) {
       const auto a = std::chrono::steady_clock::now();
-      const auto r = tracker.track(f, dataset.intrinsics());
+      const auto r = tracker.track(f, intrinsics);
       worst_ms = std::max(worst_ms, std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - a).count());
       iterations += r.iterations;
       if (r.state == rekon::tracker::TrackingState::Ok && r.iterations > 0) {
@@ -87,10 +106,13 @@ int main(int argc, char** argv) {
                 percentile(sigma_z, 0.5), percentile(sigma_z, 0.99), percentile(sigma_z, 1.0));
     std::printf("entropy_ratio min=%.3f p01=%.3f median=%.3f\n", percentile(ratios, 0.0), percentile(ratios, 0.01),
                 percentile(ratios, 0.5));
-    if (dataset.hasGroundTruth()) {
-      const auto e = rekon::tracker::test::compareTrajectories(trajectory, dataset.groundTruth());
-      std::printf("matched=%d ate_rmse_cm=%.2f rpe_trans_cm_per_s=%.2f rpe_rot_deg_per_s=%.2f path_m=%.2f\n",
-                  e.matched, 100 * e.ate_rmse_m, 100 * e.rpe_trans_m_per_s, e.rpe_rot_deg_per_s, e.path_length_m);
+    if (!ground_truth.empty()) {
+      const auto e = rekon::tracker::test::compareTrajectories(trajectory, ground_truth);
+      std::printf(
+          "matched=%d ate_rmse_cm=%.2f rpe_trans_cm_per_s=%.2f rpe_rot_deg_per_s=%.2f path_m=%.2f "
+          "drift_percent=%.2f drift_deg_per_m=%.3f\n",
+          e.matched, 100 * e.ate_rmse_m, 100 * e.rpe_trans_m_per_s, e.rpe_rot_deg_per_s, e.path_length_m,
+          100 * e.drift_per_m, e.drift_deg_per_m);
     }
     if (const char* out = std::getenv("TRACKER_BENCH_OUT")) rekon::writeTumTrajectory(trajectory, out);
   } catch (const rekon::Error& e) {

@@ -59,6 +59,25 @@ TrajectoryErrors compareTrajectories(const Trajectory& estimate, const Trajector
     sr += std::pow(rotationAngle(Pose::Identity(), err) * 180.0 / std::numbers::pi / dt, 2);
     ++pairs;
   }
+  // Drift per metre: pairs (i, j) with one metre of ground-truth path between them.
+  std::vector<double> along(n, 0.0);
+  for (size_t i = 1; i < n; ++i) along[i] = along[i - 1] + (gt[i].translation() - gt[i - 1].translation()).norm();
+  double dt2 = 0.0, dr2 = 0.0;
+  int segments = 0;
+  size_t k = 0;
+  for (size_t i = 0; i < n; ++i) {
+    while (k < n && along[k] < along[i] + 1.0) ++k;
+    if (k >= n) break;
+    const Pose err = (gt[i].inverse() * gt[k]).inverse() * (est[i].inverse() * est[k]);
+    const double len = along[k] - along[i];
+    dt2 += std::pow(err.translation().norm() / len, 2);
+    dr2 += std::pow(rotationAngle(Pose::Identity(), err) * 180.0 / std::numbers::pi / len, 2);
+    ++segments;
+  }
+  if (segments > 0) {
+    out.drift_per_m = std::sqrt(dt2 / segments);
+    out.drift_deg_per_m = std::sqrt(dr2 / segments);
+  }
   if (pairs > 0) {
     out.rpe_trans_m_per_s = std::sqrt(st / pairs);
     out.rpe_rot_deg_per_s = std::sqrt(sr / pairs);

@@ -12,6 +12,8 @@ struct TrajectoryErrors {
   double ate_rmse_m = 0.0;          // after the best rigid alignment (no scale)
   double rpe_trans_m_per_s = 0.0;   // RMSE of the translation drift over 1 s windows
   double rpe_rot_deg_per_s = 0.0;   // RMSE of the rotation drift over 1 s windows
+  double drift_per_m = 0.0;         // RMSE of the translation drift over 1 m of ground-truth path, m/m
+  double drift_deg_per_m = 0.0;     // likewise for rotation, degrees per metre
   double path_length_m = 0.0;       // of the matched ground truth
 };
 

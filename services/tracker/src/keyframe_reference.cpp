@@ -63,8 +63,20 @@ void selectLevel(const PyramidLevel& src, const AlignerParams& p, KeyframeRefere
       const float z = D[o];
       const float zl = D[o - 1], zr = D[o + 1], zu = D[o - w], zd = D[o + w];
       if (std::isnan(z + zl + zr + zu + zd)) continue;
-      const float zgx = 0.5f * (zr - zl), zgy = 0.5f * (zd - zu);
-      if (std::abs(zgx) > max_step * z || std::abs(zgy) > max_step * z) continue;
+      if (std::abs(zr - zl) > max_step * z || std::abs(zd - zu) > max_step * z) continue;
+      // Depth gradients from a 3x3 Sobel stencil where all of it is valid:
+      // sensor depth is noisy and quantised, and the geometric Jacobian
+      // inherits that noise; central differences only where it is not.
+      float zgx = 0.5f * (zr - zl), zgy = 0.5f * (zd - zu);
+      const float zul = D[o - w - 1], zur = D[o - w + 1], zdl = D[o + w - 1], zdr = D[o + w + 1];
+      if (!std::isnan(zul + zur + zdl + zdr)) {
+        const float sx = 0.125f * (zur + 2.f * zr + zdr - zul - 2.f * zl - zdl);
+        const float sy = 0.125f * (zdl + 2.f * zd + zdr - zul - 2.f * zu - zur);
+        if (std::abs(sx) <= 0.5f * max_step * z && std::abs(sy) <= 0.5f * max_step * z) {
+          zgx = sx;
+          zgy = sy;
+        }
+      }
       const float gx = 0.5f * (I[o + 1] - I[o - 1]), gy = 0.5f * (I[o + w] - I[o - w]);
       if (gx * gx + gy * gy < grad2_threshold) continue;
       const float px = (static_cast<float>(x) - cx) * z / fx;

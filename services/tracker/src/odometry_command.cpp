@@ -58,9 +58,10 @@ int odometryMain(int argc, char** argv) {
     track_s += std::chrono::duration<double>(t2 - t1).count();
     if (result.state == TrackingState::Lost) ++lost;
     trajectory.push_back({frame.timestamp, result.pose_world});
-    spdlog::debug("frame {} kf {} state {} iterations {} valid {} entropy {:.2f} ratio {:.3f}", i,
+    spdlog::debug("frame {} kf {} state {} iterations {} valid {} entropy {:.2f} ratio {:.3f} sigma {:.4f} {:.4f} m", i,
                   result.keyframe_id, result.state == TrackingState::Ok ? "ok" : toString(result.lost_reason),
-                  result.iterations, result.valid_pixels, result.entropy, result.entropy_ratio);
+                  result.iterations, result.valid_pixels, result.entropy, result.entropy_ratio, result.intensity_sigma,
+                  result.depth_sigma);
   }
   writeTumTrajectory(trajectory, args.get("out"));
   const double n = static_cast<double>(std::max<size_t>(dataset.size(), 1));

@@ -55,6 +55,8 @@ void LostParams::validate() const {
           max_intensity_sigma, "positive");
   require(std::isfinite(max_depth_sigma) && max_depth_sigma > 0, "lost_max_depth_sigma", max_depth_sigma,
           "positive");
+  require(std::isfinite(residual_entropy_ratio) && residual_entropy_ratio > 0, "lost_residual_entropy_ratio",
+          residual_entropy_ratio, "positive");
   require(max_lost_frames >= 1, "lost_max_frames", max_lost_frames, "at least 1");
 }
 
@@ -89,6 +91,7 @@ TrackerParams trackerParamsFromConfig(const Config& c) {
   p.lost.max_frame_rotation_deg = c.getDouble("tracker.lost_max_frame_rotation_deg");
   p.lost.max_intensity_sigma = c.getDouble("tracker.lost_max_intensity_sigma");
   p.lost.max_depth_sigma = c.getDouble("tracker.lost_max_depth_sigma");
+  p.lost.residual_entropy_ratio = c.getDouble("tracker.lost_residual_entropy_ratio");
   p.lost.max_lost_frames = c.getInt("tracker.lost_max_frames");
   p.validate();
   return p;

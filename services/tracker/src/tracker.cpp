@@ -42,15 +42,19 @@ std::shared_ptr<const Keyframe> Tracker::makeKeyframe(const RgbdFrame& frame, co
   return kf;
 }
 
+bool Tracker::entropyRatioBelow(double entropy, double threshold) const {
+  // H(kf,t) / H(kf,kf+1) < threshold, written so that it also holds when the
+  // entropies are positive (few pixels, large covariance): the estimate's
+  // entropy grew by more than (1 - threshold) of the reference's magnitude.
+  if (!reference_entropy_) return false;
+  return entropy - *reference_entropy_ > (1.0 - threshold) * std::abs(*reference_entropy_);
+}
+
 bool Tracker::keyframeDue(const AlignResult& aligned) const {
   const auto& kp = params_.keyframe;
   if (aligned.pose.translation().norm() > kp.max_translation) return true;
   if (rotationAngleOf(aligned.pose) > radians(kp.max_rotation_deg)) return true;
-  if (kp.criterion != "entropy_ratio" || !reference_entropy_) return false;
-  // H(kf,t) / H(kf,kf+1) < threshold, written so that it also holds when the
-  // entropies are positive (few pixels, large covariance): the estimate's
-  // entropy grew by more than (1 - threshold) of the reference's magnitude.
-  return aligned.entropy - *reference_entropy_ > (1.0 - kp.entropy_ratio) * std::abs(*reference_entropy_);
+  return kp.criterion == "entropy_ratio" && entropyRatioBelow(aligned.entropy, kp.entropy_ratio);
 }
 
 TrackResult Tracker::track(const RgbdFrame& frame, const Intrinsics& k) {
@@ -98,7 +102,8 @@ TrackResult Tracker::track(const RgbdFrame& frame, const Intrinsics& k) {
     else if (correction.translation().norm() > lp.max_frame_translation ||
              rotationAngleOf(correction) > radians(lp.max_frame_rotation_deg))
       reason = LostReason::JumpBeyondBasin;
-    else if (aligned.intensity_sigma > lp.max_intensity_sigma || aligned.depth_sigma > lp.max_depth_sigma)
+    else if ((aligned.intensity_sigma > lp.max_intensity_sigma || aligned.depth_sigma > lp.max_depth_sigma) &&
+             entropyRatioBelow(aligned.entropy, lp.residual_entropy_ratio))
       reason = LostReason::LargeResidual;
   }
 

@@ -71,6 +71,7 @@ struct LostParams {
   static constexpr double kDefaultMaxFrameRotationDeg = 30.0;
   static constexpr double kDefaultMaxIntensitySigma = 0.2;
   static constexpr double kDefaultMaxDepthSigma = 0.3;
+  static constexpr double kDefaultResidualEntropyRatio = 0.75;
   static constexpr int kDefaultMaxLostFrames = 30;
 
   double min_valid_depth_fraction = kDefaultMinValidDepthFraction;  // of the frame's pixels
@@ -88,6 +89,10 @@ struct LostParams {
   // across a jump does not.
   double max_intensity_sigma = kDefaultMaxIntensitySigma;
   double max_depth_sigma = kDefaultMaxDepthSigma;
+  // ... but only when the entropy ratio has also fallen below this: a long
+  // keyframe on a scene with fuzzy depth edges (TUM teddy at full resolution)
+  // reaches those scales with a sound, only slowly degrading estimate.
+  double residual_entropy_ratio = kDefaultResidualEntropyRatio;
   // After this many lost frames in a row a trackable frame starts a new
   // keyframe at the last good pose (the chain of odometry constraints breaks).
   int max_lost_frames = kDefaultMaxLostFrames;

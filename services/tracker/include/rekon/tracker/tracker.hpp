@@ -94,6 +94,7 @@ class Tracker {
  private:
   std::shared_ptr<const Keyframe> makeKeyframe(const RgbdFrame& frame, const Pose& pose_world);
   bool keyframeDue(const AlignResult& aligned) const;
+  bool entropyRatioBelow(double entropy, double threshold) const;
 
   TrackerParams params_;
   DenseAligner aligner_;
