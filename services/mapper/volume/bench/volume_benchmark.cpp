@@ -14,6 +14,9 @@
 #include "rekon/common/error.hpp"
 #include "rekon/common/logging.hpp"
 #include "rekon/volume/tsdf_volume.hpp"
+#ifdef REKON_WITH_OPEN3D
+#include "open3d_reference.hpp"
+#endif
 
 namespace {
 
@@ -28,7 +31,7 @@ double cpuMs() {
 }
 
 struct Frame {
-  cv::Mat depth, color;
+  cv::Mat depth, color, raw_depth;
   rekon::Pose pose;
 };
 
@@ -54,7 +57,7 @@ int main(int argc, char** argv) try {
     const int p = rekon::nearestInTime(dataset.groundTruth(), dataset.timestamp(i), options.max_time_difference);
     if (p < 0) continue;
     const rekon::RgbdFrame f = dataset.load(i);
-    frames.push_back({rekon::volume::depthToMetres(f.depth, k.depth_scale), f.color, dataset.groundTruth()[p].pose});
+    frames.push_back({rekon::volume::depthToMetres(f.depth, k.depth_scale), f.color, f.depth, dataset.groundTruth()[p].pose});
   }
   spdlog::info("{} frames with poses loaded from {}", frames.size(), args.get("dataset"));
 
@@ -109,7 +112,30 @@ int main(int argc, char** argv) try {
               mesh.triangles.size(), s.bytes_per_voxel,
               s.blocks * rekon::volume::kBlockVoxels * s.bytes_per_voxel / 1048576.0,
               static_cast<long long>(volume.stats().blocks));
-  std::printf("open3d_reference_ms_per_frame=26.9 speedup_vs_open3d=%.2f\n", 26.9 / integrate_ms);
+#ifdef REKON_WITH_OPEN3D
+  {
+    std::vector<cv::Mat> raw, color;
+    std::vector<rekon::Pose> poses;
+    for (const Frame& f : frames) {
+      raw.push_back(f.raw_depth);
+      color.push_back(f.color);
+      poses.push_back(f.pose);
+    }
+    for (const bool float_voxels : {false, true}) {
+      const Open3dResult o3d = runOpen3dReference(raw, color, poses, k, params.voxel_size, params.truncation,
+                                                  params.max_depth, float_voxels);
+      const char* layout = float_voxels ? "float32" : "uint16";
+      std::printf("open3d_%s_integrate_ms_per_frame=%.2f open3d_%s_mesh_s=%.3f open3d_blocks=%lld open3d_mesh_vertices=%zu\n",
+                  layout, o3d.integrate_ms_per_frame, layout, o3d.mesh_s, o3d.blocks, o3d.mesh_vertices);
+      std::printf("speedup_vs_open3d_%s_same_run=%.2f mesh_speedup=%.2f\n", layout,
+                  o3d.integrate_ms_per_frame / integrate_ms, o3d.mesh_s / mesh_s);
+    }
+  }
+#else
+  std::printf("open3d: not built (install libopen3d-dev and re-configure to compare in the same run)\n");
+#endif
+  std::printf("open3d_reference_ms_per_frame=26.9 (measured on this machine, data/README.md) speedup_vs_open3d_reference=%.2f\n",
+              26.9 / integrate_ms);
   return 0;
 } catch (const std::exception& e) {
   std::fprintf(stderr, "rekon_volume_benchmark: %s\n", e.what());
