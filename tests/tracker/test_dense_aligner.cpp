@@ -68,6 +68,7 @@ TEST_F(DenseAlignerTest, ReportsPositiveDefiniteInformationEntropyAndConstrainin
   ASSERT_TRUE(r.valid);
   EXPECT_EQ(Eigen::LLT<Matrix6d>(r.information).info(), Eigen::Success);
   EXPECT_TRUE(std::isfinite(r.entropy));
+  EXPECT_DOUBLE_EQ(r.entropy, entropyOfInformation(r.information));
   // Thousands of textured pixels constrain a 320x240 alignment; the warped
   // count cannot exceed the keyframe's selection.
   EXPECT_GT(r.valid_pixels, 2000);

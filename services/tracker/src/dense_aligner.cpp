@@ -46,6 +46,14 @@ Matrix6d AlignResult::covariance() const {
   return llt.solve(Matrix6d::Identity());
 }
 
+double entropyOfInformation(const Matrix6d& information) {
+  const Eigen::LLT<Matrix6d> llt(information);
+  if (llt.info() != Eigen::Success || !information.allFinite()) return std::numeric_limits<double>::infinity();
+  double log_det = 0.0;
+  for (int i = 0; i < 6; ++i) log_det += 2.0 * std::log(llt.matrixL()(i, i));
+  return 3.0 * (1.0 + std::log(2.0 * std::numbers::pi)) - 0.5 * log_det;
+}
+
 DenseAligner::DenseAligner(const AlignerParams& params) : params_(params) { params_.validate(); }
 
 int DenseAligner::warp(const KeyframeReference::Level& ref, const PyramidLevel& cur,
@@ -277,14 +285,12 @@ AlignResult DenseAligner::align(const KeyframeReference& reference, const RgbdPy
   // adjoint moves it to the right increment in the current camera's frame.
   const Matrix6d ad = adjoint(t_kc);
   const Matrix6d info = ad.transpose() * h_final * ad;
-  const Eigen::LLT<Matrix6d> llt(info);
-  if (llt.info() != Eigen::Success || !info.allFinite()) return result;
-  double log_det = 0.0;
-  for (int i = 0; i < 6; ++i) log_det += 2.0 * std::log(llt.matrixL()(i, i));
+  const double entropy = entropyOfInformation(info);
+  if (!std::isfinite(entropy)) return result;
   result.pose = t_kc;
   result.information = 0.5 * (info + info.transpose());
-  result.entropy = 3.0 * (1.0 + std::log(2.0 * std::numbers::pi)) - 0.5 * log_det;
-  result.valid = std::isfinite(result.entropy);
+  result.entropy = entropy;
+  result.valid = true;
   return result;
 }
 

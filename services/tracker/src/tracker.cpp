@@ -141,6 +141,8 @@ TrackResult Tracker::track(const RgbdFrame& frame, const Intrinsics& k) {
     c.from_id = keyframe_->id;
     c.relative = aligned.pose;
     c.information = aligned.information;
+    c.entropy = aligned.entropy;
+    c.valid_pixels = aligned.valid_pixels;
     keyframe_ = makeKeyframe(frame, keyframe_->pose_world * aligned.pose);
     c.to_id = keyframe_->id;
     r.odometry = c;

@@ -34,6 +34,11 @@ struct AlignResult {
   Matrix6d covariance() const;
 };
 
+// Differential entropy 0.5 ln((2 pi e)^6 det(information^-1)) of a 6-DoF
+// Gaussian, in nats; +infinity when `information` is not positive definite.
+// Loop-closure checks compare it with the odometry constraints' entropies.
+double entropyOfInformation(const Matrix6d& information);
+
 class DenseAligner {
  public:
   explicit DenseAligner(const AlignerParams& params = {});

@@ -49,6 +49,8 @@ struct OdometryConstraint {
   int64_t to_id = 0;
   Pose relative = Pose::Identity();
   Matrix6d information = Matrix6d::Zero();
+  double entropy = 0.0;  // entropyOfInformation(information)
+  int valid_pixels = 0;  // pixels that constrained it
 };
 
 struct TrackResult {
