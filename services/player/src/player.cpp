@@ -192,8 +192,10 @@ void runPlayer(ServiceContext& ctx, const PlayerParams& params) {
       std::this_thread::sleep_until(due);
     } else if (!params.wait_for.empty()) {
       // Keep at most slots-1 frames unacknowledged so the ring never overwrites
-      // a frame a consumer has not read.
-      const int64_t must_be_acked = frame.id - (sender.slots() - 1);
+      // a frame a consumer has not read; inline frames (~0.5 MB each) keep two
+      // in flight so the receivers' UDP buffers never overflow.
+      const int in_flight = mode == TransportMode::kShm ? sender.slots() - 1 : 2;
+      const int64_t must_be_acked = frame.id - in_flight;
       const std::string silent = watch.waitForAck(params.wait_for, must_be_acked, params.wait_timeout_s, ctx);
       if (!silent.empty()) {
         throw Error("rekon-" + silent + " acknowledged no frame for " + std::to_string(int(params.wait_timeout_s)) +

@@ -30,6 +30,7 @@ inline constexpr const char* kGraphUpdates = "GRAPH_UPDATES";
 inline constexpr const char* kHeartbeat = "HEARTBEAT";
 inline constexpr const char* kStats = "STATS";
 inline constexpr const char* kShutdown = "SHUTDOWN";
+inline constexpr const char* kDone = "DONE";
 }  // namespace channel
 
 struct BusOptions {
