@@ -12,7 +12,6 @@
 namespace rekon::tracker {
 namespace {
 
-using Matrix8f = Eigen::Matrix<float, 8, 8>;
 
 // Floors of the residual scales: noise-free synthetic frames drive the
 // residuals to zero, and a singular scale matrix would give infinite weights.
@@ -21,10 +20,10 @@ constexpr double kMinDepthSigma = 1e-5;      // metres
 constexpr double kMaxCorrelation = 0.99;
 constexpr int kScaleIterations = 5;
 constexpr double kScaleTolerance = 1e-2;  // relative change that ends the EM of the scale
-// Pixels per block of the normal-equation product: float sums over a block,
-// double across blocks, and the block (2 rows of 8 floats per pixel, 32 KiB)
-// stays in the L1/L2 cache.
-constexpr int kBlockPixels = 1024;
+// Pixels per block of the normal-equation sums: float within a block, double
+// across blocks; the block (7 columns of 2 rows per pixel, 28 KiB) stays in
+// the L1 cache.
+constexpr int kBlockPixels = 512;
 
 void clampScale(double& s11, double& s12, double& s22, bool use_depth) {
   s11 = std::max(s11, kMinIntensitySigma * kMinIntensitySigma);
@@ -164,9 +163,11 @@ double DenseAligner::estimateScale(int n, Scale& scale) {
 void DenseAligner::accumulate(const KeyframeReference::Level& ref, int n, const Scale& scale, Matrix6d& h,
                               Vector6d& b) {
   // Whitening: S^-1 = U^T U with U upper triangular turns the 2x2-weighted
-  // joint residual into two scalar rows sqrt(w) (U J | U r). The rows of a block
-  // of pixels go into a small matrix G whose G^T G (one matrix product,
-  // vectorised by Eigen) holds J^T W J and J^T W r; blocks are summed in double.
+  // joint residual into two scalar rows sqrt(w) (U J | U r) per pixel. A block
+  // of such rows is stored column by column (7 columns: 6 Jacobian entries and
+  // the residual), and the 28 dot products of column pairs give J^T W J and
+  // J^T W r: contiguous, vectorised reductions with no gathering. Float within
+  // a block, double across blocks.
   const double det = scale.s11 * scale.s22 - scale.s12 * scale.s12;
   const double a = scale.s22 / det, bb = -scale.s12 / det, c = scale.s11 / det;
   const float u11 = static_cast<float>(std::sqrt(a));
@@ -174,7 +175,10 @@ void DenseAligner::accumulate(const KeyframeReference::Level& ref, int n, const 
   const float u22 = params_.use_depth ? static_cast<float>(std::sqrt(std::max(c - bb * bb / a, 0.0))) : 0.f;
   const float nu = static_cast<float>(params_.t_dof);
   const float* J = ref.jacobians.data();
-  Eigen::Matrix<double, 8, 8> total = Eigen::Matrix<double, 8, 8>::Zero();
+  constexpr int kRows = 2 * kBlockPixels;
+  float* col[7];
+  for (int d = 0; d < 7; ++d) col[d] = block_.data() + static_cast<size_t>(d) * kRows;
+  Eigen::Matrix<double, 7, 7> total = Eigen::Matrix<double, 7, 7>::Zero();
   for (int start = 0; start < n; start += kBlockPixels) {
     const int count = std::min(kBlockPixels, n - start);
     for (int k = 0; k < count; ++k) {
@@ -183,19 +187,19 @@ void DenseAligner::accumulate(const KeyframeReference::Level& ref, int n, const 
       const float e1 = u11 * ri + u12 * rz, e2 = u22 * rz;
       const float sw = std::sqrt((nu + 2.f) / (nu + e1 * e1 + e2 * e2));
       const float* j = J + KeyframeReference::kJacobianStride * index_[i];
-      float* g1 = block_.data() + 16 * k;
-      float* g2 = g1 + 8;
-      for (int d = 0; d < 8; ++d) {
-        g1[d] = sw * (u11 * j[d] + u12 * j[8 + d]);
-        g2[d] = sw * u22 * j[8 + d];
+      const float s1 = sw * u11, s12 = sw * u12, s2 = sw * u22;
+      for (int d = 0; d < 6; ++d) {
+        col[d][2 * k] = s1 * j[d] + s12 * j[8 + d];
+        col[d][2 * k + 1] = s2 * j[8 + d];
       }
-      g1[6] = sw * e1;
-      g2[6] = sw * e2;
+      col[6][2 * k] = sw * e1;
+      col[6][2 * k + 1] = sw * e2;
     }
-    const Eigen::Map<const Eigen::Matrix<float, 8, Eigen::Dynamic>> g(block_.data(), 8, 2 * count);
-    Matrix8f acc = Matrix8f::Zero();
-    acc.selfadjointView<Eigen::Upper>().rankUpdate(g);
-    total += acc.cast<double>();
+    const int rows = 2 * count;
+    for (int p = 0; p < 7; ++p) {
+      const Eigen::Map<const Eigen::VectorXf> gp(col[p], rows);
+      for (int q = p; q < 7; ++q) total(p, q) += gp.dot(Eigen::Map<const Eigen::VectorXf>(col[q], rows));
+    }
   }
   total.triangularView<Eigen::StrictlyLower>() = total.transpose();
   h = total.topLeftCorner<6, 6>();
@@ -222,7 +226,7 @@ AlignResult DenseAligner::align(const KeyframeReference& reference, const RgbdPy
     weight_.resize(capacity);
     index_.resize(capacity);
   }
-  block_.resize(16 * kBlockPixels);
+  block_.resize(7 * 2 * kBlockPixels);
   result.selected_pixels = reference.level(finest).count;
 
   Pose t_ck = initial.inverse();
