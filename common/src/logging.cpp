@@ -12,6 +12,7 @@ void setupLogging(const std::string& service, const std::string& level) {
   if (lvl == spdlog::level::off && level != "off") {
     throw Error("log level '" + level + "' is unknown; use trace, debug, info, warn or error");
   }
+  spdlog::drop(service);  // set-up may run twice in one process (rekon demo, then run)
   auto logger = spdlog::stderr_color_mt(service);
   spdlog::set_default_logger(logger);
   spdlog::set_pattern("[%H:%M:%S.%e] [%n] [%^%l%$] %v");

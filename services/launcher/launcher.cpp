@@ -18,6 +18,7 @@
 #include "rekon/common/frame_ring.hpp"
 #include "rekon/common/json.hpp"
 #include "rekon/common/logging.hpp"
+#include "rekon/synth/synth.hpp"
 
 namespace rekon {
 namespace fs = std::filesystem;
@@ -223,16 +224,31 @@ int runMain(int argc, char** argv) {
 }
 
 int demoMain(int argc, char** argv) {
-  ArgParser args("rekon demo", "Runs the whole pipeline on the built-in default scene and prints where the outputs are.");
+  ArgParser args("rekon demo", "Runs the whole pipeline on the built-in default scene (synthetic room) and prints where the outputs are.");
   const fs::path root = fs::path(executableDir()).parent_path().parent_path();
-  args.option("out", "output folder", (root / "out" / "demo").string());
+  args.option("out", "output folder", (root / "out" / "demo").string())
+      .option("frames", "frames of the synthetic room (0 = its default, 600)", "0")
+      .repeated("set", "override one config key, e.g. --set mapper.kappa=10");
   if (!args.parse(argc, argv)) return 0;
-  const fs::path data = root.parent_path() / "shared" / "data" / "7scenes_loop_1000";
-  if (!fs::is_directory(data)) {
-    throw Error(data.string() + " is absent; the demo needs it until the scene generator lands (see README)");
+  const fs::path out(args.get("out"));
+  synth::SequenceOptions scene;
+  scene.scene = "room";
+  scene.frames = args.getInt("frames");
+  const fs::path data = out / ("room_" + std::to_string(scene.frames) + "_data");
+  if (!fs::exists(data / "groundtruth.txt")) {
+    setupLogging("demo", "info");
+    spdlog::info("demo: generating the synthetic room into {} (once)", data.string());
+    synth::writeSequence(scene, data.string());
   }
-  spdlog::info("demo: the scene generator is not part of this build yet; playing the first 100 frames of {}", data.string());
-  return launch({data.string(), args.get("out"), "", {"player.max_frames=100"}});
+  const int rc = launch({data.string(), out.string(), "", args.all("set")});
+  if (rc == 0 && fs::exists(out / "trajectory.txt")) {
+    spdlog::info("compare with the ground truth: tools/rekon eval traj {} {}", (data / "groundtruth.txt").string(),
+                 (out / "trajectory.txt").string());
+  }
+  if (rc == 0 && fs::exists(out / "mesh.ply")) {
+    spdlog::info("and the surface: tools/rekon eval surface {} {}", (out / "mesh.ply").string(), (data / "mesh_gt.ply").string());
+  }
+  return rc;
 }
 
 }  // namespace rekon
