@@ -6,8 +6,10 @@
 
 #include <sys/resource.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
 
 #include "rekon/common/cli.hpp"
 #include "rekon/common/dataset.hpp"
@@ -112,6 +114,49 @@ int main(int argc, char** argv) try {
               mesh.triangles.size(), s.bytes_per_voxel,
               s.blocks * rekon::volume::kBlockVoxels * s.bytes_per_voxel / 1048576.0,
               static_cast<long long>(volume.stats().blocks));
+  // Exactness on real data: A (first half) + B (second half) - B, B removed
+  // in a shuffled order, against A alone.
+  {
+    const size_t half = frames.size() / 2;
+    rekon::volume::TsdfVolume a_only(params), a_plus_b(params);
+    for (size_t i = 0; i < half; ++i) {
+      a_only.integrate(frames[i].depth, frames[i].color, cv::Mat(), k, frames[i].pose);
+      a_plus_b.integrate(frames[i].depth, frames[i].color, cv::Mat(), k, frames[i].pose);
+    }
+    std::vector<size_t> b;
+    for (size_t i = half; i < frames.size(); ++i) {
+      a_plus_b.integrate(frames[i].depth, frames[i].color, cv::Mat(), k, frames[i].pose);
+      b.push_back(i);
+    }
+    for (size_t i = 0; i < b.size(); ++i) std::swap(b[i], b[(i * 7919 + 13) % b.size()]);
+    for (size_t i : b) a_plus_b.deintegrate(frames[i].depth, frames[i].color, cv::Mat(), k, frames[i].pose);
+    long long sdf = 0, weight = 0, color = 0, differing_color = 0, voxels = 0;
+    std::vector<rekon::volume::Voxel> va, vb;
+    const auto coords_a = a_only.blockCoords();
+    for (const auto& c : coords_a) {
+      a_only.readBlock(c, va);
+      if (!a_plus_b.readBlock(c, vb)) {
+        sdf = weight = -1;  // a block of A is missing
+        break;
+      }
+      for (size_t i = 0; i < va.size(); ++i) {
+        sdf = std::max<long long>(sdf, std::llabs(static_cast<long long>(va[i].sdf_sum) - vb[i].sdf_sum));
+        using rekon::volume::voxelColor;
+        using rekon::volume::voxelWeight;
+        weight = std::max<long long>(weight, std::llabs(static_cast<long long>(voxelWeight(va[i])) - voxelWeight(vb[i])));
+        int dc = 0;
+        for (int ch = 0; ch < 3; ++ch) dc = std::max(dc, std::abs(voxelColor(va[i], ch) - voxelColor(vb[i], ch)));
+        color = std::max<long long>(color, dc);
+        differing_color += dc != 0;
+        voxels += voxelWeight(va[i]) != 0;
+      }
+    }
+    std::printf("exactness: A=%zu frames, B=%zu frames removed shuffled: blocks A=%zu A+B-B=%lld max_abs_diff sdf_sum=%lld "
+                "weight=%lld color=%lld (levels; %lld of %lld observed voxels differ in color)\n",
+                half, b.size(), coords_a.size(), static_cast<long long>(a_plus_b.stats().blocks), sdf, weight, color,
+                differing_color, voxels);
+  }
+
 #ifdef REKON_WITH_OPEN3D
   {
     std::vector<cv::Mat> raw, color;

@@ -113,7 +113,7 @@ void gatherGrid(const Lookup& lookup, const std::vector<const Voxel*>& blocks, B
         const int n = (x == kBlockSide) | ((y == kBlockSide) << 1) | ((z == kBlockSide) << 2);
         const int i = Grid::index(x, y, z);
         const Voxel* v = neighbour[n] ? neighbour[n] + localIndex(x % kBlockSide, y % kBlockSide, z % kBlockSide) : nullptr;
-        g.voxel[i] = (v && v->weight) ? v : nullptr;
+        g.voxel[i] = (v && voxelWeight(*v)) ? v : nullptr;
         g.sdf[i] = g.voxel[i] ? voxelSdf(*v, truncation) : kUnobserved;
       }
     }
@@ -144,10 +144,13 @@ void makeVertices(const Grid& g, BlockCoord c, float voxel_size, BlockVertices& 
           p[axis] += t;
           const Voxel& a = *g.voxel[i0];
           const Voxel& b = *g.voxel[i1];
-          auto mix = [t](uint8_t u, uint8_t v) { return static_cast<uint8_t>(std::lround(u + t * (v - u))); };
+          auto mix = [&](int channel) {
+            const float u = static_cast<float>(voxelColorFixed(a, channel)), v = static_cast<float>(voxelColorFixed(b, channel));
+            return static_cast<uint8_t>(std::lround((u + t * (v - u)) / kColorScale));
+          };
           out.edge.push_back(static_cast<uint16_t>(localIndex(x, y, z) * 3 + axis));
           out.position.push_back(p * voxel_size);
-          out.color.push_back({mix(a.r, b.r), mix(a.g, b.g), mix(a.b, b.b)});
+          out.color.push_back({mix(0), mix(1), mix(2)});
         }
       }
     }

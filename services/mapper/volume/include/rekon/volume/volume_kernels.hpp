@@ -21,19 +21,45 @@ constexpr int kBlockVoxels = kBlockSide * kBlockSide * kBlockSide;
 // *sums* of integers, not averages, makes de-integration (paper eq. 2) exact
 // and independent of order: subtraction undoes addition bit for bit.
 constexpr int32_t kSdfSteps = 1023;
-// |sdf_sum| <= weight * kSdfSteps must fit in int32, so the weight is capped
-// here; exceeding it is reported as an error, never clamped silently.
-constexpr uint32_t kMaxVoxelWeight = (1u << 21) - 1;
+// |sdf_sum| <= weight * kSdfSteps must fit in int32, so the weight has 21
+// bits; exceeding it is reported as an error, never clamped silently.
+constexpr int kWeightBits = 21;
+constexpr uint32_t kMaxVoxelWeight = (1u << kWeightBits) - 1;
+// Color is a weighted running average kept with 6 fractional bits (14 bits per
+// channel). Eq. 2's de-integration divides by the remaining weight and so
+// magnifies the stored rounding by (weight before / weight after); 1/64 of a
+// level keeps that below one 8-bit level for up to ~30x weight reductions.
+constexpr int kColorBits = 14;
+constexpr uint32_t kColorScale = 64;  // fixed-point units per 8-bit level
+constexpr uint32_t kMaxColor = 255 * kColorScale;
 
-// 12 bytes. Color is a weighted running average (8 bits per channel): its
-// de-integration follows eq. 2 with rounding, so color alone is approximate.
+// 12 bytes: the signed-distance sum, then weight and r, g, b packed into 64
+// bits (weight in bits 0-20, r 21-34, g 35-48, b 49-62).
 struct Voxel {
-  int32_t sdf_sum;  // sum of weight_units * round(tsdf * kSdfSteps)
-  uint32_t weight;  // sum of weight_units; 0 = unobserved
-  uint8_t r, g, b;  // weighted average color
-  uint8_t unused;
+  int32_t sdf_sum;   // sum of weight_units * round(tsdf * kSdfSteps)
+  uint32_t bits[2];  // see voxelWeight / voxelColor
 };
 static_assert(sizeof(Voxel) == 12, "the voxel layout is part of the memory budget");
+
+REKON_HD inline uint64_t packedBits(const Voxel& v) {
+  return static_cast<uint64_t>(v.bits[0]) | (static_cast<uint64_t>(v.bits[1]) << 32);
+}
+// Sum of weight units; 0 = unobserved.
+REKON_HD inline uint32_t voxelWeight(const Voxel& v) { return v.bits[0] & kMaxVoxelWeight; }
+// Fixed-point average of channel 0 = red, 1 = green, 2 = blue.
+REKON_HD inline uint32_t voxelColorFixed(const Voxel& v, int channel) {
+  return static_cast<uint32_t>(packedBits(v) >> (kWeightBits + kColorBits * channel)) & ((1u << kColorBits) - 1);
+}
+REKON_HD inline uint8_t voxelColor(const Voxel& v, int channel) {
+  return static_cast<uint8_t>((voxelColorFixed(v, channel) + kColorScale / 2) / kColorScale);
+}
+REKON_HD inline void setWeightAndColor(Voxel& v, uint32_t weight, uint32_t r, uint32_t g, uint32_t b) {
+  const uint64_t p = static_cast<uint64_t>(weight) | (static_cast<uint64_t>(r) << kWeightBits) |
+                     (static_cast<uint64_t>(g) << (kWeightBits + kColorBits)) |
+                     (static_cast<uint64_t>(b) << (kWeightBits + 2 * kColorBits));
+  v.bits[0] = static_cast<uint32_t>(p);
+  v.bits[1] = static_cast<uint32_t>(p >> 32);
+}
 
 struct Vec3f {
   float x, y, z;
@@ -164,39 +190,39 @@ REKON_HD inline Observation observe(const FrameImages& f, const CameraView& cam,
 
 enum UpdateStatus : int { kUpdated = 0, kWeightOverflow = 1, kWeightUnderflow = 2 };
 
-// Float suffices: the sum is divided straight back by the new weight, so its
-// relative rounding (1e-7) stays far below a color level.
-REKON_HD inline uint8_t blendChannel(uint8_t old_value, float old_weight, int sample, float signed_weight,
-                                     float inv_new_weight) {
-  const float avg = (old_value * old_weight + sample * signed_weight) * inv_new_weight + 0.5f;
-  return static_cast<uint8_t>(avg <= 0.f ? 0.f : (avg >= 255.f ? 255.f : avg));
+// Weighted running average in fixed point, in the incremental form
+// avg + (sample - avg) * w / W_new, which (unlike (avg W + s w) / W_new) does
+// not cancel large products when de-integration leaves little weight, so float
+// keeps its error far below one fixed-point unit.
+REKON_HD inline uint32_t blendColor(uint32_t old_fixed, int sample, float ratio) {
+  const float old_value = static_cast<float>(old_fixed);
+  const float avg = old_value + (static_cast<float>(sample * static_cast<int>(kColorScale)) - old_value) * ratio + 0.5f;
+  return avg <= 0.f ? 0u : (avg >= static_cast<float>(kMaxColor) ? kMaxColor : static_cast<uint32_t>(avg));
 }
 
 // Adds (sign = +1) or removes (sign = -1) one observation: the weighted running
 // average of the paper's integration and its inverse, eq. 2.
 REKON_HD inline int applyObservation(Voxel& v, const Observation& o, const uint8_t* bgr, int sign) {
+  const uint32_t weight = voxelWeight(v);
   if (sign > 0) {
-    if (v.weight > kMaxVoxelWeight - o.weight) return kWeightOverflow;
-  } else if (v.weight < o.weight) {
+    if (weight > kMaxVoxelWeight - o.weight) return kWeightOverflow;
+  } else if (weight < o.weight) {
     return kWeightUnderflow;
   }
   const int64_t sw = sign > 0 ? static_cast<int64_t>(o.weight) : -static_cast<int64_t>(o.weight);
-  const uint32_t new_weight = sign > 0 ? v.weight + o.weight : v.weight - o.weight;
-  if (o.pixel >= 0 && new_weight > 0u) {
-    // One division per voxel: integer division of 64-bit sums costs more
-    // than the rest of the update together.
+  const uint32_t new_weight = sign > 0 ? weight + o.weight : weight - o.weight;
+  uint32_t r = voxelColorFixed(v, 0), g = voxelColorFixed(v, 1), b = voxelColorFixed(v, 2);
+  if (new_weight == 0u) {
+    r = g = b = 0u;
+  } else if (o.pixel >= 0) {
     const uint8_t* c = bgr + 3 * o.pixel;
-    const float old_weight = static_cast<float>(v.weight), inv = 1.f / static_cast<float>(new_weight);
-    const float w = static_cast<float>(sw);
-    v.r = blendChannel(v.r, old_weight, c[2], w, inv);
-    v.g = blendChannel(v.g, old_weight, c[1], w, inv);
-    v.b = blendChannel(v.b, old_weight, c[0], w, inv);
+    const float ratio = static_cast<float>(sw) / static_cast<float>(new_weight);
+    r = blendColor(r, c[2], ratio);
+    g = blendColor(g, c[1], ratio);
+    b = blendColor(b, c[0], ratio);
   }
   v.sdf_sum += static_cast<int32_t>(sw) * o.sdf;
-  v.weight = new_weight;
-  if (new_weight == 0u) {
-    v.r = v.g = v.b = 0;
-  }
+  setWeightAndColor(v, new_weight, r, g, b);
   return kUpdated;
 }
 
@@ -235,7 +261,7 @@ struct BlockUpdateResult {
 };
 
 REKON_HD inline bool blockOccupiedAfter(const Voxel& v, int status, bool observed, int sign) {
-  return sign > 0 ? (observed && status == kUpdated) : v.weight != 0u;
+  return sign > 0 ? (observed && status == kUpdated) : voxelWeight(v) != 0u;
 }
 
 REKON_HD inline BlockUpdateResult updateBlock(Voxel* voxels, BlockCoord coord, const FrameImages& f,
@@ -321,7 +347,7 @@ REKON_HD inline const Voxel* voxelAt(const VolumeView& vol, int x, int y, int z)
 }
 
 REKON_HD inline float voxelSdf(const Voxel& v, float truncation) {
-  return static_cast<float>(v.sdf_sum) / (static_cast<float>(v.weight) * kSdfSteps) * truncation;
+  return static_cast<float>(v.sdf_sum) / (static_cast<float>(voxelWeight(v)) * kSdfSteps) * truncation;
 }
 
 // Trilinear signed distance (metres) at world point p; false when any of the
@@ -343,7 +369,7 @@ REKON_HD inline bool sampleSdf(const VolumeView& vol, Vec3f p, float& sdf) {
   for (int c = 0; c < 8; ++c) {
     const int ox = c & 1, oy = (c >> 1) & 1, oz = (c >> 2) & 1;
     const Voxel* v = block ? block + localIndex(lx + ox, ly + oy, lz + oz) : voxelAt(vol, x0 + ox, y0 + oy, z0 + oz);
-    if (v == nullptr || v->weight == 0u) return false;
+    if (v == nullptr || voxelWeight(*v) == 0u) return false;
     const float w = (ox ? fx : 1.f - fx) * (oy ? fy : 1.f - fy) * (oz ? fz : 1.f - fz);
     acc += w * voxelSdf(*v, vol.truncation);
   }
@@ -434,10 +460,10 @@ REKON_HD inline RaycastPixel raycastPixel(const VolumeView& vol, const CameraVie
       const Vec3f g = (1.f / vol.voxel_size) * p;
       const Voxel* near_voxel = voxelAt(vol, static_cast<int>(floorf(g.x + 0.5f)), static_cast<int>(floorf(g.y + 0.5f)),
                                         static_cast<int>(floorf(g.z + 0.5f)));
-      if (near_voxel != nullptr && near_voxel->weight != 0u) {
-        out.r = near_voxel->r;
-        out.g = near_voxel->g;
-        out.b = near_voxel->b;
+      if (near_voxel != nullptr && voxelWeight(*near_voxel) != 0u) {
+        out.r = voxelColor(*near_voxel, 0);
+        out.g = voxelColor(*near_voxel, 1);
+        out.b = voxelColor(*near_voxel, 2);
       }
       return out;
     }
