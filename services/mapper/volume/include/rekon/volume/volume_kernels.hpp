@@ -165,27 +165,27 @@ struct Observation {
 };
 
 // Projective (along z) truncated signed distance of the voxel at camera
-// coordinates `pc`, as in KinectFusion and the paper's eq. 2.
+// coordinates `pc`, as in KinectFusion and the paper's eq. 2. Written without
+// early returns: every test becomes a mask, so neighbouring voxels run the
+// same instructions (no mispredicted branches on the CPU, no divergence on
+// the GPU) and a row of voxels can be computed side by side.
 REKON_HD inline Observation observe(const FrameImages& f, const CameraView& cam, const IntegrationSettings& s, Vec3f pc) {
-  Observation none{0, 0u, -1};
-  if (pc.z <= 0.f) return none;
   const float inv_z = 1.f / pc.z;
   const float uf = cam.fx * pc.x * inv_z + cam.cx;
   const float vf = cam.fy * pc.y * inv_z + cam.cy;
-  if (!(uf > -0.5f && vf > -0.5f && uf < cam.width - 0.5f && vf < cam.height - 0.5f)) return none;
-  const int u = static_cast<int>(uf + 0.5f);
-  const int v = static_cast<int>(vf + 0.5f);
+  // False for NaN too (pc.z = 0 gives inf * 0).
+  const bool inside = pc.z > 0.f && uf > -0.5f && vf > -0.5f && uf < cam.width - 0.5f && vf < cam.height - 0.5f;
+  const int u = inside ? static_cast<int>(uf + 0.5f) : 0;
+  const int v = inside ? static_cast<int>(vf + 0.5f) : 0;
   const int pixel = v * f.width + u;
   const float depth = f.depth[pixel];
-  if (!validDepth(depth, s.max_depth)) return none;
   const float sdf = depth - pc.z;
-  if (sdf < -s.truncation) return none;
   const uint32_t w = pixelWeightUnits(f, pixel, s.weight_units);
-  if (w == 0u) return none;
-  float tsdf = sdf * s.inv_truncation;
+  const bool valid = inside && validDepth(depth, s.max_depth) && sdf >= -s.truncation && w != 0u;
+  float tsdf = valid ? sdf * s.inv_truncation : 0.f;
   tsdf = tsdf > 1.f ? 1.f : tsdf;
   const float q = tsdf * static_cast<float>(kSdfSteps);
-  return {static_cast<int32_t>(q >= 0.f ? q + 0.5f : q - 0.5f), w, f.bgr ? pixel : -1};
+  return {static_cast<int32_t>(q >= 0.f ? q + 0.5f : q - 0.5f), valid ? w : 0u, valid && f.bgr ? pixel : -1};
 }
 
 enum UpdateStatus : int { kUpdated = 0, kWeightOverflow = 1, kWeightUnderflow = 2 };
@@ -270,10 +270,13 @@ REKON_HD inline BlockUpdateResult updateBlock(Voxel* voxels, BlockCoord coord, c
   const BlockInCamera b = blockInCamera(cam, coord, s.voxel_size);
   for (int z = 0; z < kBlockSide; ++z) {
     for (int y = 0; y < kBlockSide; ++y) {
+      // A row's observations first (independent, branch-free), then the updates.
+      Observation o[kBlockSide];
+      for (int x = 0; x < kBlockSide; ++x) o[x] = observe(f, cam, s, voxelInCamera(b, x, y, z));
       for (int x = 0; x < kBlockSide; ++x) {
         Voxel& v = voxels[localIndex(x, y, z)];
-        bool observed = false;
-        const int status = updateVoxel(v, b, x, y, z, f, cam, s, sign, observed);
+        const bool observed = o[x].weight != 0u;
+        const int status = observed ? applyObservation(v, o[x], f.bgr, sign) : static_cast<int>(kUpdated);
         result.overflow |= status == kWeightOverflow;
         result.underflow |= status == kWeightUnderflow;
         result.occupied |= blockOccupiedAfter(v, status, observed, sign);
