@@ -24,9 +24,11 @@ struct VolumeParams {
   static constexpr double kDefaultMaxDepth = 4.0;       // metres; farther pixels are ignored
   static constexpr int kDefaultBlockCapacity = 1 << 15; // initial active-pool size in blocks
   static constexpr double kDefaultStreamingRadius = 0;  // metres; 0 = never stream
-  // A pixel weight of 1 counts as this many integer weight units. Weights are
-  // quantised to 1/kDefaultWeightUnits so that sums stay exact integers.
-  static constexpr double kDefaultWeightUnits = 16;
+  // A pixel weight of 1 counts as this many integer weight units: weights are
+  // quantised to 1/32 so that sums stay exact integers. Keyframe weights
+  // cos(theta)/Z^2 reach 1/32 at Z = 4 m, theta = 60 deg; a voxel holds up to
+  // 2^21 units = 65535 observations of weight 1 (more is a loud error).
+  static constexpr double kDefaultWeightUnits = 32;
   // Every stride-th pixel (in x and y) allocates blocks; at 4 m four pixels
   // (f = 585) are 2.7 cm apart, well below the 8 cm block size. Integration then updates every
   // voxel of those blocks from its own pixel.
