@@ -190,5 +190,45 @@ TEST(TrackerKeyframes, SelectionFiresAtASensibleRateOnTheRoomAndChainsConstraint
               100 * errors.rpe_trans_m_per_s);
 }
 
+// The entropy ratio on its own: with the distance limits out of reach, only
+// H(kf,t)/H(kf,kf+1) < 0.91 can select keyframes as the view drifts away from
+// the keyframe (and that keeps tracking alive); with the distance criterion
+// and the same limits, none is selected and tracking is eventually lost.
+TEST(TrackerKeyframes, EntropyRatioAloneSelectsKeyframesAsTheViewDrifts) {
+  test::RoomViews room;
+  const Trajectory truth = room.trajectory(300);
+  std::vector<RgbdFrame> frames;  // every third frame: 3.2 m in 100 frames
+  for (int i = 0; i < 300; i += 3) frames.push_back(room.render(truth[i].pose, synth::Noise::Kinect, i));
+  struct Outcome {
+    int selected = 0, lost = 0;
+    std::vector<double> ratios_at_selection;
+  };
+  auto run = [&](const std::string& criterion) {
+    TrackerParams p;
+    p.keyframe.criterion = criterion;
+    p.keyframe.max_translation = 100.0;
+    p.keyframe.max_rotation_deg = 180.0;
+    Tracker tracker(p);
+    Outcome o;
+    for (const auto& f : frames) {
+      const TrackResult r = tracker.track(f, room.intrinsics());
+      o.lost += r.state == TrackingState::Lost;
+      if (r.new_keyframe && r.odometry) {  // selected, not the first nor a restart after losing track
+        ++o.selected;
+        o.ratios_at_selection.push_back(r.entropy_ratio);
+      }
+    }
+    return o;
+  };
+  const Outcome entropy = run("entropy_ratio");
+  EXPECT_EQ(entropy.lost, 0);
+  // Measured: one keyframe about every 0.45 m (6 on this path).
+  EXPECT_GE(entropy.selected, 3);
+  for (double ratio : entropy.ratios_at_selection) EXPECT_LT(ratio, 0.91);
+  const Outcome distance = run("distance");
+  EXPECT_EQ(distance.selected, 0);
+  EXPECT_GT(distance.lost, 0);
+}
+
 }  // namespace
 }  // namespace rekon::tracker
