@@ -1,0 +1,113 @@
+#pragma once
+// The mapping core, free of the bus: frames with their tracked poses are
+// fused into KF keyframes, KF keyframes are integrated into the TSDF volume,
+// and every pose-graph update de-integrates and re-integrates the m keyframes
+// chosen by the re-integration mode (paper sections 3-4). The service in
+// mapper_service.cpp feeds it from the bus on a worker thread; tests drive it
+// directly.
+#include <map>
+#include <memory>
+#include <optional>
+#include <vector>
+
+#include "rekon/common/config.hpp"
+#include "rekon/common/mesh.hpp"
+#include "rekon/fusion/keyframe_fusion.hpp"
+#include "rekon/mapper/reintegration.hpp"
+#include "rekon/store/keyframe_store.hpp"
+#include "rekon/volume/tsdf_volume.hpp"
+
+namespace rekon::mapper {
+
+struct MapperParams {
+  static constexpr int kDefaultM = 10;
+  // Movements below this (in the units of ||s t - s t'||: radians x2 and
+  // metres) are rounding, not corrections, and are never re-integrated.
+  static constexpr double kDefaultMinMovement = 1e-6;
+
+  fusion::FusionParams fusion;
+  volume::VolumeParams volume;
+  ReintegrationMode mode = ReintegrationMode::kConsecutive;
+  int m = kDefaultM;
+  double min_movement = kDefaultMinMovement;
+  bool use_store = false;
+  store::StoreOptions store;
+
+  static MapperParams fromConfig(const Config& config);
+};
+
+struct MapperCounters {
+  int64_t frames = 0;              // fused into KF keyframes
+  int64_t skipped_frames = 0;      // lost, or their DVO keyframe's pose unknown
+  int64_t kf_keyframes = 0;
+  int64_t integrations = 0;        // first integrations of KF keyframes
+  int64_t deintegrations = 0;
+  int64_t reintegrations = 0;      // integrations with a corrected pose
+  int64_t graph_updates = 0;
+  int64_t final_pass_reintegrations = 0;
+  int64_t restored_keyframes = 0;  // rebuilt from the store at start
+  double integrate_ms_total = 0.0;
+};
+
+// One KF keyframe the mapper holds (in memory; mirrored in the store).
+struct KeyframeRecord {
+  fusion::FusedKeyframe kf;
+  bool integrated = false;
+  Pose integrated_pose = Pose::Identity();
+};
+
+class Mapper {
+ public:
+  // With params.use_store, an existing store is opened and every keyframe
+  // in it is integrated again with the pose it had (a restart).
+  explicit Mapper(const MapperParams& params);
+  ~Mapper();
+
+  // A new DVO keyframe's odometry estimate (ignored once a graph update placed it).
+  void setKeyframeEstimate(int64_t keyframe_id, const Pose& world);
+  // Stores every keyframe's optimised pose; then re-integrates at most m KF keyframes.
+  void applyGraphUpdate(const std::vector<std::pair<int64_t, Pose>>& poses);
+  // Fuses one tracked frame; false (and counted as skipped) when lost or its
+  // DVO keyframe has no pose yet.
+  bool addFrame(const RgbdFrame& frame, const Intrinsics& k, int64_t keyframe_id, const Pose& pose_in_keyframe,
+                bool lost);
+  // Integrates the open KF keyframe, then re-integrates every keyframe whose
+  // pose still differs from the one it was integrated with (the final pass).
+  void finish();
+
+  // The current world pose of a KF keyframe (its DVO keyframe's pose times its pose in it).
+  std::optional<Pose> currentPose(const fusion::FusedKeyframe& kf) const;
+  // Movement of every integrated KF keyframe since its integration, in keyframe order.
+  std::vector<double> movements() const;
+
+  const volume::TsdfVolume& volume() const { return *volume_; }
+  const std::vector<KeyframeRecord>& keyframes() const { return keyframes_; }
+  const MapperCounters& counters() const { return counters_; }
+  Mesh extractMesh() const { return volume_->extractMesh(); }
+  // Deletes the keyframe store (after a clean end of the run).
+  void removeStore();
+
+ private:
+  std::optional<Pose> keyframePose(int64_t keyframe_id) const;
+  void closeKeyframe();
+  void integrateKeyframe(KeyframeRecord& rec, const Pose& pose);
+  // De-integrates the chosen keyframes at their old poses, re-integrates them
+  // at their current ones (paper 4.3's streaming order); returns how many.
+  int reintegrate(const std::vector<size_t>& chosen);
+  void ensureCamera(const Intrinsics& k);
+  void restoreFromStore();
+
+  MapperParams params_;
+  std::unique_ptr<volume::TsdfVolume> volume_;
+  std::unique_ptr<store::KeyframeStore> store_;
+  std::optional<Intrinsics> camera_;
+  std::unique_ptr<fusion::KeyframeFuser> fuser_;
+  std::map<int64_t, Pose> estimates_;    // keyframe_t
+  std::map<int64_t, Pose> graph_poses_;  // latest graph update
+  std::vector<KeyframeRecord> keyframes_;
+  int64_t next_kf_id_ = 0;
+  Eigen::Vector3d camera_position_ = Eigen::Vector3d::Zero();
+  MapperCounters counters_;
+};
+
+}  // namespace rekon::mapper

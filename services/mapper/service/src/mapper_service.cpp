@@ -1,0 +1,316 @@
+#include "rekon/mapper/mapper_service.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <chrono>
+#include <condition_variable>
+#include <deque>
+#include <filesystem>
+#include <map>
+#include <mutex>
+#include <thread>
+#include <variant>
+
+#include "rekon/common/error.hpp"
+#include "rekon/common/frame_transport.hpp"
+#include "rekon/common/messages.hpp"
+#include "rekon/mapper/mapper.hpp"
+#include "rekon_msgs/done_t.hpp"
+#include "rekon_msgs/end_of_stream_t.hpp"
+#include "rekon_msgs/frame_ack_t.hpp"
+#include "rekon_msgs/frame_t.hpp"
+#include "rekon_msgs/graph_update_t.hpp"
+#include "rekon_msgs/keyframe_t.hpp"
+#include "rekon_msgs/tracked_frame_t.hpp"
+
+namespace rekon::mapper {
+namespace {
+
+struct Tracked {
+  int64_t keyframe_id;
+  Pose pose_in_keyframe;
+  bool lost;
+};
+struct FrameWork {
+  RgbdFrame frame;
+  Intrinsics k;
+  Tracked tracked;
+};
+struct KeyframeWork {
+  int64_t id;
+  Pose world;
+};
+struct GraphWork {
+  int64_t version;
+  std::vector<std::pair<int64_t, Pose>> poses;
+};
+using Work = std::variant<FrameWork, KeyframeWork, GraphWork>;
+
+// What the bus thread and the worker share, behind one mutex.
+struct Shared {
+  std::mutex mutex;
+  std::condition_variable work_ready, idle;
+  std::deque<Work> queue;
+  std::map<int64_t, std::pair<RgbdFrame, Intrinsics>> images;  // copied, waiting for their tracked frame
+  std::map<int64_t, Tracked> tracked;                         // waiting for their images
+  std::deque<int64_t> deferred_acks;
+  size_t queued_frames = 0;  // images waiting + frames in the queue
+  bool busy = false, stop_worker = false;
+  int64_t end_frame = -2;  // -2: no end of stream yet
+  int64_t last_resolved = -1;  // newest frame joined or given up on
+  bool optimiser_done = false, tracker_done = false;
+  int64_t dropped_frames = 0, dropped_updates = 0, coalesced_updates = 0;
+  std::string worker_error;
+};
+
+bool contains(const std::vector<std::string>& list, const std::string& s) {
+  return std::find(list.begin(), list.end(), s) != list.end();
+}
+
+}  // namespace
+
+void runMapperService(ServiceContext& ctx) {
+  const MapperParams params = MapperParams::fromConfig(ctx.config());
+  const size_t max_queued = static_cast<size_t>(std::max(1, ctx.config().getInt("mapper.max_queued_frames")));
+  const bool wait_for_optimiser =
+      ctx.config().getBool("mapper.wait_for_optimiser") && contains(ctx.config().getStringList("run.services"), "optimiser");
+  Bus& bus = ctx.bus();
+  Mapper mapper(params);
+  Shared s;
+  GraphUpdateFilter filter;
+  FrameReceiver receiver;
+
+  auto ack = [&](int64_t frame_id) {
+    rekon_msgs::frame_ack_t a{};
+    a.service = ctx.name();
+    a.frame_id = frame_id;
+    bus.publish(channel::kFrameAck, a);
+  };
+  // Under the lock: moves a frame whose images and pose both arrived into the queue.
+  auto join = [&](int64_t id) {
+    auto img = s.images.find(id);
+    auto tr = s.tracked.find(id);
+    if (img == s.images.end() || tr == s.tracked.end()) return;
+    s.queue.push_back(FrameWork{std::move(img->second.first), img->second.second, tr->second});
+    s.images.erase(img);
+    s.tracked.erase(tr);
+    s.last_resolved = std::max(s.last_resolved, id);
+    s.work_ready.notify_one();
+  };
+
+  bus.subscribe<rekon_msgs::frame_t>(channel::kFrames, [&](const rekon_msgs::frame_t& msg) {
+    Intrinsics k;
+    std::optional<RgbdFrame> frame = receiver.receive(msg, &k);  // a copy out of the ring: safe to acknowledge
+    bool ack_now = true;
+    {
+      std::lock_guard<std::mutex> lock(s.mutex);
+      if (frame) {
+        // A tracked frame older than this image whose image never came (dropped by the transport) never will.
+        while (!s.tracked.empty() && s.tracked.begin()->first < msg.frame_id) {
+          s.last_resolved = std::max(s.last_resolved, s.tracked.begin()->first);
+          s.tracked.erase(s.tracked.begin());
+          ++s.dropped_frames;
+        }
+        s.images[msg.frame_id] = {std::move(*frame), k};
+        ++s.queued_frames;
+        join(msg.frame_id);
+        if (s.queued_frames > max_queued) {
+          s.deferred_acks.push_back(msg.frame_id);
+          ack_now = false;
+        }
+      } else {
+        ++s.dropped_frames;
+      }
+    }
+    if (ack_now) ack(msg.frame_id);
+    ctx.setLastFrame(msg.frame_id);
+  });
+  bus.subscribe<rekon_msgs::tracked_frame_t>(channel::kTrackedFrames, [&](const rekon_msgs::tracked_frame_t& msg) {
+    const auto pose = fromMsg(msg.pose_in_keyframe);
+    std::lock_guard<std::mutex> lock(s.mutex);
+    if (!pose) {
+      spdlog::error("tracked frame {}: invalid pose_in_keyframe; dropped", msg.frame_id);
+      s.last_resolved = std::max(s.last_resolved, msg.frame_id);
+      return;
+    }
+    // Tracked frames come in order: older images without one will never get it.
+    while (!s.images.empty() && s.images.begin()->first < msg.frame_id) {
+      spdlog::warn("frame {}: no tracked frame came for it; dropped", s.images.begin()->first);
+      s.last_resolved = std::max(s.last_resolved, s.images.begin()->first);
+      s.images.erase(s.images.begin());
+      --s.queued_frames;
+      ++s.dropped_frames;
+    }
+    s.tracked[msg.frame_id] = {msg.keyframe_id, *pose, msg.state == rekon_msgs::tracked_frame_t::STATE_LOST};
+    join(msg.frame_id);
+  });
+  bus.subscribe<rekon_msgs::keyframe_t>(channel::kKeyframes, [&](const rekon_msgs::keyframe_t& msg) {
+    const auto pose = fromMsg(msg.pose_world);
+    if (!pose) {
+      spdlog::error("keyframe {}: invalid pose_world; dropped", msg.keyframe_id);
+      return;
+    }
+    std::lock_guard<std::mutex> lock(s.mutex);
+    s.queue.push_back(KeyframeWork{msg.keyframe_id, *pose});
+    s.work_ready.notify_one();
+  });
+  bus.subscribe<rekon_msgs::graph_update_t>(channel::kGraphUpdates, [&](const rekon_msgs::graph_update_t& msg) {
+    if (!filter.accept(msg.version)) return;
+    GraphWork g{msg.version, {}};
+    const size_t n = std::min({static_cast<size_t>(std::max(0, msg.num_keyframes)), msg.keyframe_ids.size(), msg.poses.size()});
+    for (size_t i = 0; i < n; ++i) {
+      const auto pose = fromMsg(msg.poses[i]);
+      if (!pose) {
+        spdlog::error("graph update {}: invalid pose of keyframe {}; update dropped", msg.version, msg.keyframe_ids[i]);
+        std::lock_guard<std::mutex> lock(s.mutex);
+        ++s.dropped_updates;
+        return;
+      }
+      g.poses.emplace_back(msg.keyframe_ids[i], *pose);
+    }
+    std::lock_guard<std::mutex> lock(s.mutex);
+    // Every update carries all poses: a newer one replaces one still waiting.
+    for (Work& w : s.queue) {
+      if (std::holds_alternative<GraphWork>(w)) {
+        w = std::move(g);
+        ++s.coalesced_updates;
+        return;
+      }
+    }
+    s.queue.push_back(std::move(g));
+    s.work_ready.notify_one();
+  });
+  bus.subscribe<rekon_msgs::end_of_stream_t>(channel::kEndOfStream, [&](const rekon_msgs::end_of_stream_t& m) {
+    spdlog::info("end of stream after frame {} ({} frames)", m.last_frame_id, m.frames);
+    std::lock_guard<std::mutex> lock(s.mutex);
+    s.end_frame = m.last_frame_id;
+  });
+  bus.subscribe<rekon_msgs::done_t>(channel::kDone, [&](const rekon_msgs::done_t& m) {
+    std::lock_guard<std::mutex> lock(s.mutex);
+    if (m.service == "optimiser" && !s.optimiser_done) {
+      spdlog::info("the optimiser is done");
+      s.optimiser_done = true;
+    }
+    if (m.service == "tracker") s.tracker_done = true;
+  });
+
+  std::thread worker([&] {
+    std::unique_lock<std::mutex> lock(s.mutex);
+    while (true) {
+      s.work_ready.wait(lock, [&] { return s.stop_worker || !s.queue.empty(); });
+      if (s.queue.empty()) break;
+      Work w = std::move(s.queue.front());
+      s.queue.pop_front();
+      s.busy = true;
+      lock.unlock();
+      try {
+        if (auto* f = std::get_if<FrameWork>(&w)) {
+          mapper.addFrame(f->frame, f->k, f->tracked.keyframe_id, f->tracked.pose_in_keyframe, f->tracked.lost);
+        } else if (auto* kf = std::get_if<KeyframeWork>(&w)) {
+          mapper.setKeyframeEstimate(kf->id, kf->world);
+        } else {
+          mapper.applyGraphUpdate(std::get<GraphWork>(w).poses);
+        }
+      } catch (const std::exception& e) {  // rekon::Error, or OpenCV's for a broken image
+        lock.lock();
+        s.worker_error = e.what();
+        s.busy = false;
+        s.idle.notify_all();
+        ctx.requestStop();
+        return;
+      }
+      lock.lock();
+      s.busy = false;
+      if (std::holds_alternative<FrameWork>(w)) --s.queued_frames;
+      std::vector<int64_t> release;
+      while (!s.deferred_acks.empty() && s.queued_frames <= max_queued) {
+        release.push_back(s.deferred_acks.front());
+        s.deferred_acks.pop_front();
+      }
+      if (s.queue.empty()) s.idle.notify_all();
+      if (!release.empty()) {
+        lock.unlock();
+        for (int64_t id : release) ack(id);
+        lock.lock();
+      }
+    }
+  });
+
+  ctx.setState("running");
+  spdlog::info("mapper: KF strategy {} (kappa {}), re-integration {} (m = {}), streaming radius {} m, {}",
+               fusion::toString(params.fusion.strategy), params.fusion.kappa, toString(params.mode), params.m,
+               params.volume.streaming_radius, wait_for_optimiser ? "final pass after the optimiser's done" : "final pass after the last frame");
+  auto last_progress = std::chrono::steady_clock::now();
+  while (!ctx.stopRequested()) {
+    {
+      std::lock_guard<std::mutex> lock(s.mutex);
+      const bool frames_done = s.end_frame != -2 && (s.tracker_done || s.last_resolved >= s.end_frame);
+      if (s.end_frame != -2 && (wait_for_optimiser ? s.optimiser_done : frames_done)) break;
+    }
+    if (std::chrono::steady_clock::now() - last_progress > std::chrono::seconds(5)) {
+      last_progress = std::chrono::steady_clock::now();
+      std::lock_guard<std::mutex> lock(s.mutex);
+      spdlog::info("mapper: {} KF keyframes so far, {} frames queued", mapper.counters().kf_keyframes, s.queue.size());
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  const bool clean = !ctx.stopRequested();
+  ctx.setState("finishing");
+  {
+    std::unique_lock<std::mutex> lock(s.mutex);
+    s.idle.wait(lock, [&] { return (s.queue.empty() && !s.busy) || !s.worker_error.empty(); });
+    s.stop_worker = true;
+    s.work_ready.notify_all();
+  }
+  worker.join();
+  ctx.stopThreads();  // no handler runs after this
+  if (!s.worker_error.empty()) throw Error(s.worker_error);
+  if (!s.images.empty()) spdlog::warn("{} frames never got a tracked frame; dropped", s.images.size());
+
+  if (clean) mapper.finish();
+  else spdlog::warn("mapper stopped before the end: no final pass; the keyframe store is kept for a restart");
+  if (!ctx.outDir().empty()) {
+    const std::string path = (std::filesystem::path(ctx.outDir()) / "mesh.ply").string();
+    const Mesh mesh = mapper.extractMesh();
+    writePly(mesh, path);
+    spdlog::info("wrote {} ({} vertices)", path, mesh.vertices.size());
+  }
+  if (clean) {
+    rekon_msgs::done_t done{};
+    done.service = ctx.name();
+    done.last_frame_id = s.end_frame;
+    for (int i = 0; i < 3; ++i) {  // UDP multicast may drop one
+      bus.publish(channel::kDone, done);
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    }
+  }
+  const MapperCounters& c = mapper.counters();
+  const volume::VolumeStats vs = mapper.volume().stats();
+  ctx.stats()
+      .set("frames_fused", static_cast<long long>(c.frames))
+      .set("frames_skipped", static_cast<long long>(c.skipped_frames))
+      .set("frames_dropped", static_cast<long long>(s.dropped_frames))
+      .set("kf_keyframes", static_cast<long long>(c.kf_keyframes))
+      .set("integrations", static_cast<long long>(c.integrations))
+      .set("deintegrations", static_cast<long long>(c.deintegrations))
+      .set("reintegrations", static_cast<long long>(c.reintegrations))
+      .set("final_pass_reintegrations", static_cast<long long>(c.final_pass_reintegrations))
+      .set("graph_updates", static_cast<long long>(c.graph_updates))
+      .set("graph_updates_coalesced", static_cast<long long>(s.coalesced_updates))
+      .set("restored_keyframes", static_cast<long long>(c.restored_keyframes))
+      .set("integrate_ms_mean", c.integrate_ms_total / static_cast<double>(std::max<int64_t>(1, c.integrations + c.reintegrations)))
+      .set("voxel_blocks", static_cast<long long>(vs.blocks))
+      .set("bytes_per_voxel", vs.bytes_per_voxel)
+      .set("active_blocks_peak", static_cast<long long>(vs.peak_active_blocks))
+      .set("streamed_out", static_cast<long long>(vs.streamed_out))
+      .set("streamed_in", static_cast<long long>(vs.streamed_in))
+      .set("reintegration", toString(params.mode))
+      .set("m", params.m)
+      .set("kappa", params.fusion.kappa);
+  spdlog::info("mapper: {} frames into {} KF keyframes; {} re-integrations ({} in the final pass); {} blocks",
+               c.frames, c.kf_keyframes, c.reintegrations, c.final_pass_reintegrations, vs.blocks);
+  if (clean) mapper.removeStore();
+}
+
+}  // namespace rekon::mapper
