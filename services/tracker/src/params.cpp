@@ -1,6 +1,7 @@
 #include "rekon/tracker/params.hpp"
 
 #include <cmath>
+#include <sstream>
 #include <string>
 
 #include "rekon/common/error.hpp"
@@ -9,7 +10,10 @@ namespace rekon::tracker {
 namespace {
 
 void require(bool ok, const std::string& key, double value, const std::string& want) {
-  if (!ok) throw Error("tracker." + key + " = " + std::to_string(value) + " is invalid; it must be " + want);
+  if (ok) return;
+  std::ostringstream text;
+  text << value;  // 3 rather than 3.000000
+  throw Error("tracker." + key + " = " + text.str() + " is invalid; it must be " + want);
 }
 
 }  // namespace
