@@ -33,7 +33,9 @@ double planeHit(const Eigen::Vector3d& o, const Eigen::Vector3d& d, int axis, do
 
 Pose lookAt(const Eigen::Vector3d& eye, const Eigen::Vector3d& target) {
   const Eigen::Vector3d z = (target - eye).normalized();
-  const Eigen::Vector3d x = Eigen::Vector3d::UnitY().cross(z).normalized();
+  // Looking straight along y, the y axis cannot fix the roll: use x instead.
+  const Eigen::Vector3d up = std::abs(z.y()) > 0.99 ? Eigen::Vector3d::UnitX() : Eigen::Vector3d::UnitY();
+  const Eigen::Vector3d x = up.cross(z).normalized();
   const Eigen::Vector3d y = z.cross(x);
   Pose p = Pose::Identity();
   p.linear().col(0) = x;

@@ -215,6 +215,38 @@ TEST_P(VolumeTest, MeshOfASphereHasItsRadiusAndOutwardNormals) {
   EXPECT_EQ(outward, on_sphere);               // normals point to free space
 }
 
+TEST_P(VolumeTest, ASphereSeenFromAllSidesGivesAClosedMesh) {
+  rekon::test::SphereScene free_sphere = scene_;
+  free_sphere.wall_z = 1e6;  // no wall: beyond max_depth
+  TsdfVolume vol(params());
+  for (int dx = -1; dx <= 1; ++dx) {
+    for (int dy = -1; dy <= 1; ++dy) {
+      for (int dz = -1; dz <= 1; ++dz) {
+        if (dx == 0 && dy == 0 && dz == 0) continue;
+        const Eigen::Vector3d eye = free_sphere.centre + 0.9 * Eigen::Vector3d(dx, dy, dz).normalized();
+        View v;
+        v.pose = rekon::test::lookAt(eye, free_sphere.centre);
+        rekon::test::renderSphereScene(free_sphere, k_, v.pose, v.depth, v.color);
+        integrate(vol, v);
+      }
+    }
+  }
+  const rekon::Mesh mesh = vol.extractMesh();
+  ASSERT_GT(mesh.triangles.size(), 5000u);
+  // Closed and consistently oriented: every directed edge appears once and its reverse once.
+  std::map<std::pair<int, int>, int> directed;
+  for (const auto& t : mesh.triangles) {
+    for (int i = 0; i < 3; ++i) ++directed[{t[i], t[(i + 1) % 3]}];
+  }
+  int unmatched = 0, repeated = 0;
+  for (const auto& [edge, count] : directed) {
+    repeated += count != 1;
+    unmatched += directed.count({edge.second, edge.first}) == 0;
+  }
+  EXPECT_EQ(repeated, 0);
+  EXPECT_EQ(unmatched, 0);
+}
+
 TEST_P(VolumeTest, MeshVerticesAreSharedNotDuplicated) {
   TsdfVolume vol(params());
   integrate(vol, sphereView(0));
