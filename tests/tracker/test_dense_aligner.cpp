@@ -113,6 +113,21 @@ TEST_F(DenseAlignerTest, AlignsTwoKeyframesFromAnInitialGuessAsLoopClosuresDo) {
   EXPECT_LT(rotationErrorDeg(r.pose, far), 0.3);
 }
 
+TEST_F(DenseAlignerTest, RunsOnTheLevelsTheCallerChoosesForACoarseStage) {
+  // Loop-closure checks first align coarsely (levels 3 -> 2 here), then finely.
+  const AlignerParams p;
+  Pair pair = makePair(reference, current, room.intrinsics(), p);
+  DenseAligner aligner(p);
+  const AlignResult coarse = aligner.align(pair.reference, pair.current, Pose::Identity(), 3, 2);
+  ASSERT_TRUE(coarse.valid);
+  EXPECT_EQ(coarse.selected_pixels, pair.reference.level(2).count);
+  EXPECT_LT(translationError(coarse.pose, truth), 0.002);  // 160x120: still within 2 mm without noise
+  const AlignResult fine = aligner.align(pair.reference, pair.current, coarse.pose, 1, 1);
+  ASSERT_TRUE(fine.valid);
+  EXPECT_LT(translationError(fine.pose, truth), 0.001);
+  EXPECT_LT(rotationErrorDeg(fine.pose, truth), 0.1);
+}
+
 TEST_F(DenseAlignerTest, FailsWithTheInitialPoseWhenNothingOverlaps) {
   const AlignerParams p;
   Pair pair = makePair(reference, current, room.intrinsics(), p);
