@@ -369,9 +369,25 @@ REKON_HD inline bool sampleSdf(const VolumeView& vol, Vec3f p, float& sdf) {
     block = vol.pool + static_cast<int64_t>(slot) * kBlockVoxels;
   }
   float acc = 0.f;
+  BlockCoord cached{bc.x - 1, bc.y - 1, bc.z - 1};  // a block no corner lies in
+  const Voxel* cached_block = nullptr;
   for (int c = 0; c < 8; ++c) {
     const int ox = c & 1, oy = (c >> 1) & 1, oz = (c >> 2) & 1;
-    const Voxel* v = block ? block + localIndex(lx + ox, ly + oy, lz + oz) : voxelAt(vol, x0 + ox, y0 + oy, z0 + oz);
+    const Voxel* v;
+    if (block) {
+      v = block + localIndex(lx + ox, ly + oy, lz + oz);
+    } else {
+      // The cell straddles blocks: look each block up once.
+      const int x = x0 + ox, y = y0 + oy, z = z0 + oz;
+      const BlockCoord cb{floorDiv(x, kBlockSide), floorDiv(y, kBlockSide), floorDiv(z, kBlockSide)};
+      if (!(cb == cached)) {
+        const int32_t slot = findBlock(vol.table, cb);
+        cached = cb;
+        cached_block = slot == kEmptySlot ? nullptr : vol.pool + static_cast<int64_t>(slot) * kBlockVoxels;
+      }
+      v = cached_block ? cached_block + localIndex(x - cb.x * kBlockSide, y - cb.y * kBlockSide, z - cb.z * kBlockSide)
+                       : nullptr;
+    }
     if (v == nullptr || voxelWeight(*v) == 0u) return false;
     const float w = (ox ? fx : 1.f - fx) * (oy ? fy : 1.f - fy) * (oz ? fz : 1.f - fz);
     acc += w * voxelSdf(*v, vol.truncation);
