@@ -12,7 +12,6 @@
 namespace rekon::tracker {
 namespace {
 
-
 // Floors of the residual scales: noise-free synthetic frames drive the
 // residuals to zero, and a singular scale matrix would give infinite weights.
 constexpr double kMinIntensitySigma = 1e-4;  // intensity 0..1
