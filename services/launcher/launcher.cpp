@@ -89,6 +89,8 @@ int launch(const RunOptions& opt) {
   config.set("player.wait_for", list + "]");
   const std::string config_path = out + "/config.yaml";
   config.save(config_path);
+  // The report and the evaluation find the dataset (and its ground truth) from here.
+  std::ofstream(out + "/dataset.txt") << fs::canonical(opt.dataset).string() << "\n";
 
   // Consumers first; the player waits for their heartbeats before it sends.
   std::stable_partition(services.begin(), services.end(), [](const std::string& s) { return s != "player"; });
