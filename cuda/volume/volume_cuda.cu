@@ -81,6 +81,22 @@ __global__ void updateKernel(Voxel* pool, const BlockRef* blocks, FrameImages fr
   if (x == 0 && y == 0 && z == 0) empty[blockIdx.x] = occupied ? 0 : 1;
 }
 
+// Block copies between the pool and a dense staging array, one CUDA block
+// per voxel block, so that streaming moves many blocks with one transfer.
+__global__ void gatherBlocks(const Voxel* pool, const int32_t* slots, Voxel* staging) {
+  const int i = blockIdx.x, v = threadIdx.x;
+  staging[static_cast<size_t>(i) * kBlockVoxels + v] = pool[static_cast<size_t>(slots[i]) * kBlockVoxels + v];
+}
+__global__ void scatterBlocks(Voxel* pool, const int32_t* slots, const Voxel* staging) {
+  const int i = blockIdx.x, v = threadIdx.x;
+  Voxel& dst = pool[static_cast<size_t>(slots[i]) * kBlockVoxels + v];
+  if (staging) {
+    dst = staging[static_cast<size_t>(i) * kBlockVoxels + v];
+  } else {
+    dst = Voxel{0, {0u, 0u}};
+  }
+}
+
 __global__ void raycastKernel(VolumeView vol, CameraView cam, TileDepthRanges ranges, float max_depth, RaycastPixel* out) {
   const int u = blockIdx.x * blockDim.x + threadIdx.x;
   const int v = blockIdx.y * blockDim.y + threadIdx.y;
@@ -151,22 +167,27 @@ class CudaBackend final : public VolumeBackend {
   }
 
   void readBlocks(const std::vector<int32_t>& slots, Voxel* out) const override {
-    for (size_t i = 0; i < slots.size(); ++i) {
-      check(cudaMemcpy(out + i * kBlockVoxels, pool_.data() + static_cast<size_t>(slots[i]) * kBlockVoxels,
-                       sizeof(Voxel) * kBlockVoxels, cudaMemcpyDeviceToHost),
-            "block download");
-    }
+    if (slots.empty()) return;
+    const size_t voxels = slots.size() * kBlockVoxels;
+    slots_.ensure(slots.size());
+    staging_.ensure(voxels);
+    check(cudaMemcpy(slots_.data(), slots.data(), slots.size() * sizeof(int32_t), cudaMemcpyHostToDevice), "slot upload");
+    gatherBlocks<<<static_cast<unsigned>(slots.size()), kBlockVoxels>>>(pool_.data(), slots_.data(), staging_.data());
+    check(cudaGetLastError(), "block gather launch");
+    check(cudaMemcpy(out, staging_.data(), voxels * sizeof(Voxel), cudaMemcpyDeviceToHost), "block download");
   }
   void writeBlocks(const std::vector<int32_t>& slots, const Voxel* in) override {
-    for (size_t i = 0; i < slots.size(); ++i) {
-      Voxel* dst = pool_.data() + static_cast<size_t>(slots[i]) * kBlockVoxels;
-      if (in == nullptr) {
-        check(cudaMemset(dst, 0, sizeof(Voxel) * kBlockVoxels), "block clear");
-      } else {
-        check(cudaMemcpy(dst, in + i * kBlockVoxels, sizeof(Voxel) * kBlockVoxels, cudaMemcpyHostToDevice),
-              "block upload");
-      }
+    if (slots.empty()) return;
+    const size_t voxels = slots.size() * kBlockVoxels;
+    slots_.ensure(slots.size());
+    check(cudaMemcpy(slots_.data(), slots.data(), slots.size() * sizeof(int32_t), cudaMemcpyHostToDevice), "slot upload");
+    if (in) {
+      staging_.ensure(voxels);
+      check(cudaMemcpy(staging_.data(), in, voxels * sizeof(Voxel), cudaMemcpyHostToDevice), "block upload");
     }
+    scatterBlocks<<<static_cast<unsigned>(slots.size()), kBlockVoxels>>>(pool_.data(), slots_.data(),
+                                                                          in ? staging_.data() : nullptr);
+    check(cudaGetLastError(), "block scatter launch");
   }
   const Voxel* hostPool() const override { return nullptr; }
 
@@ -201,6 +222,9 @@ class CudaBackend final : public VolumeBackend {
   DeviceArray<BlockRef> refs_;
   DeviceArray<int> counter_;
   DeviceArray<HashEntry> table_;
+  // Staging for block transfers; mutable because reading blocks is logically const.
+  mutable DeviceArray<int32_t> slots_;
+  mutable DeviceArray<Voxel> staging_;
   DeviceArray<RaycastPixel> image_;
   uint64_t mirrored_version_ = ~0ull;
   FrameImages frame_{};
