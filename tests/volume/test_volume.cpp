@@ -327,6 +327,19 @@ TEST_P(VolumeTest, ImagesOfTheWrongSizeOrTypeAreRejected) {
   EXPECT_THROW(vol.integrate(raw, cv::Mat(), cv::Mat(), k_, v.pose), rekon::Error);
 }
 
+TEST_P(VolumeTest, NegativeOrHugePixelWeightsAreRejected) {
+  TsdfVolume vol(params());
+  const View v = sphereView(0);
+  cv::Mat weights(v.depth.size(), CV_32FC1, cv::Scalar(1.0f));
+  weights.at<float>(3, 3) = -1.0f;
+  EXPECT_THROW(vol.integrate(v.depth, v.color, weights, k_, v.pose), rekon::Error);
+  weights.at<float>(3, 3) = 1e9f;  // beyond what a voxel's 21-bit weight can hold
+  EXPECT_THROW(vol.integrate(v.depth, v.color, weights, k_, v.pose), rekon::Error);
+  weights.at<float>(3, 3) = std::nanf("");
+  EXPECT_THROW(vol.integrate(v.depth, v.color, weights, k_, v.pose), rekon::Error);
+  EXPECT_EQ(vol.stats().blocks, 0);  // rejected before anything was integrated
+}
+
 INSTANTIATE_TEST_SUITE_P(Backends, VolumeTest, ::testing::ValuesIn(rekon::volume::availableBackends()),
                          [](const ::testing::TestParamInfo<std::string>& p) { return p.param; });
 

@@ -102,7 +102,17 @@ void TsdfVolume::update(const cv::Mat& depth_m, const cv::Mat& color, const cv::
   k.validate(std::string("volume ") + what);
   requireImage(depth_m, CV_32FC1, k, "depth", "CV_32F metres (convert raw depth with depthToMetres)");
   if (!color.empty()) requireImage(color, CV_8UC3, k, "color", "CV_8UC3 BGR (or empty)");
-  if (!weights.empty()) requireImage(weights, CV_32FC1, k, "weights", "CV_32F (or empty for weight 1)");
+  if (!weights.empty()) {
+    requireImage(weights, CV_32FC1, k, "weights", "CV_32F (or empty for weight 1)");
+    // checkRange catches NaN and infinity; a clamp would break exactness silently.
+    double lowest = 0.0, highest = 0.0;
+    cv::minMaxLoc(weights, &lowest, &highest);
+    const double limit = kMaxVoxelWeight / params_.weight_units;
+    if (!cv::checkRange(weights) || !(lowest >= 0.0 && highest <= limit)) {
+      throw Error("volume: pixel weights must be finite and in [0, " + std::to_string(limit) + "] (found " +
+                  std::to_string(lowest) + " .. " + std::to_string(highest) + "); rescale them or lower volume.weight_units");
+    }
+  }
   const cv::Mat depth_c = depth_m.isContinuous() ? depth_m : depth_m.clone();
   const cv::Mat color_c = color.empty() || color.isContinuous() ? color : color.clone();
   const cv::Mat weights_c = weights.empty() || weights.isContinuous() ? weights : weights.clone();
