@@ -1,0 +1,83 @@
+// Pose-graph optimisation speed on one core (issue 5: 1 000 keyframes and
+// 5 000 edges in at most 100 ms). Prints numbers; not a test.
+//   rekon_optimiser_benchmark [KEYFRAMES] [EDGES] [REPEATS]
+// Run it pinned to one core: taskset -c 0 rekon_optimiser_benchmark
+#include <algorithm>
+#include <cstdio>
+#include <cstdlib>
+#include <string>
+#include <vector>
+
+#include "rekon/optimiser/pose_graph.hpp"
+#include "rekon/optimiser/synthetic_graph.hpp"
+
+using namespace rekon::optimiser;
+
+namespace {
+
+double median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  return v[v.size() / 2];
+}
+
+void addAll(PoseGraph& graph, const SyntheticGraph& g, size_t constraints) {
+  for (size_t i = 0; i < g.initial.size(); ++i) graph.addKeyframe(static_cast<int64_t>(i), g.initial[i]);
+  for (size_t i = 0; i < constraints; ++i) graph.addConstraint(g.constraints[i]);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const int keyframes = argc > 1 ? std::atoi(argv[1]) : 1000;
+  const int edges = argc > 2 ? std::atoi(argv[2]) : 5000;
+  const int repeats = argc > 3 ? std::atoi(argv[3]) : 5;
+  if (keyframes < 2 || edges < keyframes - 1 || repeats < 1) {
+    std::fprintf(stderr, "usage: rekon_optimiser_benchmark [KEYFRAMES>=2] [EDGES>=KEYFRAMES-1] [REPEATS>=1]\n");
+    return 1;
+  }
+  SyntheticGraphSpec spec;
+  spec.keyframes = keyframes;
+  spec.laps = 5;
+  spec.loop_edges = edges - (keyframes - 1);
+  spec.seed = 7;
+  const SyntheticGraph g = makeSyntheticGraph(spec);
+  std::printf("graph: %d keyframes, %d odometry + %d loop edges, 5 laps of a %.1f m circle, noise %.1f mm / %.2f deg per edge\n",
+              keyframes, keyframes - 1, spec.loop_edges, spec.radius_m, 1e3 * spec.sigma_translation_m,
+              spec.sigma_rotation_rad * 180.0 / 3.14159265358979);
+  PoseGraphParams params;  // defaults: Cauchy on loops, bounded background budget
+
+  // Cold: from chained odometry (drift of several laps), full final budget.
+  std::vector<double> cold_ms;
+  OptimiseReport cold{};
+  double before = 0, after = 0;
+  for (int r = 0; r < repeats; ++r) {
+    PoseGraph graph(params);
+    addAll(graph, g, g.constraints.size());
+    before = maxTranslationError(g.truth, graph.poses());
+    cold = graph.optimise(true);
+    after = maxTranslationError(g.truth, graph.poses());
+    cold_ms.push_back(cold.ms);
+  }
+  std::printf("cold start (odometry initial, final=true): median %.1f ms over %d runs; %d iterations in %d solve(s), "
+              "%d loop edges removed; max position error %.3f m -> %.4f m\n",
+              median(cold_ms), repeats, cold.iterations, cold.rounds, cold.loop_edges_removed, before, after);
+
+  // Warm: the graph is optimised, then 10 new loop edges arrive (the
+  // background case): one bounded optimisation with the default budget.
+  std::vector<double> warm_ms;
+  OptimiseReport warm{};
+  for (int r = 0; r < repeats; ++r) {
+    PoseGraph graph(params);
+    addAll(graph, g, g.constraints.size() - 10);
+    graph.optimise(true);
+    for (size_t i = g.constraints.size() - 10; i < g.constraints.size(); ++i) graph.addConstraint(g.constraints[i]);
+    warm = graph.optimise(false);
+    warm_ms.push_back(warm.ms);
+    after = maxTranslationError(g.truth, graph.poses());
+  }
+  std::printf("warm start (10 new loop edges, background budget): median %.1f ms over %d runs; %d iterations; max "
+              "position error %.4f m\n",
+              median(warm_ms), repeats, warm.iterations, after);
+  std::printf("goal: <= 100 ms for 1 000 keyframes and 5 000 edges on one core\n");
+  return 0;
+}

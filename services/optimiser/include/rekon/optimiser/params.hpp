@@ -1,0 +1,63 @@
+#pragma once
+// Tunables of the pose-graph optimiser (config section `optimiser:`), with
+// named defaults. Read once per service by optimiserParamsFromConfig.
+#include <string>
+
+namespace rekon {
+class Config;
+}
+
+namespace rekon::optimiser {
+
+enum class RobustLoss { Cauchy, Huber, None };
+
+struct PoseGraphParams {
+  // Robust loss on loop edges only (odometry is trusted as the tracker's
+  // Gaussian estimate). The scale is in whitened units: a loop edge whose
+  // sqrt(chi2) exceeds it starts losing weight.
+  static constexpr double kDefaultLoopLossScale = 3.0;
+  // After optimising, a loop edge with chi2 = r^T I r above this is an outlier
+  // and removed. 22.46 is the 99.9 % quantile of chi2 with 6 degrees of
+  // freedom: of 4 000 correct loop edges about 4 go.
+  static constexpr double kDefaultLoopOutlierChi2 = 22.46;
+  // Background optimisations are bounded so that a new constraint waits at
+  // most about one optimisation.
+  static constexpr int kDefaultMaxIterations = 10;
+  static constexpr double kDefaultMaxSolverTimeS = 0.2;
+  // The final optimisation at the end of a run may take longer.
+  static constexpr int kDefaultFinalMaxIterations = 100;
+  // Remove-and-re-optimise rounds per optimisation at most.
+  static constexpr int kDefaultOutlierRounds = 3;
+
+  RobustLoss loop_loss = RobustLoss::Cauchy;
+  double loop_loss_scale = kDefaultLoopLossScale;
+  double loop_outlier_chi2 = kDefaultLoopOutlierChi2;
+  int max_iterations = kDefaultMaxIterations;
+  double max_solver_time_s = kDefaultMaxSolverTimeS;
+  int final_max_iterations = kDefaultFinalMaxIterations;
+  int outlier_rounds = kDefaultOutlierRounds;
+
+  // Throws rekon::Error naming the first invalid key.
+  void validate() const;
+};
+
+struct OptimiserServiceParams {
+  // The service's final graph update and done message are sent this many
+  // times, this far apart: UDP multicast may drop one.
+  static constexpr int kDefaultFinalRepeats = 3;
+  static constexpr int kDefaultFinalRepeatGapMs = 50;
+
+  PoseGraphParams graph;
+  int final_repeats = kDefaultFinalRepeats;
+  int final_repeat_gap_ms = kDefaultFinalRepeatGapMs;
+
+  void validate() const;
+};
+
+RobustLoss robustLossFromString(const std::string& name);
+const char* toString(RobustLoss loss);
+
+// Reads the `optimiser:` section; throws rekon::Error for invalid values.
+OptimiserServiceParams optimiserParamsFromConfig(const Config& config);
+
+}  // namespace rekon::optimiser

@@ -1,0 +1,129 @@
+#pragma once
+// The keyframe pose graph of DVO-SLAM's back end, optimised with Ceres:
+// keyframe poses on SE(3) (a translation plus a unit quaternion on Ceres'
+// EigenQuaternionManifold, one parameter block per keyframe), relative-pose edges weighted by the square root of
+// their information matrices, a robust loss on loop edges only, the first
+// keyframe fixed. Loop edges that remain outliers after an optimisation are
+// removed and the graph re-optimised.
+//
+// Keyframes that no chain of edges links to the first one (after a tracking
+// reset) keep the pose they were added with; when an edge links them, their
+// whole group is moved rigidly so that the edge holds, and then optimised.
+#include <Eigen/Core>
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <optional>
+#include <utility>
+#include <vector>
+
+#include "rekon/common/pose.hpp"
+#include "rekon/optimiser/params.hpp"
+
+namespace ceres {
+class LossFunction;
+class Manifold;
+}  // namespace ceres
+
+namespace rekon::optimiser {
+
+using Vector6d = Eigen::Matrix<double, 6, 1>;
+using Matrix6d = Eigen::Matrix<double, 6, 6>;
+
+enum class EdgeKind { Odometry, Loop };
+
+// Pose of keyframe `to_id` in the frame of `from_id` (from^-1 * to), with the
+// information of the right perturbation xi = (v, w): to-in-from = relative * exp(xi),
+// translation part first, as the tracker computes it.
+struct Constraint {
+  EdgeKind kind = EdgeKind::Odometry;
+  int64_t from_id = 0;
+  int64_t to_id = 0;
+  Pose relative = Pose::Identity();
+  Matrix6d information = Matrix6d::Identity();
+};
+
+// The edge's error in (v, w) order: E = relative^-1 * from^-1 * to, as
+// (translation of E, 2 * vector part of E's quaternion). To first order this
+// is the xi of to-in-from = relative * exp(xi), the tracker's convention.
+Vector6d relativePoseResidual(const Pose& from, const Pose& to, const Pose& relative);
+
+struct OptimiseReport {
+  int iterations = 0;            // over all rounds
+  int rounds = 0;                // solves (1 + re-optimisations after removing outliers)
+  int loop_edges_removed = 0;
+  int keyframes_optimised = 0;   // linked to the first keyframe
+  int edges_used = 0;
+  double initial_cost = 0.0;     // 0.5 * sum of (robustified) squared whitened residuals
+  double final_cost = 0.0;
+  double ms = 0.0;               // wall time of the whole call
+};
+
+class PoseGraph {
+ public:
+  explicit PoseGraph(PoseGraphParams params = {});
+  ~PoseGraph();
+  PoseGraph(const PoseGraph&) = delete;
+  PoseGraph& operator=(const PoseGraph&) = delete;
+
+  // Throws rekon::Error for a duplicate id or an invalid pose. The first
+  // keyframe added is the fixed anchor.
+  void addKeyframe(int64_t id, const Pose& pose_world);
+  // Throws rekon::Error for unknown keyframe ids, a self edge, an invalid
+  // relative pose, or an information matrix that is not finite, symmetric
+  // and positive definite.
+  void addConstraint(const Constraint& constraint);
+
+  // Warm-started from the current poses. `final` uses final_max_iterations
+  // and no time limit instead of the bounded background budget.
+  OptimiseReport optimise(bool final = false);
+
+  bool hasKeyframe(int64_t id) const { return nodes_.count(id) > 0; }
+  std::optional<Pose> pose(int64_t id) const;
+  // Every keyframe's current estimate, ascending id.
+  std::vector<std::pair<int64_t, Pose>> poses() const;
+  // Linked to the first keyframe by a chain of (kept) edges.
+  bool isAttached(int64_t id) const;
+  std::optional<int64_t> anchorId() const { return anchor_; }
+
+  size_t numKeyframes() const { return nodes_.size(); }
+  size_t numConstraints() const;  // kept ones
+  size_t numLoopEdges() const;    // kept loop edges
+  size_t loopEdgesRemoved() const { return loop_edges_removed_; }
+  // chi2 = r^T I r of every kept loop edge at the current poses, in insertion order.
+  std::vector<double> loopChi2() const;
+  const PoseGraphParams& params() const { return params_; }
+
+ private:
+  struct Node {
+    // One Ceres parameter block: translation, then the unit quaternion in
+    // Eigen's order (x, y, z, w), on a product manifold R^3 x S^3.
+    double x[7];
+    bool attached = false;
+    std::vector<size_t> edges;
+  };
+  struct Edge {
+    Constraint c;
+    Matrix6d sqrt_information;  // upper triangular U with U^T U = information
+    bool kept = true;
+  };
+
+  static Pose poseOf(const Node& n);
+  static void setPose(Node& n, const Pose& p);
+  double edgeChi2(const Edge& e) const;
+  // The unattached keyframes linked to `start` by kept edges.
+  std::vector<int64_t> unattachedGroup(int64_t start) const;
+  void recomputeAttachment();
+  // One Ceres solve over the attached keyframes; returns iterations.
+  int solve(bool final, OptimiseReport& report, bool first_round);
+
+  PoseGraphParams params_;
+  std::map<int64_t, Node> nodes_;
+  std::vector<Edge> edges_;
+  std::optional<int64_t> anchor_;
+  size_t loop_edges_removed_ = 0;
+  std::unique_ptr<ceres::Manifold> pose_manifold_;
+  std::unique_ptr<ceres::LossFunction> loop_loss_;
+};
+
+}  // namespace rekon::optimiser

@@ -1,0 +1,71 @@
+#include "rekon/optimiser/graph_messages.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+#include "rekon/common/error.hpp"
+#include "rekon/common/messages.hpp"
+
+namespace rekon::optimiser {
+
+KeyframeIn keyframeFromMsg(const rekon_msgs::keyframe_t& msg) {
+  const std::optional<Pose> pose = fromMsg(msg.pose_world);
+  if (!pose) throw Error("keyframe " + std::to_string(msg.keyframe_id) + " has a non-finite or non-unit pose; dropped");
+  return {msg.keyframe_id, *pose};
+}
+
+Constraint constraintFromMsg(const rekon_msgs::constraint_t& msg) {
+  const std::string name = "constraint " + std::to_string(msg.from_id) + " -> " + std::to_string(msg.to_id);
+  Constraint c;
+  if (msg.kind == rekon_msgs::constraint_t::KIND_ODOMETRY) c.kind = EdgeKind::Odometry;
+  else if (msg.kind == rekon_msgs::constraint_t::KIND_LOOP) c.kind = EdgeKind::Loop;
+  else throw Error(name + " has unknown kind " + std::to_string(msg.kind) + "; dropped");
+  c.from_id = msg.from_id;
+  c.to_id = msg.to_id;
+  const std::optional<Pose> relative = fromMsg(msg.relative);
+  if (!relative) throw Error(name + " has a non-finite or non-unit relative pose; dropped");
+  c.relative = *relative;
+  const auto info = matrix6FromArray(msg.information);
+  if (!info) throw Error(name + " has a non-finite information matrix; dropped");
+  c.information = *info;
+  return c;
+}
+
+TrackedFrame trackedFrameFromMsg(const rekon_msgs::tracked_frame_t& msg) {
+  const std::optional<Pose> pose = fromMsg(msg.pose_in_keyframe);
+  if (!pose) throw Error("tracked frame " + std::to_string(msg.frame_id) + " has a non-finite or non-unit pose; dropped");
+  if (!std::isfinite(msg.timestamp))
+    throw Error("tracked frame " + std::to_string(msg.frame_id) + " has a non-finite timestamp; dropped");
+  return {msg.frame_id, msg.timestamp, msg.keyframe_id, *pose};
+}
+
+rekon_msgs::graph_update_t graphUpdateMsg(const PoseGraph& graph, int64_t version, bool final_update) {
+  rekon_msgs::graph_update_t msg{};
+  msg.version = version;
+  msg.final_update = final_update;
+  for (const auto& [id, pose] : graph.poses()) {
+    msg.keyframe_ids.push_back(id);
+    msg.poses.push_back(toMsg(pose));
+  }
+  msg.num_keyframes = static_cast<int32_t>(msg.keyframe_ids.size());
+  return msg;
+}
+
+Trajectory frameTrajectory(const PoseGraph& graph, std::vector<TrackedFrame> frames, size_t* missing_keyframe) {
+  std::sort(frames.begin(), frames.end(), [](const TrackedFrame& a, const TrackedFrame& b) { return a.frame_id < b.frame_id; });
+  Trajectory out;
+  out.reserve(frames.size());
+  size_t missing = 0;
+  for (const TrackedFrame& f : frames) {
+    const std::optional<Pose> kf = graph.pose(f.keyframe_id);
+    if (!kf) {
+      ++missing;
+      continue;
+    }
+    out.push_back({f.timestamp, orthonormalised(*kf * f.pose_in_keyframe)});
+  }
+  if (missing_keyframe) *missing_keyframe = missing;
+  return out;
+}
+
+}  // namespace rekon::optimiser
