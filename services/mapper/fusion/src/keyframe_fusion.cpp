@@ -176,7 +176,7 @@ KeyframeFuser::KeyframeFuser(const FusionParams& params, const Intrinsics& k) : 
 }
 
 bool KeyframeFuser::startsNewKeyframe(int64_t dvo_keyframe_id, const Pose& camera_to_world) const {
-  if (frames_ == 0) return true;
+  if (!open_) return true;
   switch (params_.strategy) {
     case KeyframeStrategy::kConst: return frames_ >= params_.kappa;
     case KeyframeStrategy::kDvo: return dvo_keyframe_id != dvo_keyframe_id_;
@@ -200,10 +200,12 @@ void KeyframeFuser::begin(int64_t kf_id, int64_t anchor_keyframe_id, const Pose&
   kf_world_ = camera_to_world;
   dvo_keyframe_id_ = anchor_keyframe_id;
   frames_ = 0;
+  open_ = true;
   inputs_.clear();
 }
 
 void KeyframeFuser::add(const RgbdFrame& frame, const Pose& camera_to_world) {
+  if (!open_) throw Error("keyframe fusion: add() before begin()");
   if (frame.depth.cols != k_.width || frame.depth.rows != k_.height || frame.color.size() != frame.depth.size() ||
       frame.color.type() != CV_8UC3)
     throw Error("keyframe fusion: frame " + std::to_string(frame.id) + " does not match the " +
@@ -302,6 +304,7 @@ FusedKeyframe KeyframeFuser::finish() {
   }
   inputs_.clear();
   frames_ = 0;
+  open_ = false;
   return std::move(kf_);
 }
 

@@ -91,7 +91,7 @@ class KeyframeFuser {
  public:
   KeyframeFuser(const FusionParams& params, const Intrinsics& k);
 
-  bool active() const { return frames_ > 0; }
+  bool active() const { return open_; }
   int frames() const { return frames_; }
   // Whether `frame` should start a new KF keyframe (strategy of the params);
   // true when none is open.
@@ -117,6 +117,7 @@ class KeyframeFuser {
   Pose kf_world_ = Pose::Identity();
   int64_t dvo_keyframe_id_ = -1;
   int frames_ = 0;
+  bool open_ = false;
   std::vector<ColorInput> inputs_;
 };
 

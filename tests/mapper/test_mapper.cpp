@@ -1,0 +1,223 @@
+// The mapping core end to end on the synthetic tabletop: a scripted replay
+// (drifted poses, graph updates toward the ground truth) corrected on the fly
+// equals integrating the same KF keyframes from scratch at the final poses,
+// and the keyframe store rebuilds the same volume after a restart.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <map>
+
+#include "rekon/common/error.hpp"
+#include "rekon/mapper/mapper.hpp"
+#include "rekon/replay/replay.hpp"
+#include "rekon/synth/synth.hpp"
+
+using namespace rekon;
+using namespace rekon::mapper;
+
+namespace {
+
+constexpr int kFrames = 36;
+
+Intrinsics testCamera() { return synth::defaultIntrinsics().atLevel(1); }  // 320x240: fast, same optics
+
+MapperParams testParams() {
+  MapperParams p;
+  p.fusion.kappa = 4;                 // 36 frames -> 9 KF keyframes
+  p.m = 2;                            // fewer than the keyframes that move: the final pass has work left
+  p.volume.voxel_size = 0.01;
+  p.volume.truncation = 0.04;
+  p.volume.streaming_radius = 1.0;    // the tabletop orbit is wider: blocks stream out and back in
+  p.volume.backend = "cpu";
+  p.volume.cpu_threads = 2;
+  return p;
+}
+
+struct Scenario {
+  std::vector<RgbdFrame> frames;
+  Trajectory ground_truth, drifted;
+};
+
+const Scenario& scenario() {
+  static const Scenario s = [] {
+    Scenario out;
+    const auto scene = synth::Scene::make("tabletop");
+    out.ground_truth = scene->trajectory(kFrames, 3);
+    // 5 cm and 3 deg of drift per metre: keyframes move by centimetres, as after a loop closure.
+    out.drifted = synth::driftedTrajectory(out.ground_truth, 0.05, 3.0, 11);
+    for (int i = 0; i < kFrames; ++i) {
+      RgbdFrame f = scene->render(testCamera(), out.ground_truth[i].pose, synth::Noise::Kinect, 100 + i, 2);
+      f.id = i;
+      f.timestamp = out.ground_truth[i].timestamp;
+      out.frames.push_back(std::move(f));
+    }
+    return out;
+  }();
+  return s;
+}
+
+replay::ReplayParams replayParams() {
+  replay::ReplayParams r;
+  r.trajectory = "drifted";
+  r.target = "ground truth";
+  r.keyframe_translation = 0.05;  // several DVO keyframes within 36 frames
+  r.update_every_keyframes = 2;
+  r.final_updates = 3;
+  return r;
+}
+
+// Plays the scenario through the mapper as the service would; returns the script's updates count.
+int play(Mapper& mapper, int frames) {
+  const Scenario& s = scenario();
+  replay::ReplayScript script(s.drifted, s.ground_truth, replayParams(), kFrames);
+  int updates = 0;
+  for (int i = 0; i < frames; ++i) {
+    const replay::ReplayTracked t = script.onFrame(i, s.frames[i].timestamp);
+    if (t.new_keyframe_world) mapper.setKeyframeEstimate(t.keyframe_id, *t.new_keyframe_world);
+    mapper.addFrame(s.frames[i], testCamera(), t.keyframe_id, t.pose_in_keyframe, t.lost);
+    if (auto u = script.dueUpdate()) {
+      mapper.applyGraphUpdate(u->poses);
+      ++updates;
+    }
+  }
+  if (frames == kFrames) {
+    for (const auto& u : script.finalUpdates()) {
+      mapper.applyGraphUpdate(u.poses);
+      ++updates;
+    }
+  }
+  return updates;
+}
+
+using VoxelMap = std::map<std::tuple<int, int, int>, std::vector<volume::Voxel>>;
+VoxelMap snapshot(const volume::TsdfVolume& v) {
+  VoxelMap out;
+  for (const volume::BlockCoord& c : v.blockCoords()) {
+    std::vector<volume::Voxel> voxels;
+    if (v.readBlock(c, voxels)) out[{c.x, c.y, c.z}] = voxels;
+  }
+  return out;
+}
+
+struct Difference {
+  int64_t observed = 0;           // voxels with weight in either volume
+  int64_t weight_or_sdf = 0;      // voxels whose weight or signed-distance sum differ
+  uint32_t max_color_levels = 0;  // largest color difference in 8-bit levels
+};
+Difference compare(const VoxelMap& a, const VoxelMap& b) {
+  Difference d;
+  auto visit = [&](const VoxelMap& x, const VoxelMap& y, bool count_shared) {
+    for (const auto& [coord, voxels] : x) {
+      auto it = y.find(coord);
+      for (size_t i = 0; i < voxels.size(); ++i) {
+        const volume::Voxel& va = voxels[i];
+        const volume::Voxel vb = it == y.end() ? volume::Voxel{0, {0, 0}} : it->second[i];
+        const bool shared = it != y.end();
+        if (shared && !count_shared) continue;  // counted in the first pass
+        if (volume::voxelWeight(va) == 0 && volume::voxelWeight(vb) == 0) continue;
+        ++d.observed;
+        if (volume::voxelWeight(va) != volume::voxelWeight(vb) || va.sdf_sum != vb.sdf_sum) {
+          ++d.weight_or_sdf;
+          continue;
+        }
+        for (int c = 0; c < 3; ++c) {
+          const int64_t ca = volume::voxelColorFixed(va, c), cb = volume::voxelColorFixed(vb, c);
+          d.max_color_levels = std::max<uint32_t>(
+              d.max_color_levels, static_cast<uint32_t>((std::abs(ca - cb) + volume::kColorScale - 1) / volume::kColorScale));
+        }
+      }
+    }
+  };
+  visit(a, b, true);
+  visit(b, a, false);
+  std::printf("observed voxels %lld, weight/sdf differing %lld, color up to %u levels\n",
+              static_cast<long long>(d.observed), static_cast<long long>(d.weight_or_sdf), d.max_color_levels);
+  return d;
+}
+
+}  // namespace
+
+TEST(Mapper, CorrectedVolumeEqualsOneIntegratedFromScratchWithTheFinalPoses) {
+  Mapper mapper(testParams());
+  EXPECT_GE(play(mapper, kFrames), 4);  // updates during the stream and 3 after it
+  mapper.finish();
+  const MapperCounters& c = mapper.counters();
+  EXPECT_EQ(c.kf_keyframes, kFrames / 4);
+  EXPECT_GT(c.reintegrations - c.final_pass_reintegrations, 0);  // corrected on the fly ...
+  EXPECT_GT(c.final_pass_reintegrations, 0);                      // ... and the rest in the final pass
+  EXPECT_EQ(c.deintegrations, c.reintegrations);
+  for (double moved : mapper.movements()) EXPECT_LE(moved, testParams().min_movement);
+
+  volume::TsdfVolume scratch(testParams().volume);
+  for (const KeyframeRecord& r : mapper.keyframes())
+    scratch.integrate(r.kf.depth, r.kf.color, r.kf.weight, testCamera(), *mapper.currentPose(r.kf));
+  const Difference d = compare(snapshot(mapper.volume()), snapshot(scratch));
+  EXPECT_GT(d.observed, 100000);  // a real surface, not an empty comparison
+  // De-integration subtracts exactly what integration added (integer sums): weights and signed distances equal bit for bit.
+  EXPECT_EQ(d.weight_or_sdf, 0);
+  // Colors are rounded running averages: each de-integration may shift one by a level or two.
+  EXPECT_LE(d.max_color_levels, 2u);  // measured 1
+}
+
+TEST(Mapper, WithoutCorrectionTheVolumeDiffersFromTheFinalPoses) {
+  // The reference for the test above: the drifted volume is not already the corrected one.
+  MapperParams p = testParams();
+  Mapper mapper(p);
+  const Scenario& s = scenario();
+  replay::ReplayScript script(s.drifted, s.ground_truth, replayParams(), kFrames);
+  for (int i = 0; i < kFrames; ++i) {
+    const replay::ReplayTracked t = script.onFrame(i, s.frames[i].timestamp);
+    if (t.new_keyframe_world) mapper.setKeyframeEstimate(t.keyframe_id, *t.new_keyframe_world);
+    mapper.addFrame(s.frames[i], testCamera(), t.keyframe_id, t.pose_in_keyframe, t.lost);
+  }
+  mapper.finish();  // no graph updates: nothing moves
+  EXPECT_EQ(mapper.counters().reintegrations, 0);
+  const auto final_update = script.finalUpdates().back();
+  volume::TsdfVolume corrected(p.volume);
+  std::map<int64_t, Pose> anchors(final_update.poses.begin(), final_update.poses.end());
+  for (const KeyframeRecord& r : mapper.keyframes())
+    corrected.integrate(r.kf.depth, r.kf.color, r.kf.weight, testCamera(), anchors.at(r.kf.anchor_keyframe_id) * r.kf.pose_in_anchor);
+  const Difference d = compare(snapshot(mapper.volume()), snapshot(corrected));
+  EXPECT_GT(d.weight_or_sdf, d.observed / 10);  // centimetres of drift change most voxels
+}
+
+TEST(KeyframeStore, ARestartedMapperRebuildsTheSameVolume) {
+  MapperParams p = testParams();
+  p.use_store = true;
+  p.store.segment = "rekon_test_store_" + std::to_string(getpid());
+  p.store.size_mb = 64;  // 320x240 keyframes take 0.84 MiB each
+  store::KeyframeStore::remove(p.store.segment);
+  VoxelMap before;
+  int64_t kf_before = 0;
+  {
+    Mapper first(p);
+    play(first, kFrames);  // with graph updates and re-integrations, but no final pass: a crash before the end
+    before = snapshot(first.volume());
+    kf_before = static_cast<int64_t>(first.keyframes().size());
+    EXPECT_GT(first.counters().reintegrations, 0);
+  }  // destroyed without removeStore(): the segment stays
+  Mapper restarted(p);
+  EXPECT_EQ(restarted.counters().restored_keyframes, kf_before);
+  const Difference d = compare(before, snapshot(restarted.volume()));
+  EXPECT_GT(d.observed, 100000);
+  EXPECT_EQ(d.weight_or_sdf, 0);        // integer sums: the order of integration does not matter
+  EXPECT_LE(d.max_color_levels, 2u);    // colors: rounding of the de-/re-integrations before the restart
+  restarted.removeStore();
+  EXPECT_THROW(store::KeyframeStore::openExisting(p.store.segment), Error);
+}
+
+TEST(KeyframeStore, AFullStoreIsAnErrorNamingTheSetting) {
+  MapperParams p = testParams();
+  p.use_store = true;
+  p.store.segment = "rekon_test_full_" + std::to_string(getpid());
+  p.store.size_mb = 1;  // room for one 320x240 keyframe (0.84 MiB), not two
+  store::KeyframeStore::remove(p.store.segment);
+  Mapper mapper(p);
+  try {
+    play(mapper, 12);
+    FAIL() << "the second keyframe should not fit";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("mapper.store_mb"), std::string::npos) << e.what();
+  }
+  store::KeyframeStore::remove(p.store.segment);
+}
