@@ -136,6 +136,8 @@ TEST(OptimiserParams, DefaultConfigMatchesTheNamedDefaults) {
   EXPECT_EQ(p.graph.max_iterations, d.max_iterations);
   EXPECT_EQ(p.graph.max_solver_time_s, d.max_solver_time_s);
   EXPECT_EQ(p.graph.final_max_iterations, d.final_max_iterations);
+  EXPECT_EQ(p.graph.function_tolerance, d.function_tolerance);
+  EXPECT_EQ(p.graph.final_function_tolerance, d.final_function_tolerance);
   EXPECT_EQ(p.final_repeats, OptimiserServiceParams::kDefaultFinalRepeats);
   EXPECT_EQ(p.final_repeat_gap_ms, OptimiserServiceParams::kDefaultFinalRepeatGapMs);
 }

@@ -21,6 +21,10 @@ void PoseGraphParams::validate() const {
   require(max_iterations >= 1, "max_iterations", max_iterations, "at least 1");
   require(std::isfinite(max_solver_time_s) && max_solver_time_s > 0, "max_solver_time_s", max_solver_time_s,
           "positive");
+  require(std::isfinite(function_tolerance) && function_tolerance > 0 && function_tolerance < 1, "function_tolerance",
+          function_tolerance, "in (0, 1)");
+  require(std::isfinite(final_function_tolerance) && final_function_tolerance > 0 && final_function_tolerance < 1,
+          "final_function_tolerance", final_function_tolerance, "in (0, 1)");
   require(final_max_iterations >= 1, "final_max_iterations", final_max_iterations, "at least 1");
   require(outlier_rounds >= 0, "outlier_rounds", outlier_rounds, "zero (keep every loop edge) or more");
 }
@@ -56,7 +60,9 @@ OptimiserServiceParams optimiserParamsFromConfig(const Config& config) {
   p.graph.outlier_rounds = config.getInt("optimiser.outlier_rounds");
   p.graph.max_iterations = config.getInt("optimiser.max_iterations");
   p.graph.max_solver_time_s = config.getDouble("optimiser.max_solver_time_s");
+  p.graph.function_tolerance = config.getDouble("optimiser.function_tolerance");
   p.graph.final_max_iterations = config.getInt("optimiser.final_max_iterations");
+  p.graph.final_function_tolerance = config.getDouble("optimiser.final_function_tolerance");
   p.final_repeats = config.getInt("optimiser.final_repeats");
   p.final_repeat_gap_ms = config.getInt("optimiser.final_repeat_gap_ms");
   p.validate();

@@ -201,6 +201,7 @@ int PoseGraph::solve(bool final, OptimiseReport& report, bool first_round) {
   options.logging_type = ceres::SILENT;
   options.minimizer_progress_to_stdout = false;
   options.max_num_iterations = final ? params_.final_max_iterations : params_.max_iterations;
+  options.function_tolerance = final ? params_.final_function_tolerance : params_.function_tolerance;
   if (!final) options.max_solver_time_in_seconds = params_.max_solver_time_s;
   ceres::Solver::Summary summary;
   ceres::Solve(options, &problem, &summary);

@@ -24,7 +24,12 @@ struct PoseGraphParams {
   // most about one optimisation.
   static constexpr int kDefaultMaxIterations = 10;
   static constexpr double kDefaultMaxSolverTimeS = 0.2;
-  // The final optimisation at the end of a run may take longer.
+  // A background optimisation stops once an iteration lowers the cost by less
+  // than this fraction: the next constraint will move the poses again anyway.
+  static constexpr double kDefaultFunctionTolerance = 1e-3;
+  // The final optimisation at the end of a run may take longer, and converges
+  // to Ceres' default tolerance.
+  static constexpr double kDefaultFinalFunctionTolerance = 1e-6;
   static constexpr int kDefaultFinalMaxIterations = 100;
   // Remove-and-re-optimise rounds per optimisation at most.
   static constexpr int kDefaultOutlierRounds = 3;
@@ -34,7 +39,9 @@ struct PoseGraphParams {
   double loop_outlier_chi2 = kDefaultLoopOutlierChi2;
   int max_iterations = kDefaultMaxIterations;
   double max_solver_time_s = kDefaultMaxSolverTimeS;
+  double function_tolerance = kDefaultFunctionTolerance;
   int final_max_iterations = kDefaultFinalMaxIterations;
+  double final_function_tolerance = kDefaultFinalFunctionTolerance;
   int outlier_rounds = kDefaultOutlierRounds;
 
   // Throws rekon::Error naming the first invalid key.
