@@ -5,6 +5,7 @@
 #include "rekon/render/render.hpp"
 
 #include "rekon/volume/fuse_command.hpp"
+#include "rekon/store/keyframe_store.hpp"
 #include "rekon/tracker/odometry_command.hpp"
 #include "launcher.hpp"
 #include "listen.hpp"
@@ -22,6 +23,7 @@ const std::vector<Command>& commands() {
       {"synth", "write a synthetic RGB-D sequence with exact ground truth", &synth::synthCommand},
       {"run", "run the whole pipeline on a dataset (every service as its own process)", &runMain},
       {"demo", "run the whole pipeline on the built-in default scene", &demoMain},
+      {"keyframes", "list or export the KF keyframes in the mapper's shared-memory keyframe store", store::keyframesMain},
       {"listen", "receive frames from the bus as a consumer and log their hashes", &listenMain},
   };
   return table;

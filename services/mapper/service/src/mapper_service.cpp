@@ -16,6 +16,7 @@
 #include "rekon/common/frame_transport.hpp"
 #include "rekon/common/messages.hpp"
 #include "rekon/mapper/mapper.hpp"
+#include "rekon/optimiser/graph_update_filter.hpp"
 #include "rekon_msgs/done_t.hpp"
 #include "rekon_msgs/end_of_stream_t.hpp"
 #include "rekon_msgs/frame_ack_t.hpp"
@@ -78,7 +79,7 @@ void runMapperService(ServiceContext& ctx) {
   Bus& bus = ctx.bus();
   Mapper mapper(params);
   Shared s;
-  GraphUpdateFilter filter;
+  optimiser::GraphUpdateFilter filter;  // each update carries every pose: only the newest matters
   FrameReceiver receiver;
 
   auto ack = [&](int64_t frame_id) {
