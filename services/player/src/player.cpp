@@ -30,6 +30,9 @@ class ConsumerWatch {
  public:
   explicit ConsumerWatch(Bus& bus) {
     bus.subscribe<rekon_msgs::heartbeat_t>(channel::kHeartbeat, [this](const rekon_msgs::heartbeat_t& hb) {
+      // A service counts once it has subscribed to its inputs ("running");
+      // frames sent while it is still "starting" would be lost to it.
+      if (hb.state == "starting") return;
       std::lock_guard<std::mutex> lock(mutex_);
       hosts_[hb.service] = hb.host;
       changed_.notify_all();
