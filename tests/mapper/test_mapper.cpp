@@ -184,6 +184,7 @@ TEST(Mapper, WithoutCorrectionTheVolumeDiffersFromTheFinalPoses) {
 TEST(KeyframeStore, ARestartedMapperRebuildsTheSameVolume) {
   MapperParams p = testParams();
   p.use_store = true;
+  p.resume = true;
   p.store.segment = "rekon_test_store_" + std::to_string(getpid());
   p.store.size_mb = 64;  // 320x240 keyframes take 0.84 MiB each
   store::KeyframeStore::remove(p.store.segment);
@@ -220,4 +221,23 @@ TEST(KeyframeStore, AFullStoreIsAnErrorNamingTheSetting) {
     EXPECT_NE(std::string(e.what()).find("mapper.store_mb"), std::string::npos) << e.what();
   }
   store::KeyframeStore::remove(p.store.segment);
+}
+
+TEST(KeyframeStore, WithoutResumeAStaleStoreIsDiscarded) {
+  MapperParams p = testParams();
+  p.use_store = true;
+  p.resume = true;
+  p.store.segment = "rekon_test_stale_" + std::to_string(getpid());
+  p.store.size_mb = 64;
+  store::KeyframeStore::remove(p.store.segment);
+  {
+    Mapper crashed(p);
+    play(crashed, 12);  // 12 frames, kappa 4: two keyframes closed, the third still open
+    EXPECT_EQ(crashed.keyframes().size(), 2u);
+  }
+  p.resume = false;
+  Mapper fresh(p);
+  EXPECT_EQ(fresh.counters().restored_keyframes, 0);
+  EXPECT_EQ(fresh.volume().stats().blocks, 0);
+  EXPECT_THROW(store::KeyframeStore::openExisting(p.store.segment), Error);  // removed, re-created with the first frame
 }

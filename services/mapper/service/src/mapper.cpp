@@ -21,6 +21,7 @@ MapperParams MapperParams::fromConfig(const Config& c) {
   p.min_movement = c.getDouble("mapper.min_movement");
   if (!(p.min_movement >= 0)) throw Error("mapper.min_movement must not be negative");
   p.use_store = c.getBool("mapper.use_store");
+  p.resume = c.getBool("mapper.resume");
   p.store.segment = c.getString("mapper.store_segment");
   p.store.size_mb = c.getInt("mapper.store_mb");
   return p;
@@ -30,7 +31,11 @@ Mapper::Mapper(const MapperParams& params) : params_(params) {
   params_.fusion.validate();
   if (params_.m < 1) throw Error("mapper.m must be at least 1 (keyframes re-integrated per graph update)");
   volume_ = std::make_unique<volume::TsdfVolume>(params_.volume);
-  if (params_.use_store) {
+  if (params_.use_store && !params_.resume && store::KeyframeStore::remove(params_.store.segment)) {
+    spdlog::warn("removed the stale keyframe store '{}' of an earlier run (set mapper.resume=true to continue from it)",
+                 params_.store.segment);
+  }
+  if (params_.use_store && params_.resume) {
     try {
       store_ = store::KeyframeStore::openExisting(params_.store.segment);
     } catch (const Error&) {

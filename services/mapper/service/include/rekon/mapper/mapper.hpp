@@ -31,6 +31,9 @@ struct MapperParams {
   int m = kDefaultM;
   double min_movement = kDefaultMinMovement;
   bool use_store = false;
+  // With the store: continue from a store left by a stopped or crashed
+  // mapper (true), or discard it as stale (false).
+  bool resume = false;
   store::StoreOptions store;
 
   static MapperParams fromConfig(const Config& config);
@@ -58,8 +61,9 @@ struct KeyframeRecord {
 
 class Mapper {
  public:
-  // With params.use_store, an existing store is opened and every keyframe
-  // in it is integrated again with the pose it had (a restart).
+  // With params.use_store and params.resume, an existing store is opened and
+  // every keyframe in it is integrated again with the pose it had (a restart);
+  // without resume an existing store is removed as stale.
   explicit Mapper(const MapperParams& params);
   ~Mapper();
 
