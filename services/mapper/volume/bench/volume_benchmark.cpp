@@ -46,6 +46,7 @@ int main(int argc, char** argv) try {
       .option("frames", "frames to use (0 = all)", "0")
       .option("backend", "auto, cpu or cuda", "auto")
       .option("threads", "CPU threads (0 = all)", "0")
+      .flag("no-color", "integrate depth only (color left empty)")
       .option("stride", "allocation pixel stride", std::to_string(rekon::volume::VolumeParams::kDefaultAllocationStride));
   if (!args.parse(argc, argv)) return 0;
   rekon::DatasetOptions options;
@@ -59,7 +60,8 @@ int main(int argc, char** argv) try {
     const int p = rekon::nearestInTime(dataset.groundTruth(), dataset.timestamp(i), options.max_time_difference);
     if (p < 0) continue;
     const rekon::RgbdFrame f = dataset.load(i);
-    frames.push_back({rekon::volume::depthToMetres(f.depth, k.depth_scale), f.color, f.depth, dataset.groundTruth()[p].pose});
+    frames.push_back({rekon::volume::depthToMetres(f.depth, k.depth_scale), args.flagSet("no-color") ? cv::Mat() : f.color,
+                      f.depth, dataset.groundTruth()[p].pose});
   }
   spdlog::info("{} frames with poses loaded from {}", frames.size(), args.get("dataset"));
 
@@ -158,7 +160,7 @@ int main(int argc, char** argv) try {
   }
 
 #ifdef REKON_WITH_OPEN3D
-  {
+  if (!args.flagSet("no-color")) {
     std::vector<cv::Mat> raw, color;
     std::vector<rekon::Pose> poses;
     for (const Frame& f : frames) {
