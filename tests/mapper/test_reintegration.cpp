@@ -62,6 +62,8 @@ TEST(PoseMovement, AnglesWrapAroundPi) {
 TEST(Reintegration, ModesParseAndUnknownOnesNameTheKey) {
   EXPECT_EQ(parseReintegrationMode("consecutive"), ReintegrationMode::kConsecutive);
   EXPECT_EQ(parseReintegrationMode("most_moved"), ReintegrationMode::kMostMoved);
+  EXPECT_EQ(parseReintegrationMode("none"), ReintegrationMode::kNone);
+  EXPECT_TRUE(selectForReintegration(ReintegrationMode::kNone, kFigure4, 5, 0.0).empty());
   try {
     parseReintegrationMode("all");
     FAIL();

@@ -196,8 +196,14 @@ void Mapper::applyGraphUpdate(const std::vector<std::pair<int64_t, Pose>>& poses
                   keyframes_[chosen.front()].kf.id);
 }
 
+void Mapper::flush() { closeKeyframe(); }
+
 void Mapper::finish() {
   closeKeyframe();
+  if (params_.mode == ReintegrationMode::kNone) {
+    spdlog::info("final pass skipped (mapper.reintegration: none)");
+    return;
+  }
   const std::vector<double> moved = movements();
   std::vector<size_t> chosen;
   for (size_t i = 0; i < moved.size(); ++i)

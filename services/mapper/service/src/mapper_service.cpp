@@ -270,7 +270,10 @@ void runMapperService(ServiceContext& ctx) {
   if (!s.images.empty()) spdlog::warn("{} frames never got a tracked frame; dropped", s.images.size());
 
   if (clean) mapper.finish();
-  else spdlog::warn("mapper stopped before the end: no final pass; the keyframe store is kept for a restart");
+  else {
+    mapper.flush();
+    spdlog::warn("mapper stopped before the end: no final pass; the keyframe store is kept (mapper.resume=true continues from it)");
+  }
   if (!ctx.outDir().empty()) {
     const std::string path = (std::filesystem::path(ctx.outDir()) / "mesh.ply").string();
     const Mesh mesh = mapper.extractMesh();

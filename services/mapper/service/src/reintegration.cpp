@@ -11,11 +11,18 @@ namespace rekon::mapper {
 ReintegrationMode parseReintegrationMode(const std::string& text) {
   if (text == "consecutive") return ReintegrationMode::kConsecutive;
   if (text == "most_moved") return ReintegrationMode::kMostMoved;
-  throw Error("mapper.reintegration '" + text + "' is unknown; use consecutive (the paper) or most_moved (BundleFusion)");
+  if (text == "none") return ReintegrationMode::kNone;
+  throw Error("mapper.reintegration '" + text +
+              "' is unknown; use consecutive (the paper), most_moved (BundleFusion) or none (never correct)");
 }
 
 std::string toString(ReintegrationMode mode) {
-  return mode == ReintegrationMode::kConsecutive ? "consecutive" : "most_moved";
+  switch (mode) {
+    case ReintegrationMode::kConsecutive: return "consecutive";
+    case ReintegrationMode::kMostMoved: return "most_moved";
+    case ReintegrationMode::kNone: return "none";
+  }
+  return "?";
 }
 
 Eigen::Matrix<double, 6, 1> eulerAndTranslation(const Pose& pose) {
@@ -69,8 +76,12 @@ std::vector<size_t> selectMostMoved(const std::vector<double>& movement, int m, 
 
 std::vector<size_t> selectForReintegration(ReintegrationMode mode, const std::vector<double>& movement, int m,
                                            double min_movement) {
-  return mode == ReintegrationMode::kConsecutive ? selectConsecutive(movement, m, min_movement)
-                                                 : selectMostMoved(movement, m, min_movement);
+  switch (mode) {
+    case ReintegrationMode::kConsecutive: return selectConsecutive(movement, m, min_movement);
+    case ReintegrationMode::kMostMoved: return selectMostMoved(movement, m, min_movement);
+    case ReintegrationMode::kNone: return {};
+  }
+  return {};
 }
 
 }  // namespace rekon::mapper

@@ -78,6 +78,8 @@ class Mapper {
   // Integrates the open KF keyframe, then re-integrates every keyframe whose
   // pose still differs from the one it was integrated with (the final pass).
   void finish();
+  // Integrates the open KF keyframe only (a stop before the end: no final pass).
+  void flush();
 
   // The current world pose of a KF keyframe (its DVO keyframe's pose times its pose in it).
   std::optional<Pose> currentPose(const fusion::FusedKeyframe& kf) const;

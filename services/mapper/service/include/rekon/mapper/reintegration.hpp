@@ -12,8 +12,9 @@
 
 namespace rekon::mapper {
 
-enum class ReintegrationMode { kConsecutive, kMostMoved };
-ReintegrationMode parseReintegrationMode(const std::string& text);  // "consecutive" | "most_moved"
+// kNone: keyframes are integrated once and never corrected (the baseline of the evaluation).
+enum class ReintegrationMode { kConsecutive, kMostMoved, kNone };
+ReintegrationMode parseReintegrationMode(const std::string& text);  // "consecutive" | "most_moved" | "none"
 std::string toString(ReintegrationMode mode);
 
 // Rotation as Z-Y-X Euler angles (roll about x, pitch about y, yaw about z), then translation.
