@@ -51,6 +51,12 @@ TEST(GraphMessages, ConstraintMessageKeepsKindPoseAndInformation) {
   EXPECT_EQ(c.information(0, 0), 1e4);  // 1 / 0.01^2
 }
 
+TEST(GraphMessages, InformationIsMultipliedByTheScale) {
+  const Constraint c = constraintFromMsg(goodConstraintMsg(), 5e-5);
+  EXPECT_NEAR(c.information(0, 0), 0.5, 1e-12);  // 1e4 * 5e-5
+  EXPECT_EQ(c.information(0, 1), 0.0);
+}
+
 TEST(GraphMessages, ConstraintWithUnknownKindIsRejected) {
   rekon_msgs::constraint_t m = goodConstraintMsg();
   m.kind = 7;
@@ -138,6 +144,7 @@ TEST(OptimiserParams, DefaultConfigMatchesTheNamedDefaults) {
   EXPECT_EQ(p.graph.final_max_iterations, d.final_max_iterations);
   EXPECT_EQ(p.graph.function_tolerance, d.function_tolerance);
   EXPECT_EQ(p.graph.final_function_tolerance, d.final_function_tolerance);
+  EXPECT_EQ(p.information_scale, OptimiserServiceParams::kDefaultInformationScale);
   EXPECT_EQ(p.final_repeats, OptimiserServiceParams::kDefaultFinalRepeats);
   EXPECT_EQ(p.final_repeat_gap_ms, OptimiserServiceParams::kDefaultFinalRepeatGapMs);
 }

@@ -61,8 +61,9 @@ bool insideNetns() {
 }
 
 pid_t spawnOptimiser(const std::string& out_dir) {
-  const std::string cmd = "exec " + test::binDir() + "/rekon-optimiser --out " + out_dir + " > " + out_dir +
-                          "/optimiser.log 2>&1";
+  // The synthetic constraints' information is calibrated: no scaling.
+  const std::string cmd = "exec " + test::binDir() + "/rekon-optimiser --out " + out_dir +
+                          " --set optimiser.information_scale=1 > " + out_dir + "/optimiser.log 2>&1";
   const char* argv[] = {"/bin/sh", "-c", cmd.c_str(), nullptr};
   pid_t pid = -1;
   if (posix_spawn(&pid, "/bin/sh", nullptr, nullptr, const_cast<char**>(argv), environ) != 0) return -1;

@@ -48,7 +48,7 @@ void reject(Inbox& inbox, const Error& e) {
   ++inbox.rejected;
 }
 
-void subscribe(ServiceContext& ctx, Inbox& inbox) {
+void subscribe(ServiceContext& ctx, Inbox& inbox, double information_scale) {
   Bus& bus = ctx.bus();
   bus.subscribe<rekon_msgs::keyframe_t>(channel::kKeyframes, [&inbox](const rekon_msgs::keyframe_t& m) {
     try {
@@ -61,9 +61,9 @@ void subscribe(ServiceContext& ctx, Inbox& inbox) {
     }
     inbox.wake.notify_one();
   });
-  bus.subscribe<rekon_msgs::constraint_t>(channel::kConstraints, [&inbox](const rekon_msgs::constraint_t& m) {
+  bus.subscribe<rekon_msgs::constraint_t>(channel::kConstraints, [&inbox, information_scale](const rekon_msgs::constraint_t& m) {
     try {
-      Constraint c = constraintFromMsg(m);
+      Constraint c = constraintFromMsg(m, information_scale);
       std::lock_guard<std::mutex> lock(inbox.mutex);
       inbox.graph_items.emplace_back(c);
     } catch (const Error& e) {
@@ -131,12 +131,12 @@ void runOptimiserService(ServiceContext& ctx) {
   const OptimiserServiceParams params = optimiserParamsFromConfig(ctx.config());
   Bus& bus = ctx.bus();
   Inbox inbox;
-  subscribe(ctx, inbox);
+  subscribe(ctx, inbox, params.information_scale);
   ctx.setState("running");
-  spdlog::info("pose graph: {} loss (scale {}) on loop edges, outlier chi2 > {}, {} iterations per background "
-               "optimisation",
-               toString(params.graph.loop_loss), params.graph.loop_loss_scale, params.graph.loop_outlier_chi2,
-               params.graph.max_iterations);
+  spdlog::info("pose graph: information x {}, {} loss (scale {}) on loop edges, outlier chi2 > {}, {} iterations "
+               "per background optimisation",
+               params.information_scale, toString(params.graph.loop_loss), params.graph.loop_loss_scale,
+               params.graph.loop_outlier_chi2, params.graph.max_iterations);
 
   PoseGraph graph(params.graph);
   Totals totals;

@@ -14,7 +14,7 @@ KeyframeIn keyframeFromMsg(const rekon_msgs::keyframe_t& msg) {
   return {msg.keyframe_id, *pose};
 }
 
-Constraint constraintFromMsg(const rekon_msgs::constraint_t& msg) {
+Constraint constraintFromMsg(const rekon_msgs::constraint_t& msg, double information_scale) {
   const std::string name = "constraint " + std::to_string(msg.from_id) + " -> " + std::to_string(msg.to_id);
   Constraint c;
   if (msg.kind == rekon_msgs::constraint_t::KIND_ODOMETRY) c.kind = EdgeKind::Odometry;
@@ -27,7 +27,7 @@ Constraint constraintFromMsg(const rekon_msgs::constraint_t& msg) {
   c.relative = *relative;
   const auto info = matrix6FromArray(msg.information);
   if (!info) throw Error(name + " has a non-finite information matrix; dropped");
-  c.information = *info;
+  c.information = information_scale * *info;
   return c;
 }
 

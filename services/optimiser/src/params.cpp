@@ -31,6 +31,8 @@ void PoseGraphParams::validate() const {
 
 void OptimiserServiceParams::validate() const {
   graph.validate();
+  require(std::isfinite(information_scale) && information_scale > 0, "information_scale", information_scale,
+          "positive");
   require(final_repeats >= 1 && final_repeats <= 100, "final_repeats", final_repeats, "between 1 and 100");
   require(final_repeat_gap_ms >= 0 && final_repeat_gap_ms <= 10000, "final_repeat_gap_ms", final_repeat_gap_ms,
           "between 0 and 10000");
@@ -63,6 +65,7 @@ OptimiserServiceParams optimiserParamsFromConfig(const Config& config) {
   p.graph.function_tolerance = config.getDouble("optimiser.function_tolerance");
   p.graph.final_max_iterations = config.getInt("optimiser.final_max_iterations");
   p.graph.final_function_tolerance = config.getDouble("optimiser.final_function_tolerance");
+  p.information_scale = config.getDouble("optimiser.information_scale");
   p.final_repeats = config.getInt("optimiser.final_repeats");
   p.final_repeat_gap_ms = config.getInt("optimiser.final_repeat_gap_ms");
   p.validate();

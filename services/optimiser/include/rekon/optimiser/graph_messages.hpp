@@ -30,8 +30,9 @@ struct TrackedFrame {
 
 KeyframeIn keyframeFromMsg(const rekon_msgs::keyframe_t& msg);
 // Checks the kind and that poses and the information are finite; PoseGraph::addConstraint
-// checks the rest (known ids, positive definite information).
-Constraint constraintFromMsg(const rekon_msgs::constraint_t& msg);
+// checks the rest (known ids, positive definite information). The information
+// is multiplied by `information_scale` (OptimiserServiceParams).
+Constraint constraintFromMsg(const rekon_msgs::constraint_t& msg, double information_scale = 1.0);
 TrackedFrame trackedFrameFromMsg(const rekon_msgs::tracked_frame_t& msg);
 
 // Every keyframe's pose (complete state), ascending id.
