@@ -3,20 +3,29 @@
 #include <spdlog/spdlog.h>
 #include <time.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <cmath>
 #include <filesystem>
+#include <fstream>
 #include <mutex>
 #include <thread>
+#include <unordered_map>
+#include <vector>
 
 #include "rekon/common/frame_transport.hpp"
 #include "rekon/common/messages.hpp"
 #include "rekon/common/pose.hpp"
+#include "rekon/common/error.hpp"
+#include "rekon/tracker/loop_closure.hpp"
 #include "rekon/tracker/tracker.hpp"
 #include "rekon_msgs/constraint_t.hpp"
+#include "rekon_msgs/done_t.hpp"
 #include "rekon_msgs/end_of_stream_t.hpp"
 #include "rekon_msgs/frame_ack_t.hpp"
 #include "rekon_msgs/frame_t.hpp"
+#include "rekon_msgs/graph_update_t.hpp"
 #include "rekon_msgs/keyframe_t.hpp"
 #include "rekon_msgs/tracked_frame_t.hpp"
 
@@ -38,8 +47,43 @@ struct ServiceState {
   Trajectory odometry;
   int64_t frames = 0, lost = 0, keyframes = 0, constraints = 0, undecodable = 0;
   double track_cpu_s = 0.0;
+  std::vector<std::pair<int64_t, double>> frame_ms;  // wall time of track() (pyramid included) per frame
   explicit ServiceState(const TrackerParams& p) : tracker(p) {}
 };
+
+// Done_t is sent this many times, this far apart: UDP multicast may drop one,
+// and the optimiser's final optimisation waits for it.
+constexpr int kDoneRepeats = 3;
+constexpr auto kDoneGap = std::chrono::milliseconds(50);
+// How often the end-of-stream wait looks at the stop flag.
+constexpr int kDrainPollMs = 100;
+
+void publishLoopConstraint(Bus& bus, const LoopConstraint& l) {
+  rekon_msgs::constraint_t c{};
+  c.kind = rekon_msgs::constraint_t::KIND_LOOP;
+  c.from_id = l.from_id;
+  c.to_id = l.to_id;
+  c.relative = toMsg(l.relative);
+  toArray(l.information, c.information);
+  bus.publish(channel::kConstraints, c);
+  spdlog::info("loop closure {} -> {} (ln det ratios coarse {:.2f}, fine {:.2f}, {} pixels)", l.from_id, l.to_id,
+               l.coarse_ratio, l.fine_ratio, l.valid_pixels);
+}
+
+double percentile(std::vector<double> values, double q) {
+  if (values.empty()) return 0.0;
+  const size_t i = static_cast<size_t>(std::ceil(q * static_cast<double>(values.size()))) - 1;
+  const size_t k = std::min(i, values.size() - 1);
+  std::nth_element(values.begin(), values.begin() + static_cast<std::ptrdiff_t>(k), values.end());
+  return values[k];
+}
+
+void writeTiming(const std::vector<std::pair<int64_t, double>>& frame_ms, const std::string& path) {
+  std::ofstream out(path);
+  out << "frame_id,ms\n";
+  for (const auto& [id, ms] : frame_ms) out << id << ',' << ms << '\n';
+  if (!out) throw Error("cannot write " + path + "; check that the output folder is writable");
+}
 
 void publishResult(Bus& bus, const TrackResult& r) {
   rekon_msgs::tracked_frame_t tf{};
@@ -79,6 +123,23 @@ void runTrackerService(ServiceContext& ctx) {
   ServiceState state(params);
   std::atomic<int64_t> last_handled{-1};
   std::atomic<int64_t> end_frame{-2};  // -2: no end of stream yet
+  LoopClosureWorker loops(params, [&bus](const LoopConstraint& c) { publishLoopConstraint(bus, c); });
+
+  bus.subscribe<rekon_msgs::graph_update_t>(channel::kGraphUpdates, [&loops](const rekon_msgs::graph_update_t& m) {
+    std::unordered_map<int64_t, Pose> poses;
+    const size_t n = std::min<size_t>({static_cast<size_t>(std::max(m.num_keyframes, 0)), m.keyframe_ids.size(),
+                                       m.poses.size()});
+    for (size_t i = 0; i < n; ++i) {
+      const std::optional<Pose> p = fromMsg(m.poses[i]);
+      if (!p) {
+        spdlog::error("graph update {} holds an invalid pose for keyframe {}; update ignored", m.version,
+                      m.keyframe_ids[i]);
+        return;
+      }
+      poses.emplace(m.keyframe_ids[i], *p);
+    }
+    loops.updateGraph(m.version, std::move(poses));  // older versions are ignored there
+  });
 
   bus.subscribe<rekon_msgs::end_of_stream_t>(channel::kEndOfStream, [&](const rekon_msgs::end_of_stream_t& m) {
     spdlog::info("end of stream after frame {} ({} frames)", m.last_frame_id, m.frames);
@@ -93,7 +154,10 @@ void runTrackerService(ServiceContext& ctx) {
         ++state.undecodable;  // the receiver logged why; acknowledge so the source is not held up
       } else {
         const double t0 = threadCpuSeconds();
+        const auto w0 = std::chrono::steady_clock::now();
         const TrackResult r = state.tracker.track(*frame, k);
+        state.frame_ms.emplace_back(
+            r.frame_id, std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - w0).count());
         state.track_cpu_s += threadCpuSeconds() - t0;
         ++state.frames;
         state.lost += r.state == TrackingState::Lost;
@@ -103,6 +167,8 @@ void runTrackerService(ServiceContext& ctx) {
         if (r.state == TrackingState::Lost)
           spdlog::warn("frame {}: lost ({})", r.frame_id, toString(r.lost_reason));
         publishResult(bus, r);
+        // After publishResult: a loop constraint never reaches the bus before its keyframe.
+        if (r.new_keyframe) loops.submit(state.tracker.currentKeyframe(), r.odometry);
       }
     }
     rekon_msgs::frame_ack_t ack{};
@@ -116,13 +182,39 @@ void runTrackerService(ServiceContext& ctx) {
   spdlog::info("tracking levels {}..{}, keyframe criterion {}", params.aligner.coarsest_level,
                params.aligner.finest_level, params.keyframe.criterion);
 
+  bool ended = false;
   while (!ctx.stopRequested()) {
     const int64_t end = end_frame.load();
-    if (end != -2 && last_handled.load() >= end) break;
+    if (end != -2 && last_handled.load() >= end) {
+      ended = true;
+      break;
+    }
     std::this_thread::sleep_for(std::chrono::milliseconds(10));
   }
   ctx.setState("finishing");
+  if (ended) {
+    // The remaining loop-closure checks, with graph updates still arriving.
+    spdlog::info("end of stream: waiting for the loop-closure checks");
+    while (!loops.waitUntilDrained(kDrainPollMs) && !ctx.stopRequested()) {
+    }
+  }
   ctx.stopThreads();  // no handler runs after this
+  const LoopClosureStats ls = loops.stats();
+  if (ended) {
+    rekon_msgs::done_t done{};
+    done.service = "tracker";
+    done.last_frame_id = end_frame.load();
+    for (int i = 0; i < kDoneRepeats; ++i) {
+      if (i > 0) std::this_thread::sleep_for(kDoneGap);
+      bus.publish(channel::kDone, done);
+    }
+  }
+  std::vector<double> ms;
+  double ms_sum = 0.0;
+  for (const auto& f : state.frame_ms) {
+    ms.push_back(f.second);
+    ms_sum += f.second;
+  }
 
   const double n = static_cast<double>(std::max<int64_t>(state.frames, 1));
   ctx.stats()
@@ -131,12 +223,24 @@ void runTrackerService(ServiceContext& ctx) {
       .set("keyframes", static_cast<long long>(state.keyframes))
       .set("odometry_constraints", static_cast<long long>(state.constraints))
       .set("undecodable_frames", static_cast<long long>(state.undecodable))
-      .set("track_cpu_ms_per_frame", 1e3 * state.track_cpu_s / n);
+      .set("track_cpu_ms_per_frame", 1e3 * state.track_cpu_s / n)
+      .set("ms_per_frame_mean", ms_sum / n)
+      .set("ms_per_frame_p95", percentile(ms, 0.95))
+      .set("loop_candidates", static_cast<long long>(ls.candidates))
+      .set("loop_closures_accepted", static_cast<long long>(ls.accepted))
+      .set("loop_closures_rejected", static_cast<long long>(ls.rejected))
+      .set("loop_candidates_skipped", static_cast<long long>(ls.candidates_skipped))
+      .set("loop_checks_dropped", static_cast<long long>(ls.checks_dropped))
+      .set("loop_check_ms_per_keyframe",
+           ls.check_ms / static_cast<double>(std::max<int64_t>(ls.keyframes_checked, 1)));
   if (!ctx.outDir().empty()) {
     const std::string path = (std::filesystem::path(ctx.outDir()) / "odometry.txt").string();
     writeTumTrajectory(state.odometry, path);
     spdlog::info("wrote {} odometry poses to {}", state.odometry.size(), path);
+    writeTiming(state.frame_ms, (std::filesystem::path(ctx.outDir()) / "tracker_timing.csv").string());
   }
+  spdlog::info("loop closures: {} candidates, {} accepted, {} rejected, {} checks dropped", ls.candidates,
+               ls.accepted, ls.rejected, ls.checks_dropped);
   spdlog::info("tracked {} frames ({} lost), {} keyframes, {:.2f} ms CPU per frame", state.frames, state.lost,
                state.keyframes, 1e3 * state.track_cpu_s / n);
 }

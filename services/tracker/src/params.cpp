@@ -64,10 +64,24 @@ void LostParams::validate() const {
   require(max_lost_frames >= 1, "lost_max_frames", max_lost_frames, "at least 1");
 }
 
+void LoopClosureParams::validate() const {
+  require(std::isfinite(search_radius) && search_radius > 0, "loop_search_radius", search_radius, "positive");
+  require(exclude_predecessors >= 1, "loop_exclude_predecessors", exclude_predecessors,
+          "at least 1 (the predecessor is linked by odometry)");
+  require(std::isfinite(coarse_entropy_ratio) && coarse_entropy_ratio > 0 && coarse_entropy_ratio <= 1,
+          "loop_coarse_entropy_ratio", coarse_entropy_ratio, "in (0, 1]");
+  require(std::isfinite(fine_entropy_ratio) && fine_entropy_ratio > 0 && fine_entropy_ratio <= 1,
+          "loop_fine_entropy_ratio", fine_entropy_ratio, "in (0, 1]");
+  require(min_pixel_ratio >= 0 && min_pixel_ratio < 1, "loop_min_pixel_ratio", min_pixel_ratio, "in [0, 1)");
+  require(max_candidates >= 0, "loop_max_candidates", max_candidates, "0 (all) or positive");
+  require(queue_capacity >= 1, "loop_queue_capacity", queue_capacity, "at least 1");
+}
+
 void TrackerParams::validate() const {
   aligner.validate();
   keyframe.validate();
   lost.validate();
+  loop.validate();
 }
 
 TrackerParams trackerParamsFromConfig(const Config& c) {
@@ -97,6 +111,14 @@ TrackerParams trackerParamsFromConfig(const Config& c) {
   p.lost.max_depth_sigma = c.getDouble("tracker.lost_max_depth_sigma");
   p.lost.residual_entropy_ratio = c.getDouble("tracker.lost_residual_entropy_ratio");
   p.lost.max_lost_frames = c.getInt("tracker.lost_max_frames");
+  p.loop.enabled = c.getBool("tracker.loop_closure");
+  p.loop.search_radius = c.getDouble("tracker.loop_search_radius");
+  p.loop.exclude_predecessors = c.getInt("tracker.loop_exclude_predecessors");
+  p.loop.coarse_entropy_ratio = c.getDouble("tracker.loop_coarse_entropy_ratio");
+  p.loop.fine_entropy_ratio = c.getDouble("tracker.loop_fine_entropy_ratio");
+  p.loop.min_pixel_ratio = c.getDouble("tracker.loop_min_pixel_ratio");
+  p.loop.max_candidates = c.getInt("tracker.loop_max_candidates");
+  p.loop.queue_capacity = c.getInt("tracker.loop_queue_capacity");
   p.validate();
   return p;
 }

@@ -100,10 +100,48 @@ struct LostParams {
   void validate() const;
 };
 
+// Loop-closure detection between DVO keyframes (Kerl et al. IROS 2013, as the
+// released DVO-SLAM validates constraints), off the per-frame path.
+struct LoopClosureParams {
+  static constexpr bool kDefaultEnabled = true;
+  static constexpr double kDefaultSearchRadius = 1.0;
+  static constexpr int kDefaultExcludePredecessors = 1;
+  static constexpr double kDefaultCoarseEntropyRatio = 0.7;
+  static constexpr double kDefaultFineEntropyRatio = 0.9;
+  static constexpr double kDefaultMinPixelRatio = 0.2;
+  static constexpr int kDefaultMaxCandidates = 0;
+  static constexpr int kDefaultQueueCapacity = 128;
+
+  bool enabled = kDefaultEnabled;
+  // Candidates: earlier keyframes whose camera centre lies within this many
+  // metres of the new keyframe's current estimate.
+  double search_radius = kDefaultSearchRadius;
+  // The new keyframe's last predecessors are never candidates (1: only the one
+  // odometry already links, as DVO-SLAM).
+  int exclude_predecessors = kDefaultExcludePredecessors;
+  // Thresholds on the ratio ln det(I_loop) / mean ln det(I_odometry), i.e. the
+  // paper's entropy ratio with H ~ ln det(covariance): at the coarse stage
+  // (coarsest level only) and at the fine stage (all aligner levels), each
+  // against odometry constraints aligned on the same levels.
+  double coarse_entropy_ratio = kDefaultCoarseEntropyRatio;
+  double fine_entropy_ratio = kDefaultFineEntropyRatio;
+  // Fraction of the candidate's selected pixels that must constrain the
+  // alignment at its finest level (DVO-SLAM's equation-system constraint ratio).
+  double min_pixel_ratio = kDefaultMinPixelRatio;
+  // Candidates checked per keyframe, nearest views first (0 = all).
+  int max_candidates = kDefaultMaxCandidates;
+  // Keyframes waiting for their check; when full the oldest waiting check is
+  // dropped (the keyframe stays a candidate for later keyframes).
+  int queue_capacity = kDefaultQueueCapacity;
+
+  void validate() const;
+};
+
 struct TrackerParams {
   AlignerParams aligner;
   KeyframeParams keyframe;
   LostParams lost;
+  LoopClosureParams loop;
 
   void validate() const;
 };

@@ -1,0 +1,168 @@
+#pragma once
+// Loop-closure detection between DVO keyframes, as the released DVO-SLAM
+// validates constraints (Kerl, Sturm, Cremers, IROS 2013): every earlier
+// keyframe whose camera centre lies within a sphere around the new keyframe's
+// current estimate is a candidate; each is aligned to the new keyframe from
+// identity and from the current relative pose estimate, first on the coarsest
+// level only, then coarse to fine from the coarse result; a constraint is
+// accepted when, at both stages, ln det of its information is at least the
+// threshold times the mean ln det of the odometry constraints around the two
+// keyframes aligned on the same levels (the paper's entropy ratio with
+// H ~ ln det(covariance)), and enough of the candidate's pixels constrain it.
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <thread>
+#include <unordered_map>
+#include <vector>
+
+#include "rekon/tracker/dense_aligner.hpp"
+#include "rekon/tracker/params.hpp"
+#include "rekon/tracker/tracker.hpp"
+
+namespace rekon::tracker {
+
+// ln det(information) of a 6-DoF Gaussian from its differential entropy
+// (entropyOfInformation): the quantity DVO-SLAM's entropy ratio divides.
+double logDetOfEntropy(double entropy);
+
+// A validated loop closure: pose of keyframe `to_id` (the new one) in the
+// frame of `from_id` (the earlier candidate), right-perturbation information
+// in (v, w) order, as OdometryConstraint.
+struct LoopConstraint {
+  int64_t from_id = 0;
+  int64_t to_id = 0;
+  Pose relative = Pose::Identity();
+  Matrix6d information = Matrix6d::Zero();
+  double coarse_ratio = 0.0;  // ln det ratios against the odometry at each stage
+  double fine_ratio = 0.0;
+  int valid_pixels = 0;
+};
+
+// The outcome of checking one candidate.
+struct CandidateCheck {
+  int64_t candidate_id = 0;
+  int64_t keyframe_id = 0;
+  bool accepted = false;
+  std::optional<LoopConstraint> constraint;  // set when accepted
+  double best_coarse_ratio = 0.0;            // over both initial guesses (0 when no alignment was valid)
+  double best_fine_ratio = 0.0;
+  const char* reason = "";  // why it was rejected
+};
+
+struct LoopClosureStats {
+  int64_t keyframes_checked = 0;
+  int64_t candidates = 0;  // candidates aligned
+  int64_t accepted = 0;
+  int64_t rejected = 0;
+  int64_t candidates_skipped = 0;  // beyond max_candidates
+  int64_t checks_dropped = 0;      // keyframes whose check the full queue dropped
+  double check_ms = 0.0;           // wall time of all checks
+};
+
+// The synchronous core: a database of keyframes with their odometry
+// constraints and pose estimates. Not thread-safe except updateGraph(),
+// which another thread may call at any time.
+class LoopClosureDetector {
+ public:
+  explicit LoopClosureDetector(const TrackerParams& params);
+
+  // Adds a keyframe as a future candidate; `incoming` links it to its
+  // predecessor (absent for the first keyframe and after a tracking reset).
+  void addKeyframe(std::shared_ptr<const Keyframe> keyframe, const std::optional<OdometryConstraint>& incoming);
+
+  // The optimiser's keyframe poses; an update older than the newest seen is ignored.
+  void updateGraph(int64_t version, std::unordered_map<int64_t, Pose> poses);
+  int64_t graphVersion() const;
+
+  // World pose of an added keyframe: the newest graph update's pose when it
+  // has one, else its odometry pose moved with the nearest earlier keyframe
+  // the graph has (the odometry pose when the graph has none).
+  Pose estimate(int64_t keyframe_id) const;
+
+  // Candidate ids for an added keyframe, nearest views first (all of them;
+  // the caller applies max_candidates).
+  std::vector<int64_t> candidates(int64_t keyframe_id) const;
+
+  // Aligns keyframe `keyframe_id` to the earlier `candidate_id` and validates the result.
+  CandidateCheck check(int64_t candidate_id, int64_t keyframe_id);
+
+  // candidates() then check() for each (up to max_candidates); accumulates into `stats`.
+  std::vector<LoopConstraint> detect(int64_t keyframe_id, LoopClosureStats& stats);
+
+  const LoopClosureParams& params() const { return params_.loop; }
+
+ private:
+  struct Entry {
+    std::shared_ptr<const Keyframe> keyframe;
+    std::optional<OdometryConstraint> incoming;
+    std::optional<double> incoming_coarse_log_det;  // computed when first needed
+  };
+  // Mean ln det of the odometry constraints into and out of `a` and into `b`
+  // (the global mean when none), at the coarse stage or the fine stage.
+  std::optional<double> odometryLogDet(int64_t a, int64_t b, bool coarse);
+  std::optional<double> incomingLogDet(Entry& e, bool coarse);
+  bool passes(double log_det, double reference, double threshold) const;
+
+  TrackerParams params_;
+  DenseAligner aligner_;
+  std::map<int64_t, Entry> entries_;
+  double fine_sum_ = 0.0, coarse_sum_ = 0.0;
+  int64_t fine_count_ = 0, coarse_count_ = 0;
+  mutable std::mutex graph_mutex_;
+  int64_t graph_version_ = -1;
+  std::unordered_map<int64_t, Pose> graph_;
+};
+
+// LoopClosureDetector on a worker thread behind a bounded queue: submit()
+// never blocks on a check, so tracking is never delayed; accepted
+// constraints go to `on_accept` on the worker thread.
+class LoopClosureWorker {
+ public:
+  using AcceptFn = std::function<void(const LoopConstraint&)>;
+
+  // `start` false: the worker waits for start() (tests fill the queue first).
+  LoopClosureWorker(const TrackerParams& params, AcceptFn on_accept, bool start = true);
+  ~LoopClosureWorker();
+  LoopClosureWorker(const LoopClosureWorker&) = delete;
+  LoopClosureWorker& operator=(const LoopClosureWorker&) = delete;
+
+  void start();
+  // Queues a new keyframe's check; when queue_capacity checks already wait,
+  // the oldest waiting one is dropped with a warning (its keyframe is still
+  // added as a candidate).
+  void submit(std::shared_ptr<const Keyframe> keyframe, const std::optional<OdometryConstraint>& incoming);
+  void updateGraph(int64_t version, std::unordered_map<int64_t, Pose> poses);
+  // Waits until every queued keyframe has been handled, at most `timeout_ms`;
+  // true when drained (false at once when not started and not empty).
+  bool waitUntilDrained(int timeout_ms);
+  LoopClosureStats stats() const;
+  // Ids of the keyframes whose check ran, in order.
+  std::vector<int64_t> checkedKeyframes() const;
+
+ private:
+  struct Job {
+    std::shared_ptr<const Keyframe> keyframe;
+    std::optional<OdometryConstraint> incoming;
+    bool check = true;
+  };
+  void run();
+
+  LoopClosureDetector detector_;
+  AcceptFn on_accept_;
+  mutable std::mutex mutex_;
+  std::condition_variable wake_, drained_;
+  std::deque<Job> queue_;
+  int waiting_checks_ = 0;
+  bool busy_ = false, stop_ = false, started_ = false;
+  LoopClosureStats stats_;
+  std::vector<int64_t> checked_;
+  std::thread thread_;
+};
+
+}  // namespace rekon::tracker

@@ -1,0 +1,339 @@
+#include "rekon/tracker/loop_closure.hpp"
+
+#include <spdlog/spdlog.h>
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <numbers>
+
+namespace rekon::tracker {
+namespace {
+
+// The constant of the 6-DoF Gaussian entropy, 0.5 ln((2 pi e)^6).
+const double kEntropyConstant = 3.0 * (1.0 + std::log(2.0 * std::numbers::pi));
+
+double viewAngle(const Pose& a, const Pose& b) {
+  const Eigen::Vector3d za = a.linear().col(2), zb = b.linear().col(2);
+  return std::acos(std::clamp(za.dot(zb), -1.0, 1.0));
+}
+
+}  // namespace
+
+double logDetOfEntropy(double entropy) { return 2.0 * (kEntropyConstant - entropy); }
+
+LoopClosureDetector::LoopClosureDetector(const TrackerParams& params) : params_(params), aligner_(params.aligner) {
+  params_.validate();
+}
+
+void LoopClosureDetector::addKeyframe(std::shared_ptr<const Keyframe> keyframe,
+                                      const std::optional<OdometryConstraint>& incoming) {
+  Entry e;
+  e.keyframe = std::move(keyframe);
+  e.incoming = incoming;
+  if (incoming && std::isfinite(incoming->entropy)) {
+    fine_sum_ += logDetOfEntropy(incoming->entropy);
+    ++fine_count_;
+  }
+  const int64_t id = e.keyframe->id;
+  entries_[id] = std::move(e);
+}
+
+void LoopClosureDetector::updateGraph(int64_t version, std::unordered_map<int64_t, Pose> poses) {
+  std::lock_guard<std::mutex> lock(graph_mutex_);
+  if (version <= graph_version_) return;
+  graph_version_ = version;
+  graph_ = std::move(poses);
+}
+
+int64_t LoopClosureDetector::graphVersion() const {
+  std::lock_guard<std::mutex> lock(graph_mutex_);
+  return graph_version_;
+}
+
+Pose LoopClosureDetector::estimate(int64_t keyframe_id) const {
+  const auto it = entries_.find(keyframe_id);
+  if (it == entries_.end()) return Pose::Identity();
+  const Pose& odometry = it->second.keyframe->pose_world;
+  std::lock_guard<std::mutex> lock(graph_mutex_);
+  if (const auto g = graph_.find(keyframe_id); g != graph_.end()) return g->second;
+  // Keyframes newer than the graph: their odometry relative to the newest
+  // earlier keyframe the graph has, on top of that keyframe's graph pose.
+  for (auto a = std::make_reverse_iterator(it); a != entries_.rend(); ++a) {
+    if (const auto g = graph_.find(a->first); g != graph_.end())
+      return orthonormalised(g->second * a->second.keyframe->pose_world.inverse() * odometry);
+  }
+  return odometry;
+}
+
+std::vector<int64_t> LoopClosureDetector::candidates(int64_t keyframe_id) const {
+  std::vector<std::pair<double, int64_t>> ranked;
+  if (!entries_.count(keyframe_id)) return {};
+  const Pose pose = estimate(keyframe_id);
+  const double radius = params_.loop.search_radius;
+  for (const auto& [id, entry] : entries_) {
+    if (id >= keyframe_id - params_.loop.exclude_predecessors) continue;  // predecessors, itself, later ones
+    const Pose other = estimate(id);
+    const double d = (other.translation() - pose.translation()).norm();
+    if (d > radius) continue;
+    // Nearest views first: centre distance plus one search radius per 90
+    // degrees between the optical axes.
+    ranked.emplace_back(d + radius * viewAngle(pose, other) / (0.5 * std::numbers::pi), id);
+  }
+  std::sort(ranked.begin(), ranked.end());
+  std::vector<int64_t> ids;
+  for (const auto& r : ranked) ids.push_back(r.second);
+  return ids;
+}
+
+std::optional<double> LoopClosureDetector::incomingLogDet(Entry& e, bool coarse) {
+  if (!e.incoming || !std::isfinite(e.incoming->entropy)) return std::nullopt;
+  if (!coarse) return logDetOfEntropy(e.incoming->entropy);
+  if (!e.incoming_coarse_log_det) {
+    // The tracker aligned this constraint on all levels; the coarse stage
+    // compares with the same constraint aligned on the coarsest level only.
+    const auto from = entries_.find(e.incoming->from_id);
+    if (from == entries_.end()) return std::nullopt;
+    const int coarsest = params_.aligner.coarsest_level;
+    const AlignResult r = aligner_.align(from->second.keyframe->reference, e.keyframe->pyramid, e.incoming->relative,
+                                         coarsest, coarsest);
+    if (!r.valid) return std::nullopt;
+    e.incoming_coarse_log_det = logDetOfEntropy(r.entropy);
+    coarse_sum_ += *e.incoming_coarse_log_det;
+    ++coarse_count_;
+  }
+  return e.incoming_coarse_log_det;
+}
+
+std::optional<double> LoopClosureDetector::odometryLogDet(int64_t a, int64_t b, bool coarse) {
+  double sum = 0.0;
+  int n = 0;
+  auto add = [&](int64_t id) {
+    const auto it = entries_.find(id);
+    if (it == entries_.end()) return;
+    if (const auto v = incomingLogDet(it->second, coarse)) {
+      sum += *v;
+      ++n;
+    }
+  };
+  add(a);
+  if (const auto next = entries_.find(a + 1); next != entries_.end() && next->second.incoming &&
+                                              next->second.incoming->from_id == a)
+    add(a + 1);
+  add(b);
+  if (n > 0) return sum / n;
+  const double total = coarse ? coarse_sum_ : fine_sum_;
+  const int64_t count = coarse ? coarse_count_ : fine_count_;
+  if (count == 0) return std::nullopt;
+  return total / static_cast<double>(count);
+}
+
+bool LoopClosureDetector::passes(double log_det, double reference, double threshold) const {
+  // log_det / reference >= threshold, written so that it stays meaningful for
+  // a non-positive reference: the loop may lose at most (1 - threshold) of
+  // the reference's magnitude.
+  return log_det - reference >= -(1.0 - threshold) * std::abs(reference);
+}
+
+CandidateCheck LoopClosureDetector::check(int64_t candidate_id, int64_t keyframe_id) {
+  CandidateCheck out;
+  out.candidate_id = candidate_id;
+  out.keyframe_id = keyframe_id;
+  const auto cand = entries_.find(candidate_id);
+  const auto cur = entries_.find(keyframe_id);
+  if (cand == entries_.end() || cur == entries_.end()) {
+    out.reason = "unknown keyframe";
+    return out;
+  }
+  const auto coarse_ref = odometryLogDet(candidate_id, keyframe_id, true);
+  const auto fine_ref = odometryLogDet(candidate_id, keyframe_id, false);
+  if (!coarse_ref || !fine_ref) {
+    out.reason = "no odometry constraint to compare with";
+    return out;
+  }
+  const Keyframe& reference = *cand->second.keyframe;
+  const Keyframe& current = *cur->second.keyframe;
+  const int coarsest = params_.aligner.coarsest_level;
+  const LoopClosureParams& lp = params_.loop;
+  const Pose guesses[2] = {Pose::Identity(), orthonormalised(estimate(candidate_id).inverse() * estimate(keyframe_id))};
+  out.reason = "coarse stage";
+  double best_log_det = -std::numeric_limits<double>::infinity();
+  for (const Pose& guess : guesses) {
+    const AlignResult coarse = aligner_.align(reference.reference, current.pyramid, guess, coarsest, coarsest);
+    if (!coarse.valid) continue;
+    const double coarse_log_det = logDetOfEntropy(coarse.entropy);
+    const double coarse_ratio = coarse_log_det / *coarse_ref;
+    out.best_coarse_ratio = std::max(out.best_coarse_ratio, coarse_ratio);
+    if (!passes(coarse_log_det, *coarse_ref, lp.coarse_entropy_ratio) ||
+        coarse.valid_pixels < lp.min_pixel_ratio * coarse.selected_pixels)
+      continue;
+    const AlignResult fine = aligner_.align(reference.reference, current.pyramid, coarse.pose);
+    if (!fine.valid) {
+      out.reason = "fine alignment failed";
+      continue;
+    }
+    const double fine_log_det = logDetOfEntropy(fine.entropy);
+    const double fine_ratio = fine_log_det / *fine_ref;
+    out.best_fine_ratio = std::max(out.best_fine_ratio, fine_ratio);
+    if (!passes(fine_log_det, *fine_ref, lp.fine_entropy_ratio)) {
+      out.reason = "fine entropy ratio";
+      continue;
+    }
+    if (fine.valid_pixels < lp.min_pixel_ratio * fine.selected_pixels) {
+      out.reason = "too few constraining pixels";
+      continue;
+    }
+    // Of the two initial guesses keep the better-determined result (DVO-SLAM's keepBest).
+    if (fine_log_det <= best_log_det) continue;
+    best_log_det = fine_log_det;
+    LoopConstraint c;
+    c.from_id = candidate_id;
+    c.to_id = keyframe_id;
+    c.relative = fine.pose;
+    c.information = fine.information;
+    c.coarse_ratio = coarse_ratio;
+    c.fine_ratio = fine_ratio;
+    c.valid_pixels = fine.valid_pixels;
+    out.constraint = c;
+    out.accepted = true;
+    out.reason = "";
+  }
+  return out;
+}
+
+std::vector<LoopConstraint> LoopClosureDetector::detect(int64_t keyframe_id, LoopClosureStats& stats) {
+  std::vector<LoopConstraint> accepted;
+  std::vector<int64_t> ids = candidates(keyframe_id);
+  if (params_.loop.max_candidates > 0 && ids.size() > static_cast<size_t>(params_.loop.max_candidates)) {
+    stats.candidates_skipped += static_cast<int64_t>(ids.size()) - params_.loop.max_candidates;
+    ids.resize(static_cast<size_t>(params_.loop.max_candidates));
+  }
+  ++stats.keyframes_checked;
+  for (const int64_t id : ids) {
+    const CandidateCheck c = check(id, keyframe_id);
+    ++stats.candidates;
+    if (c.accepted) {
+      ++stats.accepted;
+      spdlog::debug("loop closure {} -> {} accepted (ln det ratios coarse {:.3f}, fine {:.3f})", id, keyframe_id,
+                    c.constraint->coarse_ratio, c.constraint->fine_ratio);
+      accepted.push_back(*c.constraint);
+    } else {
+      ++stats.rejected;
+      spdlog::debug("loop closure {} -> {} rejected: {} (ln det ratios coarse {:.3f}, fine {:.3f})", id, keyframe_id,
+                    c.reason, c.best_coarse_ratio, c.best_fine_ratio);
+    }
+  }
+  return accepted;
+}
+
+LoopClosureWorker::LoopClosureWorker(const TrackerParams& params, AcceptFn on_accept, bool start)
+    : detector_(params), on_accept_(std::move(on_accept)) {
+  thread_ = std::thread([this] { run(); });
+  if (start) this->start();
+}
+
+LoopClosureWorker::~LoopClosureWorker() {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    stop_ = true;
+    started_ = true;
+  }
+  wake_.notify_all();
+  thread_.join();
+}
+
+void LoopClosureWorker::start() {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    started_ = true;
+  }
+  wake_.notify_all();
+}
+
+void LoopClosureWorker::submit(std::shared_ptr<const Keyframe> keyframe,
+                               const std::optional<OdometryConstraint>& incoming) {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (waiting_checks_ >= detector_.params().queue_capacity) {
+      for (Job& j : queue_) {
+        if (!j.check) continue;
+        j.check = false;
+        --waiting_checks_;
+        ++stats_.checks_dropped;
+        spdlog::warn("loop-closure queue full ({} keyframes): dropped the check of keyframe {} ({} dropped so far)",
+                     detector_.params().queue_capacity, j.keyframe->id, stats_.checks_dropped);
+        break;
+      }
+    }
+    queue_.push_back(Job{std::move(keyframe), incoming, detector_.params().enabled});
+    waiting_checks_ += queue_.back().check;
+  }
+  wake_.notify_one();
+}
+
+void LoopClosureWorker::updateGraph(int64_t version, std::unordered_map<int64_t, Pose> poses) {
+  detector_.updateGraph(version, std::move(poses));
+}
+
+bool LoopClosureWorker::waitUntilDrained(int timeout_ms) {
+  std::unique_lock<std::mutex> lock(mutex_);
+  const auto done = [&] { return queue_.empty() && !busy_; };
+  if (!started_) return done();
+  return drained_.wait_for(lock, std::chrono::milliseconds(timeout_ms), done);
+}
+
+LoopClosureStats LoopClosureWorker::stats() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return stats_;
+}
+
+std::vector<int64_t> LoopClosureWorker::checkedKeyframes() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return checked_;
+}
+
+void LoopClosureWorker::run() {
+  // Below the tracking thread's priority (Linux: a thread id takes a nice
+  // value of its own), so that on a busy machine checks yield to tracking.
+  if (setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), 10) != 0)
+    spdlog::debug("loop-closure worker keeps the default priority");
+  for (;;) {
+    Job job;
+    {
+      std::unique_lock<std::mutex> lock(mutex_);
+      wake_.wait(lock, [&] { return stop_ || (started_ && !queue_.empty()); });
+      if (stop_) return;
+      job = std::move(queue_.front());
+      queue_.pop_front();
+      waiting_checks_ -= job.check;
+      busy_ = true;
+    }
+    const auto t0 = std::chrono::steady_clock::now();
+    detector_.addKeyframe(job.keyframe, job.incoming);
+    LoopClosureStats local;
+    std::vector<LoopConstraint> accepted;
+    if (job.check) accepted = detector_.detect(job.keyframe->id, local);
+    for (const LoopConstraint& c : accepted) on_accept_(c);
+    const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (job.check) {
+        checked_.push_back(job.keyframe->id);
+        stats_.keyframes_checked += local.keyframes_checked;
+        stats_.candidates += local.candidates;
+        stats_.accepted += local.accepted;
+        stats_.rejected += local.rejected;
+        stats_.candidates_skipped += local.candidates_skipped;
+        stats_.check_ms += ms;
+      }
+      busy_ = false;
+      if (queue_.empty()) drained_.notify_all();
+    }
+  }
+}
+
+}  // namespace rekon::tracker

@@ -1,0 +1,166 @@
+// Loop-closure detection on keyframes rendered from the synthetic room's
+// loop (Kinect noise): the end of the loop looks at the start again.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <numbers>
+
+#include "rekon/tracker/loop_closure.hpp"
+#include "synthetic_views.hpp"
+
+namespace rekon::tracker {
+namespace {
+
+constexpr double kDeg = std::numbers::pi / 180.0;
+
+// A keyframe as the tracker makes it, from a rendered frame.
+std::shared_ptr<const Keyframe> makeKeyframe(int64_t id, const RgbdFrame& frame, const Intrinsics& k,
+                                             const Pose& pose_world, const AlignerParams& p) {
+  auto kf = std::make_shared<Keyframe>();
+  kf->id = id;
+  kf->frame_id = frame.id;
+  kf->pose_world = pose_world;
+  kf->pyramid.build(frame, k, p.finest_level, p.coarsest_level, p.min_depth, p.max_depth);
+  kf->reference = KeyframeReference(kf->pyramid, p);
+  return kf;
+}
+
+// The odometry constraint the tracker would publish between two keyframes.
+OdometryConstraint odometryBetween(const Keyframe& from, const Keyframe& to, const Pose& truth_relative,
+                                   const AlignerParams& p) {
+  DenseAligner aligner(p);
+  const AlignResult r = aligner.align(from.reference, to.pyramid, truth_relative);
+  EXPECT_TRUE(r.valid);
+  OdometryConstraint c;
+  c.from_id = from.id;
+  c.to_id = to.id;
+  c.relative = r.pose;
+  c.information = r.information;
+  c.entropy = r.entropy;
+  c.valid_pixels = r.valid_pixels;
+  return c;
+}
+
+// Odometry drift of the loop's end: 8 cm and 3 degrees about the vertical.
+Pose drift() {
+  Pose d = Pose::Identity();
+  d.linear() = Eigen::AngleAxisd(3.0 * kDeg, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  d.translation() = Eigen::Vector3d(0.08, -0.05, 0.0);
+  return d;
+}
+
+class LoopClosureTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    room_ = new test::RoomViews();
+    truth_ = new Trajectory(room_->trajectory(600));
+  }
+  static void TearDownTestSuite() {
+    delete truth_;
+    delete room_;
+  }
+  static inline test::RoomViews* room_ = nullptr;
+  static inline Trajectory* truth_ = nullptr;
+
+  TrackerParams params;
+  const Pose& truthAt(int frame) const { return (*truth_)[static_cast<size_t>(frame)].pose; }
+
+  // Adds keyframes rendered at `frames` (consecutive ids from `first_id`),
+  // each linked by odometry to the one before, at world poses `offset` x truth.
+  void addChain(LoopClosureDetector& d, int64_t first_id, const std::vector<int>& frames,
+                const Pose& offset = Pose::Identity()) {
+    std::shared_ptr<const Keyframe> prev;
+    int prev_frame = 0;
+    for (size_t i = 0; i < frames.size(); ++i) {
+      const RgbdFrame f = room_->render(truthAt(frames[i]), synth::Noise::Kinect, frames[i]);
+      auto kf = makeKeyframe(first_id + static_cast<int64_t>(i), f, room_->intrinsics(), offset * truthAt(frames[i]),
+                             params.aligner);
+      std::optional<OdometryConstraint> odo;
+      if (prev) odo = odometryBetween(*prev, *kf, truthAt(prev_frame).inverse() * truthAt(frames[i]), params.aligner);
+      d.addKeyframe(kf, odo);
+      prev = kf;
+      prev_frame = frames[i];
+    }
+  }
+};
+
+TEST_F(LoopClosureTest, TheLoopsEndIsAcceptedAgainstItsStartWithTheTrueRelativePose) {
+  LoopClosureDetector d(params);
+  addChain(d, 0, {0, 12, 24});
+  // The end of the loop (frame 599 is frame 0's pose again), tracked with drift.
+  addChain(d, 3, {566, 578, 590}, drift());
+  const CandidateCheck c = d.check(0, 5);
+  ASSERT_TRUE(c.accepted) << c.reason << " coarse " << c.best_coarse_ratio << " fine " << c.best_fine_ratio;
+  const Pose truth = truthAt(0).inverse() * truthAt(590);
+  // Kinect-noise keyframes ~10 cm apart align to a few millimetres; 1 cm and
+  // 0.5 degree leave room for the noise yet lie far below the 8 cm / 3 degree
+  // drift of the initial estimate.
+  EXPECT_LT(translationDistance(c.constraint->relative, truth), 0.01);
+  EXPECT_LT(rotationAngle(c.constraint->relative, truth) / kDeg, 0.5);
+  EXPECT_TRUE(c.constraint->information.allFinite());
+}
+
+TEST_F(LoopClosureTest, CandidatesAreEarlierKeyframesInTheSphereWithoutTheExcludedPredecessors) {
+  params.loop.exclude_predecessors = 2;
+  LoopClosureDetector d(params);
+  // Start of the loop, its far side (about 2 m away), and its end.
+  addChain(d, 0, {0, 12});
+  addChain(d, 2, {300});
+  addChain(d, 3, {566, 578, 590});
+  const std::vector<int64_t> ids = d.candidates(5);
+  // 0 and 1 are within 1 m of frame 590; 2 is across the room; 3 and 4 are
+  // the two excluded predecessors.
+  ASSERT_EQ(ids.size(), 2u);
+  EXPECT_EQ(std::count(ids.begin(), ids.end(), 0), 1);
+  EXPECT_EQ(std::count(ids.begin(), ids.end(), 1), 1);
+}
+
+TEST_F(LoopClosureTest, AViewOfADifferentPlaceIsRejectedEvenWhenTheEstimatePutsItClose) {
+  LoopClosureDetector d(params);
+  addChain(d, 0, {0, 12});
+  // Frames 288 and 300 look at the far side of the room; odometry gone wrong
+  // claims they were taken where frame 0 was.
+  const Pose wrong = truthAt(0) * truthAt(288).inverse();
+  addChain(d, 2, {288, 300}, wrong);
+  ASSERT_LT(translationDistance(d.estimate(3), truthAt(0)), 0.5);
+  const std::vector<int64_t> ids = d.candidates(3);
+  ASSERT_NE(std::find(ids.begin(), ids.end(), 0), ids.end());
+  const CandidateCheck c = d.check(0, 3);
+  EXPECT_FALSE(c.accepted) << "coarse " << c.best_coarse_ratio << " fine " << c.best_fine_ratio;
+}
+
+TEST_F(LoopClosureTest, AGraphUpdateMovesTheEstimateAndAnOlderOneIsIgnored) {
+  LoopClosureDetector d(params);
+  addChain(d, 0, {0, 12});
+  Pose moved = truthAt(12);
+  moved.translation() += Eigen::Vector3d(0.0, 0.0, 0.3);
+  d.updateGraph(2, {{0, truthAt(0)}, {1, moved}});
+  EXPECT_LT(translationDistance(d.estimate(1), moved), 1e-9);
+  d.updateGraph(1, {{0, truthAt(0)}, {1, truthAt(12)}});  // older: ignored
+  EXPECT_EQ(d.graphVersion(), 2);
+  EXPECT_LT(translationDistance(d.estimate(1), moved), 1e-9);
+}
+
+TEST(LoopClosureWorker, AFullQueueDropsTheOldestChecks) {
+  TrackerParams params;
+  params.loop.queue_capacity = 2;
+  int accepted = 0;
+  LoopClosureWorker worker(params, [&](const LoopConstraint&) { ++accepted; }, /*start=*/false);
+  // Keyframes 10 m apart: no candidates, so a check aligns nothing.
+  for (int64_t id = 0; id < 5; ++id) {
+    auto kf = std::make_shared<Keyframe>();
+    kf->id = id;
+    kf->pose_world.translation() = Eigen::Vector3d(10.0 * static_cast<double>(id), 0.0, 0.0);
+    worker.submit(kf, std::nullopt);
+  }
+  // Five submitted into room for two: the checks of keyframes 0, 1, 2 went.
+  EXPECT_EQ(worker.stats().checks_dropped, 3);
+  worker.start();
+  ASSERT_TRUE(worker.waitUntilDrained(10000));
+  EXPECT_EQ(worker.checkedKeyframes(), (std::vector<int64_t>{3, 4}));
+  EXPECT_EQ(worker.stats().keyframes_checked, 2);
+  EXPECT_EQ(accepted, 0);
+}
+
+}  // namespace
+}  // namespace rekon::tracker
