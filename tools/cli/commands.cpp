@@ -9,6 +9,7 @@
 #include "rekon/tracker/odometry_command.hpp"
 #include "launcher.hpp"
 #include "listen.hpp"
+#include "rekon/report/run_report.hpp"
 
 #include "rekon/synth/synth.hpp"
 
@@ -25,6 +26,7 @@ const std::vector<Command>& commands() {
       {"demo", "run the whole pipeline on the built-in default scene", &demoMain},
       {"keyframes", "list or export the KF keyframes in the mapper's shared-memory keyframe store", store::keyframesMain},
       {"listen", "receive frames from the bus as a consumer and log their hashes", &listenMain},
+      {"report", "self-contained report.html of a run folder: mesh views, trajectory, timing, stats", &report::reportCommand},
   };
   return table;
 }

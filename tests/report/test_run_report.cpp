@@ -1,0 +1,219 @@
+// report.html of a run folder: self-contained, with every input that exists
+// and a list of those that do not.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <numbers>
+#include <regex>
+#include <sstream>
+
+#include "rekon/common/error.hpp"
+#include "rekon/common/mesh.hpp"
+#include "rekon/common/pose.hpp"
+#include "rekon/report/run_report.hpp"
+#include "test_support.hpp"
+
+namespace {
+
+using namespace rekon::report;
+namespace fs = std::filesystem;
+
+constexpr int kFrames = 60;
+constexpr double kZigZagM = 0.01;  // the estimate's alternating error, all of it left after alignment
+
+std::string readText(const std::string& path) {
+  std::ifstream in(path);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+size_t countOf(const std::string& text, const std::string& what) {
+  size_t n = 0;
+  for (size_t p = text.find(what); p != std::string::npos; p = text.find(what, p + what.size())) ++n;
+  return n;
+}
+
+// A 1 m box on a 2 m floor, outward faces, all vertices one color.
+rekon::Mesh boxOnFloor(float shift) {
+  rekon::Mesh m;
+  const auto quad = [&](Eigen::Vector3f a, Eigen::Vector3f b, Eigen::Vector3f c, Eigen::Vector3f d) {
+    const int i = static_cast<int>(m.vertices.size());
+    for (const auto& v : {a, b, c, d}) {
+      m.vertices.push_back(v + Eigen::Vector3f(shift, 0, 0));
+      m.colors.push_back({180, 120, 60});
+    }
+    m.triangles.emplace_back(i, i + 1, i + 2);
+    m.triangles.emplace_back(i, i + 2, i + 3);
+  };
+  quad({-1, -1, 0}, {1, -1, 0}, {1, 1, 0}, {-1, 1, 0});                        // floor, facing up
+  quad({-0.5f, -0.5f, 1}, {0.5f, -0.5f, 1}, {0.5f, 0.5f, 1}, {-0.5f, 0.5f, 1});  // box top
+  quad({-0.5f, -0.5f, 0}, {0.5f, -0.5f, 0}, {0.5f, -0.5f, 1}, {-0.5f, -0.5f, 1});  // box front
+  return m;
+}
+
+// A camera circling the scene at 1.5 m height, looking at its centre (z up).
+rekon::Trajectory circle() {
+  rekon::Trajectory t;
+  for (int i = 0; i < kFrames; ++i) {
+    const double a = 2 * std::numbers::pi * i / kFrames;
+    const Eigen::Vector3d eye(2.5 * std::cos(a), 2.5 * std::sin(a), 1.5);
+    const Eigen::Vector3d z = (Eigen::Vector3d(0, 0, 0.5) - eye).normalized();
+    const Eigen::Vector3d x = z.cross(Eigen::Vector3d::UnitZ()).normalized(), y = z.cross(x);
+    rekon::StampedPose p;
+    p.timestamp = i / 30.0;
+    p.pose.linear() << x, y, z;
+    p.pose.translation() = eye;
+    t.push_back(p);
+  }
+  return t;
+}
+
+struct FakeRun {
+  rekon::test::TempDir dir;
+  std::string run = dir / "run", dataset = dir / "dataset";
+
+  FakeRun() {
+    fs::create_directories(run);
+    fs::create_directories(dataset);
+    const rekon::Trajectory gt = circle();
+    rekon::writeTumTrajectory(gt, dataset + "/groundtruth.txt");
+    std::ofstream(run + "/dataset.txt") << dataset << "\n";
+    // The estimate in another frame (the first camera's), with an up-down zig-zag
+    // that no rigid alignment can remove: ATE RMSE = kZigZagM.
+    const rekon::Pose to_first_camera = gt.front().pose.inverse();
+    rekon::Trajectory est = gt;
+    for (size_t i = 0; i < est.size(); ++i) {
+      est[i].pose.translation().z() += (i % 2 ? kZigZagM : -kZigZagM);
+      est[i].pose = to_first_camera * est[i].pose;
+    }
+    rekon::writeTumTrajectory(est, run + "/trajectory.txt");
+    rekon::writePly(boxOnFloor(0.0f), run + "/mesh.ply");
+    rekon::writePly(boxOnFloor(0.1f), run + "/mesh_uncorrected.ply");
+    std::ofstream(run + "/stats.json")
+        << R"({"frames": 60, "wall_seconds": 2.5, "realtime_factor": 0.8,)"
+        << R"( "tracker": {"keyframes": 17, "ms_per_frame_mean": 5.25, "peak_rss_mb": 74.5},)"
+        << R"( "mapper": {"voxel_blocks": 4321, "memory": {"voxel_bytes": 98765}}})";
+    std::ofstream tracker(run + "/tracker_timing.csv"), mapper(run + "/mapper_timing.csv");
+    tracker << "frame_id,ms\n";
+    mapper << "frame_id,ms,integrate_ms\n";
+    for (int i = 0; i < kFrames; ++i) {
+      tracker << i << "," << 5 + i % 3 << "\n";
+      mapper << i << "," << 8 + i % 5 << "," << 6 + i % 5 << "\n";
+    }
+    std::ofstream(run + "/mapper_reintegration.csv")
+        << "time_s,graph_version,keyframes_reintegrated,ms,blocks_streamed\n0.5,1,3,10.5,0\n1.2,2,5,14.0,12\n1.9,3,4,12.5,3\n";
+  }
+};
+
+TEST(RunReport, IsSelfContained) {
+  FakeRun f;
+  const RunReportResult r = writeRunReport(f.run);
+  const std::string html = readText(r.html_path);
+  EXPECT_EQ(html.find("http://"), std::string::npos);
+  EXPECT_EQ(html.find("https://"), std::string::npos);
+  EXPECT_EQ(html.find("<link"), std::string::npos);
+  EXPECT_EQ(html.find("<script"), std::string::npos);
+  EXPECT_EQ(html.find("url("), std::string::npos);
+  const size_t sources = countOf(html, "src=\"");
+  EXPECT_EQ(countOf(html, "src=\"data:image/"), sources);  // every image is inside the page
+  EXPECT_EQ(sources, r.images);
+}
+
+TEST(RunReport, ShowsEveryInputAsAnInlineImage) {
+  FakeRun f;
+  const RunReportResult r = writeRunReport(f.run);
+  const std::string html = readText(r.html_path);
+  // 2 meshes x 2 views as PNG
+  EXPECT_EQ(countOf(html, "src=\"data:image/png;base64,"), 4u);
+  // trajectory, timing of both services, mapper's columns, 4 re-integration columns as SVG
+  EXPECT_EQ(countOf(html, "src=\"data:image/svg+xml;base64,"), 1u + 1u + 1u + 4u);
+  EXPECT_TRUE(fs::exists(f.run + "/report/trajectory.csv"));
+  EXPECT_TRUE(fs::exists(f.run + "/report/timing.svg"));
+}
+
+TEST(RunReport, ContainsTheStatsValues) {
+  FakeRun f;
+  const std::string html = readText(writeRunReport(f.run).html_path);
+  EXPECT_NE(html.find("<h3>tracker</h3>"), std::string::npos);
+  EXPECT_NE(html.find(">keyframes</td><td class=\"num\">17<"), std::string::npos);
+  EXPECT_NE(html.find(">5.25<"), std::string::npos);
+  EXPECT_NE(html.find(">memory.voxel_bytes</td><td class=\"num\">98765<"), std::string::npos);  // nested objects flattened
+  EXPECT_NE(html.find(">realtime_factor</td><td class=\"num\">0.8<"), std::string::npos);
+}
+
+TEST(RunReport, AteAgainstTheDatasetGroundTruth) {
+  FakeRun f;
+  const RunReportResult r = writeRunReport(f.run);
+  ASSERT_TRUE(r.ate.has_value());
+  EXPECT_EQ(r.ate->matched, static_cast<size_t>(kFrames));
+  EXPECT_NEAR(r.ate->ate_rmse_m, kZigZagM, 1e-4);  // the frame change is removed by the alignment, the zig-zag is not
+  EXPECT_NE(readText(r.html_path).find("ATE RMSE 1.00 cm"), std::string::npos);
+}
+
+TEST(RunReport, SummarisesPerFrameTiming) {
+  FakeRun f;
+  const std::string html = readText(writeRunReport(f.run).html_path);
+  // tracker: 5,6,7 repeating over 60 frames: mean 6.00, max 7.00
+  EXPECT_NE(html.find("<td>tracker</td><td class=\"num\">60</td><td class=\"num\">6.00</td>"), std::string::npos);
+}
+
+TEST(RunReport, GroundTruthOptionOverridesDatasetTxt) {
+  FakeRun f;
+  fs::remove(f.run + "/dataset.txt");
+  RunReportOptions o;
+  o.groundtruth = f.dataset + "/groundtruth.txt";
+  EXPECT_TRUE(writeRunReport(f.run, o).ate.has_value());
+  EXPECT_FALSE(writeRunReport(f.run).ate.has_value());  // neither: no ground truth
+}
+
+bool mentions(const std::vector<std::string>& lines, const std::string& what) {
+  for (const auto& l : lines) {
+    if (l.find(what) != std::string::npos) return true;
+  }
+  return false;
+}
+
+TEST(RunReport, AbsentInputsAreListedNotFatal) {
+  rekon::test::TempDir empty;
+  const RunReportResult r = writeRunReport(empty.path());
+  for (const char* name : {"ground truth", "trajectory.txt", "mesh.ply", "mesh_uncorrected.ply", "stats.json",
+                           "tracker_timing.csv", "mapper_timing.csv", "mapper_reintegration.csv"}) {
+    EXPECT_TRUE(mentions(r.absent, name)) << name << " is not listed as absent";
+  }
+  EXPECT_EQ(r.images, 0u);
+  EXPECT_NE(readText(r.html_path).find("mapper_reintegration.csv: not written"), std::string::npos);
+}
+
+TEST(RunReport, UnreadableInputIsListedAndTheRestShown) {
+  FakeRun f;
+  std::ofstream(f.run + "/tracker_timing.csv") << "frame_id,ms\n0,fast\n";
+  std::ofstream(f.run + "/stats.json") << "{\"frames\": [1, 2";
+  const RunReportResult r = writeRunReport(f.run);
+  EXPECT_TRUE(mentions(r.absent, "tracker_timing.csv: unreadable"));
+  EXPECT_TRUE(mentions(r.absent, "stats.json: unreadable"));
+  EXPECT_TRUE(r.ate.has_value());
+  // Still every image: the timing plot keeps the mapper's series.
+  EXPECT_EQ(r.images, 11u);
+  const std::string html = readText(r.html_path);
+  EXPECT_EQ(html.find("<td>tracker</td>"), std::string::npos);
+  EXPECT_NE(html.find("<td>mapper</td>"), std::string::npos);
+}
+
+TEST(RunReport, MissingRunFolderIsAnError) {
+  rekon::test::TempDir dir;
+  EXPECT_THROW(writeRunReport(dir / "no_such_run"), rekon::Error);
+}
+
+TEST(ReportCommand, WritesTheReportOfTheRunFolder) {
+  FakeRun f;
+  fs::remove(f.run + "/dataset.txt");
+  std::string program = "rekon report", run_flag = "--run", gt_flag = "--groundtruth", gt = f.dataset + "/groundtruth.txt";
+  char* argv[] = {program.data(), run_flag.data(), f.run.data(), gt_flag.data(), gt.data()};
+  EXPECT_EQ(reportCommand(5, argv), 0);
+  EXPECT_NE(readText(f.run + "/report.html").find("ATE RMSE 1.00 cm"), std::string::npos);
+}
+
+}  // namespace

@@ -1,0 +1,112 @@
+#include <spdlog/spdlog.h>
+
+#include <cmath>
+#include <numbers>
+
+#include "rekon/common/error.hpp"
+#include "rekon/common/mesh.hpp"
+#include "rekon/render/render.hpp"
+#include "rekon/report/html.hpp"
+#include "report_sections.hpp"
+
+namespace rekon::report {
+namespace fs = std::filesystem;
+namespace {
+
+// A camera looks along its z with y down, so its world "up" is -y. Averaged
+// over a hand-held or robot trajectory this is the gravity up of the scene,
+// in whatever frame the run's poses are (the first camera's, or the ground truth's).
+Eigen::Vector3d upFromCameras(const std::optional<Trajectory>& t) {
+  constexpr double kMinAgreement = 0.5;  // cameras rolling all over: no usable up
+  if (!t || t->empty()) return Eigen::Vector3d::UnitZ();
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  for (const auto& p : *t) sum += p.pose.linear() * Eigen::Vector3d(0, -1, 0);
+  const Eigen::Vector3d mean = sum / static_cast<double>(t->size());
+  return mean.norm() > kMinAgreement ? mean.normalized() : Eigen::Vector3d::UnitZ();
+}
+
+// Straight down along `up`, the longer horizontal extent across the image.
+render::RenderOptions topViewOptions(const Mesh& mesh, render::RenderOptions o) {
+  const Eigen::Vector3d up = o.up.normalized();
+  const Eigen::Vector3d ref = std::abs(up.x()) < 0.9 ? Eigen::Vector3d::UnitX() : Eigen::Vector3d::UnitY();
+  const Eigen::Vector3d e1 = up.cross(ref).normalized(), e2 = up.cross(e1);
+  Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
+  for (const auto& v : mesh.vertices) {
+    const Eigen::Vector3d p = v.cast<double>();
+    const Eigen::Vector3d q(p.dot(e1), p.dot(e2), p.dot(up));
+    lo = lo.cwiseMin(q);
+    hi = hi.cwiseMax(q);
+  }
+  const Eigen::Vector3d c = 0.5 * (lo + hi), half = 0.5 * (hi - lo);
+  const bool e1_across = half.x() >= half.y();
+  const double across = std::max(half.x(), half.y()), along = std::min(half.x(), half.y());
+  const double tan_y = std::tan(0.5 * o.fov_y_deg * std::numbers::pi / 180.0);
+  const double tan_x = tan_y * o.width / o.height;
+  constexpr double kFill = 0.92;
+  const double distance = std::max(across / tan_x, along / tan_y) / kFill + half.z();
+  const Eigen::Vector3d centre = c.x() * e1 + c.y() * e2 + c.z() * up;
+  o.view = render::View{centre + up * distance, centre};
+  o.up = e1_across ? e2 : e1;  // image up: the shorter horizontal extent
+  return o;
+}
+
+struct MeshFile {
+  std::string name, note;
+  std::optional<Mesh> mesh;
+};
+
+MeshFile loadMesh(const fs::path& run, const std::string& name, const std::string& why_absent, Page& page) {
+  MeshFile f{name, "", std::nullopt};
+  const fs::path path = run / name;
+  if (!fs::exists(path)) {
+    page.absentInput(name + ": " + why_absent);
+    return f;
+  }
+  try {
+    f.mesh = readPly(path.string());
+  } catch (const Error& e) {
+    page.absentInput(name + ": unreadable (" + std::string(e.what()) + ")");
+    return f;
+  }
+  if (f.mesh->triangles.empty()) {
+    page.absentInput(name + ": has no triangles");
+    f.mesh.reset();
+    return f;
+  }
+  f.note = std::to_string(f.mesh->vertices.size()) + " vertices, " + std::to_string(f.mesh->triangles.size()) + " triangles";
+  return f;
+}
+
+}  // namespace
+
+void meshSection(Page& page, const fs::path& run, const RunReportOptions& options, const TrajectoryInputs& in) {
+  page.body << "<h2>Mesh</h2>\n";
+  const MeshFile final_mesh = loadMesh(run, "mesh.ply", "not written (the run has no mapper, or it stopped early)", page);
+  const MeshFile uncorrected = loadMesh(run, "mesh_uncorrected.ply", "not written (kept only when surface correction is on)", page);
+  if (!final_mesh.mesh && !uncorrected.mesh) {
+    page.body << "<p>No mesh to show.</p>\n";
+    return;
+  }
+  render::RenderOptions oblique;
+  oblique.width = options.image_width;
+  oblique.height = options.image_height;
+  oblique.up = upFromCameras(in.estimate ? in.estimate : in.odometry);
+  // Both meshes are seen from the same viewpoints so that they compare.
+  const Mesh& framing = final_mesh.mesh ? *final_mesh.mesh : *uncorrected.mesh;
+  oblique.view = render::autoView(framing, oblique);
+  const render::RenderOptions top = topViewOptions(framing, oblique);
+  page.body << "<p>Up is the cameras' mean up direction (" << number(oblique.up.x(), 2) << ", " << number(oblique.up.y(), 2)
+            << ", " << number(oblique.up.z(), 2) << "); back faces are culled, so walls facing away are see-through.</p>\n";
+  for (const MeshFile* f : {&final_mesh, &uncorrected}) {
+    if (!f->mesh) continue;
+    const std::pair<const render::RenderOptions*, const char*> views[] = {{&oblique, "oblique"}, {&top, "from above"}};
+    for (const auto& [view, label] : views) {
+      const cv::Mat image = render::renderMesh(*f->mesh, *view);
+      page.body << "<figure>" << inlinePngImage(image, f->name + ", " + label) << "<figcaption>" << escapeHtml(f->name)
+                << ", " << label << " (" << escapeHtml(f->note) << ")</figcaption></figure>\n";
+      ++page.images;
+    }
+  }
+}
+
+}  // namespace rekon::report
