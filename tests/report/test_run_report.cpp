@@ -36,6 +36,13 @@ size_t countOf(const std::string& text, const std::string& what) {
   return n;
 }
 
+bool mentions(const std::vector<std::string>& lines, const std::string& what) {
+  for (const auto& l : lines) {
+    if (l.find(what) != std::string::npos) return true;
+  }
+  return false;
+}
+
 // A 1 m box on a 2 m floor, outward faces, all vertices one color.
 rekon::Mesh boxOnFloor(float shift) {
   rekon::Mesh m;
@@ -103,6 +110,10 @@ struct FakeRun {
       tracker << i << "," << 5 + i % 3 << "\n";
       mapper << i << "," << 8 + i % 5 << "," << 6 + i % 5 << "\n";
     }
+    std::ofstream(run + "/config.yaml") << "run:\n  services: [player, tracker, mapper]\n";
+    std::ofstream(run + "/tracker.log") << "[01:00:00.000] [tracker] [info] started\n"
+                                        << "[01:00:01.000] [tracker] [warning] frame 7: few valid depth pixels\n"
+                                        << "[01:00:02.000] [tracker] [info] done\n";
     std::ofstream(run + "/mapper_reintegration.csv")
         << "time_s,graph_version,keyframes_reintegrated,ms,blocks_streamed\n0.5,1,3,10.5,0\n1.2,2,5,14.0,12\n1.9,3,4,12.5,3\n";
   }
@@ -160,6 +171,24 @@ TEST(RunReport, SummarisesPerFrameTiming) {
   EXPECT_NE(html.find("<td>tracker</td><td class=\"num\">60</td><td class=\"num\">6.00</td>"), std::string::npos);
 }
 
+TEST(RunReport, ServicesComeFromTheRunConfig) {
+  FakeRun f;
+  const RunReportResult r = writeRunReport(f.run);
+  // config.yaml lists player, tracker, mapper: the player's timing is missing, the optimiser was not run.
+  EXPECT_TRUE(mentions(r.absent, "player_timing.csv"));
+  EXPECT_FALSE(mentions(r.absent, "optimiser_timing.csv"));
+}
+
+TEST(RunReport, CountsWarningsInTheServiceLogsAndShowsTheConfig) {
+  FakeRun f;
+  const std::string html = readText(writeRunReport(f.run).html_path);
+  // tracker.log: 3 lines, 1 warning, 0 errors
+  EXPECT_NE(html.find("<td>tracker</td><td class=\"num\">3</td><td class=\"num\">1</td><td class=\"num\">0</td>"),
+            std::string::npos);
+  EXPECT_NE(html.find("frame 7: few valid depth pixels"), std::string::npos);
+  EXPECT_NE(html.find("services: [player, tracker, mapper]"), std::string::npos);
+}
+
 TEST(RunReport, GroundTruthOptionOverridesDatasetTxt) {
   FakeRun f;
   fs::remove(f.run + "/dataset.txt");
@@ -167,13 +196,6 @@ TEST(RunReport, GroundTruthOptionOverridesDatasetTxt) {
   o.groundtruth = f.dataset + "/groundtruth.txt";
   EXPECT_TRUE(writeRunReport(f.run, o).ate.has_value());
   EXPECT_FALSE(writeRunReport(f.run).ate.has_value());  // neither: no ground truth
-}
-
-bool mentions(const std::vector<std::string>& lines, const std::string& what) {
-  for (const auto& l : lines) {
-    if (l.find(what) != std::string::npos) return true;
-  }
-  return false;
 }
 
 TEST(RunReport, AbsentInputsAreListedNotFatal) {
@@ -184,7 +206,7 @@ TEST(RunReport, AbsentInputsAreListedNotFatal) {
     EXPECT_TRUE(mentions(r.absent, name)) << name << " is not listed as absent";
   }
   EXPECT_EQ(r.images, 0u);
-  EXPECT_NE(readText(r.html_path).find("mapper_reintegration.csv: not written"), std::string::npos);
+  EXPECT_NE(readText(r.html_path).find("mapper_reintegration.csv: not in the run folder"), std::string::npos);
 }
 
 TEST(RunReport, UnreadableInputIsListedAndTheRestShown) {
@@ -198,8 +220,8 @@ TEST(RunReport, UnreadableInputIsListedAndTheRestShown) {
   // Still every image: the timing plot keeps the mapper's series.
   EXPECT_EQ(r.images, 11u);
   const std::string html = readText(r.html_path);
-  EXPECT_EQ(html.find("<td>tracker</td>"), std::string::npos);
-  EXPECT_NE(html.find("<td>mapper</td>"), std::string::npos);
+  EXPECT_EQ(html.find("<td>tracker</td><td class=\"num\">60</td>"), std::string::npos);
+  EXPECT_NE(html.find("<td>mapper</td><td class=\"num\">60</td>"), std::string::npos);
 }
 
 TEST(RunReport, MissingRunFolderIsAnError) {

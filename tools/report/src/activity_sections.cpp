@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <fstream>
 #include <numeric>
 
 #include "rekon/common/error.hpp"
@@ -17,6 +18,8 @@ namespace {
 
 // More columns than this in mapper_reintegration.csv are listed but not plotted.
 constexpr size_t kMaxActivityPlots = 8;
+constexpr size_t kMaxConfigBytes = 64 * 1024;
+constexpr size_t kMaxNotableLogLines = 40;
 // Plots of one quantity, several to a row.
 constexpr int kSmallPlotWidth = PlotOptions::kDefaultWidth / 2 + 60;
 constexpr int kSmallPlotHeight = PlotOptions::kDefaultHeight * 3 / 4;
@@ -82,6 +85,15 @@ void flatten(const YAML::Node& node, const std::string& prefix, std::vector<std:
   }
 }
 
+std::string readText(const fs::path& path, size_t max_bytes) {
+  std::ifstream in(path);
+  std::string text(max_bytes, '\0');
+  in.read(text.data(), static_cast<std::streamsize>(max_bytes));
+  text.resize(static_cast<size_t>(in.gcount()));
+  if (text.size() == max_bytes) text += "\n... (cut)";
+  return text;
+}
+
 }  // namespace
 
 void timingSection(Page& page, const fs::path& run, const std::vector<std::string>& services) {
@@ -96,7 +108,7 @@ void timingSection(Page& page, const fs::path& run, const std::vector<std::strin
   std::vector<std::pair<std::string, CsvTable>> detailed;
   for (const auto& service : services) {
     auto table = readOptionalCsv(run / (service + kTimingSuffix), kTimingColumns,
-                                 "not written (rekon-" + service + " writes no per-frame timing yet)", page);
+                                 "not in the run folder (rekon-" + service + " did not write per-frame timing)", page);
     if (!table) continue;
     Series s;
     s.name = service;
@@ -143,7 +155,7 @@ void timingSection(Page& page, const fs::path& run, const std::vector<std::strin
 void reintegrationSection(Page& page, const fs::path& run) {
   page.body << "<h2>Re-integration activity</h2>\n";
   const auto table = readOptionalCsv(run / kReintegrationFile, {kReintegrationColumns.front()},
-                                     "not written (no re-integration rounds recorded)", page);
+                                     "not in the run folder (the mapper recorded no re-integration rounds)", page);
   if (!table) {
     page.body << "<p>No re-integration record.</p>\n";
     return;
@@ -206,6 +218,40 @@ void statsSection(Page& page, const fs::path& run) {
     page.body << "<h3>" << escapeHtml(name) << "</h3>\n";
     page.table({"key", "value"}, rows);
   }
+}
+
+void setupSection(Page& page, const fs::path& run, const std::vector<std::string>& services) {
+  page.body << "<h2>Set-up and logs</h2>\n";
+  const fs::path config = run / "config.yaml";
+  if (fs::exists(config)) {
+    page.body << "<details><summary>config.yaml (the whole configuration of the run)</summary><pre>"
+              << escapeHtml(readText(config, kMaxConfigBytes)) << "</pre></details>\n";
+  } else {
+    page.absentInput("config.yaml: not in the run folder");
+  }
+  std::vector<std::vector<std::string>> rows;
+  for (const auto& service : services) {
+    const fs::path log = run / (service + ".log");
+    if (!fs::exists(log)) continue;  // services that did not run: their timing line already says so
+    std::ifstream in(log);
+    size_t lines = 0, warnings = 0, errors = 0;
+    std::vector<std::string> notable;
+    for (std::string line; std::getline(in, line);) {
+      ++lines;
+      const bool warning = line.find("[warning]") != std::string::npos, error = line.find("[error]") != std::string::npos ||
+                                                                             line.find("[critical]") != std::string::npos;
+      warnings += warning;
+      errors += error;
+      if ((warning || error) && notable.size() < kMaxNotableLogLines) notable.push_back(line);
+    }
+    rows.push_back({service, std::to_string(lines), std::to_string(warnings), std::to_string(errors)});
+    if (!notable.empty()) {
+      page.body << "<details><summary>" << escapeHtml(service) << ".log: first warnings and errors</summary><pre>";
+      for (const auto& l : notable) page.body << escapeHtml(l) << "\n";
+      page.body << "</pre></details>\n";
+    }
+  }
+  if (!rows.empty()) page.table({"log", "lines", "warnings", "errors"}, rows);
 }
 
 }  // namespace rekon::report

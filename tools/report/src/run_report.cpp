@@ -134,9 +134,11 @@ RunReportResult writeRunReport(const std::string& run_dir, const RunReportOption
   RunReportResult result;
   result.ate = trajectorySection(page, trajectories, options);
   meshSection(page, run, options, trajectories);
-  timingSection(page, run, servicesOfRun(run));
+  const std::vector<std::string> services = servicesOfRun(run);
+  timingSection(page, run, services);
   reintegrationSection(page, run);
   statsSection(page, run);
+  setupSection(page, run, services);
 
   std::ostringstream html;
   html << "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>rekon run report</title><style>"
