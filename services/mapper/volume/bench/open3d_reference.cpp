@@ -6,12 +6,20 @@
 #include <open3d/t/geometry/VoxelBlockGrid.h>
 #include <opencv2/imgproc.hpp>
 
+#include <sys/resource.h>
+
 #include <chrono>
 
 namespace {
 
 namespace o3c = open3d::core;
 namespace o3g = open3d::t::geometry;
+
+double cpuMs() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return (u.ru_utime.tv_sec + u.ru_stime.tv_sec) * 1e3 + (u.ru_utime.tv_usec + u.ru_stime.tv_usec) * 1e-3;
+}
 
 template <typename T>
 o3g::Image toImage(const cv::Mat& m, o3c::Dtype dtype) {
@@ -46,6 +54,7 @@ Open3dResult runOpen3dReference(const std::vector<cv::Mat>& depth_raw, const std
   const float trunc_multiplier = static_cast<float>(truncation / voxel_size);
   const float scale = static_cast<float>(k.depth_scale), depth_max = static_cast<float>(max_depth);
   auto t = std::chrono::steady_clock::now();
+  const double cpu = cpuMs();
   for (size_t i = 0; i < depths.size(); ++i) {
     const o3c::Tensor blocks =
         grid.GetUniqueBlockCoordinates(depths[i], intrinsic, extrinsics[i], scale, depth_max, trunc_multiplier);
@@ -54,6 +63,7 @@ Open3dResult runOpen3dReference(const std::vector<cv::Mat>& depth_raw, const std
   Open3dResult r;
   r.integrate_ms_per_frame =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t).count() / depths.size();
+  r.integrate_cpu_ms_per_frame = (cpuMs() - cpu) / depths.size();
   r.blocks = grid.GetHashMap().Size();
   t = std::chrono::steady_clock::now();
   const o3g::TriangleMesh mesh = grid.ExtractTriangleMesh(0.0f);

@@ -10,6 +10,7 @@
 
 struct Open3dResult {
   double integrate_ms_per_frame = 0.0;
+  double integrate_cpu_ms_per_frame = 0.0;  // all threads (OpenMP spinning included)
   double mesh_s = 0.0;
   long long blocks = 0;
   size_t mesh_vertices = 0;
