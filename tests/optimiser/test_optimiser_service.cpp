@@ -120,7 +120,12 @@ TEST(OptimiserService, ClosesTheLoopAndWritesEveryTrackedFrame) {
   spec.sigma_rotation_rad = 0.0003;
   spec.seed = 11;
   const SyntheticGraph g = makeSyntheticGraph(spec);
-  const auto pace = [&] { bus.handle(1); };  // keeps our receive queue drained while sending
+  // Keeps our receive queue drained and leaves the optimiser's bus thread
+  // time to read, so that no socket buffer overflows on a loaded machine.
+  const auto pace = [&] {
+    bus.handle(1);
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  };
   std::map<int64_t, std::pair<int64_t, Pose>> frames;  // frame id -> (keyframe, pose in keyframe)
   for (int k = 0; k < kKeyframes; ++k) {
     rekon_msgs::keyframe_t kf{};
