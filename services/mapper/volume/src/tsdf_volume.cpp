@@ -6,7 +6,6 @@
 #include <cmath>
 #include <limits>
 #include <opencv2/core.hpp>
-#include <thread>
 #include <tuple>
 
 #include "marching_cubes.hpp"
