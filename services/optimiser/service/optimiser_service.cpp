@@ -118,6 +118,8 @@ bool apply(PoseGraph& graph, const std::vector<std::variant<KeyframeIn, Constrai
 void optimiseOnce(PoseGraph& graph, bool final, Totals& totals) {
   const OptimiseReport r = graph.optimise(final);
   ++totals.optimisations;
+  if (r.loop_edges_removed > 0)
+    spdlog::info("removed {} outlier loop edge(s); {} loop edges kept", r.loop_edges_removed, graph.numLoopEdges());
   totals.optimise_ms += r.ms;
   spdlog::debug("optimised {} keyframes / {} edges: {} iterations, cost {:.3g} -> {:.3g}, {} loop edges removed, "
                 "{:.1f} ms",

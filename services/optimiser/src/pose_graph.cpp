@@ -223,8 +223,9 @@ OptimiseReport PoseGraph::optimise(bool final) {
     ++report.rounds;
     // A failed solve leaves the poses where they were: judging loop edges
     // there would remove the very edges that had not been applied yet.
-    if (iterations < 0 || round >= params_.outlier_rounds) break;
+    if (iterations < 0) break;
     report.iterations += iterations;
+    if (round >= params_.outlier_rounds) break;
     int removed = 0;
     for (Edge& e : edges_) {
       if (!e.kept || e.c.kind != EdgeKind::Loop) continue;
