@@ -115,6 +115,22 @@ TEST(LinePlot, SvgHasLegendWithEveryNamedSeriesAndTheLabels) {
   EXPECT_EQ(countOf(svg, "<circle"), 4u + 1u);  // markers of KF_CONST and its legend entry
 }
 
+double legendX(const std::string& svg) {
+  const std::regex re("<g class=\"legend\"><rect x=\"([0-9.]+)\" y=\"([0-9.]+)\"");
+  std::smatch m;
+  EXPECT_TRUE(std::regex_search(svg, m, re)) << "no legend";
+  return std::stod(m[1].str());
+}
+
+TEST(LinePlot, LegendTakesTheCornerThatHidesNoData) {
+  PlotOptions o;  // 720 px wide: the plot area's centre is at x = 78 + (720 - 78 - 18) / 2 = 390
+  LinePlot rising(o), falling(o);
+  rising.add({"rising", {0, 10}, {0, 10}});  // through the bottom-left and top-right corners
+  falling.add({"falling", {0, 10}, {10, 0}});  // through top-left and bottom-right
+  EXPECT_LT(legendX(rising.svg()), 390.0);   // top left
+  EXPECT_GT(legendX(falling.svg()), 390.0);  // top right
+}
+
 TEST(LinePlot, PointThatALogAxisCannotShowBreaksTheLine) {
   PlotOptions o;
   o.y_scale = Scale::Log;

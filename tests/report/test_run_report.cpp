@@ -102,7 +102,8 @@ struct FakeRun {
     std::ofstream(run + "/stats.json")
         << R"({"frames": 60, "wall_seconds": 2.5, "realtime_factor": 0.8,)"
         << R"( "tracker": {"keyframes": 17, "ms_per_frame_mean": 5.25, "peak_rss_mb": 74.5},)"
-        << R"( "mapper": {"voxel_blocks": 4321, "memory": {"voxel_bytes": 98765}}})";
+        << R"( "mapper": {"voxel_blocks": 4321, "memory": {"voxel_bytes": 98765}},)"
+        << R"( "player": {"frames": 60, "sequence_seconds": 2.0}})";
     std::ofstream tracker(run + "/tracker_timing.csv"), mapper(run + "/mapper_timing.csv");
     tracker << "frame_id,ms\n";
     mapper << "frame_id,ms,integrate_ms\n";
@@ -169,6 +170,14 @@ TEST(RunReport, SummarisesPerFrameTiming) {
   const std::string html = readText(writeRunReport(f.run).html_path);
   // tracker: 5,6,7 repeating over 60 frames: mean 6.00, max 7.00
   EXPECT_NE(html.find("<td>tracker</td><td class=\"num\">60</td><td class=\"num\">6.00</td>"), std::string::npos);
+}
+
+TEST(RunReport, TimingPlotMarksTheFramePeriod) {
+  FakeRun f;
+  writeRunReport(f.run);
+  // 60 frames over 2 s: 33.3 ms, drawn from the first to the last frame id.
+  const std::string csv = readText(f.run + "/report/timing.csv");
+  EXPECT_NE(csv.find("frame period 33.3 ms,0,33.3333333\nframe period 33.3 ms,59,33.3333333\n"), std::string::npos) << csv;
 }
 
 TEST(RunReport, ServicesComeFromTheRunConfig) {

@@ -5,6 +5,8 @@
 #include <algorithm>
 #include <cmath>
 #include <fstream>
+#include <limits>
+#include <optional>
 #include <numeric>
 
 #include "rekon/common/error.hpp"
@@ -94,6 +96,20 @@ std::string readText(const fs::path& path, size_t max_bytes) {
   return text;
 }
 
+// The sensor's frame period from the player's stats (sequence duration / frames).
+std::optional<double> framePeriodMs(const fs::path& run) {
+  try {
+    if (!fs::exists(run / "stats.json")) return std::nullopt;
+    const YAML::Node player = YAML::LoadFile((run / "stats.json").string())["player"];
+    if (!player || !player.IsMap()) return std::nullopt;
+    const double frames = player["frames"].as<double>(0.0), seconds = player["sequence_seconds"].as<double>(0.0);
+    if (frames < 2 || seconds <= 0) return std::nullopt;
+    return 1000.0 * seconds / frames;  // the player counts one period per frame (span + one period)
+  } catch (const YAML::Exception&) {
+    return std::nullopt;  // the stats section reports an unreadable stats.json
+  }
+}
+
 }  // namespace
 
 void timingSection(Page& page, const fs::path& run, const std::vector<std::string>& services) {
@@ -125,6 +141,19 @@ void timingSection(Page& page, const fs::path& run, const std::vector<std::strin
     return;
   }
   page.table({"service", "frames", "mean [ms]", "median [ms]", "p95 [ms]", "max [ms]", "total [s]"}, rows);
+  if (const auto period = framePeriodMs(run)) {
+    // A service above this line falls behind a live camera.
+    double first = std::numeric_limits<double>::infinity(), last = -first;
+    for (const auto& s : combined.series()) {
+      for (double x : s.x) {
+        if (std::isfinite(x)) first = std::min(first, x), last = std::max(last, x);
+      }
+    }
+    Series line("frame period " + number(*period, 1) + " ms", {first, last}, {*period, *period});
+    line.dashed = true;
+    line.color = "#888888";
+    combined.add(std::move(line));
+  }
   page.plot(combined, "timing");
   // Times (ms, *_ms) share one plot per service; every other column gets its own.
   for (const auto& [service, table] : detailed) {

@@ -19,6 +19,8 @@ constexpr double kTargetLinearTicks = 5.0;
 // Beyond this many decades only every n-th decade is labelled.
 constexpr int kMaxLogTicks = 8;
 constexpr double kRelativeEpsilon = 1e-9;
+// Spacing of the points sampled along lines when choosing where the legend hides least.
+constexpr double kLegendSamplePixels = 4.0;
 
 // Okabe-Ito, the colour-blind-safe palette, without its yellow (too light on white).
 const char* const kPalette[] = {"#0072B2", "#D55E00", "#009E73", "#CC79A7", "#56B4E9", "#E69F00", "#000000"};
@@ -169,7 +171,29 @@ void drawLegend(std::ostringstream& o, const Frame& f, const std::vector<Series>
   if (listed.empty()) return;
   constexpr double kRow = 16, kCharWidth = 6.6, kSwatch = 22;
   const double w = kSwatch + 14 + kCharWidth * static_cast<double>(longest), h = kRow * static_cast<double>(listed.size()) + 8;
-  const double x0 = f.right - w - 8, y0 = f.top + 8;
+  // The corner that hides the least of the data: top right, top left, bottom right, bottom left, first wins a tie.
+  constexpr double kInset = 8;
+  const double corners[4][2] = {{f.right - w - kInset, f.top + kInset}, {f.left + kInset, f.top + kInset},
+                                {f.right - w - kInset, f.bottom - h - kInset}, {f.left + kInset, f.bottom - h - kInset}};
+  size_t hidden[4] = {0, 0, 0, 0};
+  for (const Series& s : series) {
+    for (size_t i = 0; i < s.x.size(); ++i) {
+      if (!f.drawable(s.x[i], s.y[i])) continue;
+      const double px = f.px(s.x[i]), py = f.py(s.y[i]);
+      const bool joined = s.line && i + 1 < s.x.size() && f.drawable(s.x[i + 1], s.y[i + 1]);
+      const double length = joined ? std::hypot(f.px(s.x[i + 1]) - px, f.py(s.y[i + 1]) - py) : 0.0;
+      const int samples = 1 + static_cast<int>(length / kLegendSamplePixels);  // points along the line to the next point
+      for (int k = 0; k < samples; ++k) {
+        const double t = static_cast<double>(k) / samples;
+        const double qx = joined ? px + t * (f.px(s.x[i + 1]) - px) : px, qy = joined ? py + t * (f.py(s.y[i + 1]) - py) : py;
+        for (int c = 0; c < 4; ++c) {
+          hidden[c] += qx >= corners[c][0] && qx <= corners[c][0] + w && qy >= corners[c][1] && qy <= corners[c][1] + h;
+        }
+      }
+    }
+  }
+  const size_t best = static_cast<size_t>(std::min_element(hidden, hidden + 4) - hidden);
+  const double x0 = corners[best][0], y0 = corners[best][1];
   o << "<g class=\"legend\"><rect x=\"" << fmt(x0) << "\" y=\"" << fmt(y0) << "\" width=\"" << fmt(w) << "\" height=\""
     << fmt(h) << "\" fill=\"white\" fill-opacity=\"0.85\" stroke=\"#999\"/>\n";
   for (size_t r = 0; r < listed.size(); ++r) {

@@ -70,7 +70,8 @@ class LinePlot {
   const PlotOptions& options() const { return options_; }
   const std::vector<Series>& series() const { return series_; }
 
-  // The standalone SVG document. Points that cannot be drawn (non-finite, not
+  // The standalone SVG document. The legend sits in the corner of the plot
+  // area that covers the fewest data points and lines. Points that cannot be drawn (non-finite, not
   // positive on a log axis, outside a fixed range) break the line there.
   std::string svg() const;
   // Long format, one row per point: `series,x,y`.
