@@ -274,6 +274,14 @@ size_t PoseGraph::numLoopEdges() const {
   }));
 }
 
+std::vector<Constraint> PoseGraph::loopEdges() const {
+  std::vector<Constraint> out;
+  for (const Edge& e : edges_) {
+    if (e.kept && e.c.kind == EdgeKind::Loop) out.push_back(e.c);
+  }
+  return out;
+}
+
 std::vector<double> PoseGraph::loopChi2() const {
   std::vector<double> out;
   for (const Edge& e : edges_) {
