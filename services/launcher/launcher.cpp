@@ -18,6 +18,7 @@
 #include "rekon/common/frame_ring.hpp"
 #include "rekon/common/json.hpp"
 #include "rekon/common/logging.hpp"
+#include "rekon/report/run_report.hpp"
 #include "rekon/synth/synth.hpp"
 
 namespace rekon {
@@ -58,6 +59,7 @@ std::string jsonOf(const YAML::Node& node) {
 struct RunOptions {
   std::string dataset, out, config_file;
   std::vector<std::string> sets;
+  bool report = false;
 };
 
 int launch(const RunOptions& opt) {
@@ -197,8 +199,15 @@ int launch(const RunOptions& opt) {
   for (const auto& [name, json] : per_service) stats.setRaw(name, json);
   stats.save(out + "/stats.json");
 
+  if (opt.report) {
+    try {
+      report::writeRunReport(out);
+    } catch (const Error& e) {
+      spdlog::error("report: {}", e.what());  // the run's own outputs stay as they are
+    }
+  }
   spdlog::info("outputs in {}:", out);
-  for (const char* f : {"trajectory.txt", "mesh.ply", "stats.json", "config.yaml"}) {
+  for (const char* f : {"trajectory.txt", "mesh.ply", "stats.json", "report.html", "config.yaml"}) {
     if (fs::exists(out + "/" + f)) spdlog::info("  {}/{}", out, f);
   }
   spdlog::info("  logs: {}/<service>.log", out);
@@ -218,11 +227,12 @@ int runMain(int argc, char** argv) {
   args.option("dataset", "TUM RGB-D folder with camera.yaml (required)")
       .option("out", "output folder (required)")
       .option("config", "YAML config laid over config/default.yaml")
-      .repeated("set", "override one config key, e.g. --set mapper.voxel_size=0.02");
+      .repeated("set", "override one config key, e.g. --set mapper.voxel_size=0.02")
+      .flag("report", "also write report.html (mesh views, trajectory, timing, stats) into --out");
   if (!args.parse(argc, argv)) return 0;
   if (args.get("dataset").empty() || args.get("out").empty()) throw Error("--dataset and --out are required; see rekon run --help");
   if (!fs::is_directory(args.get("dataset"))) throw Error(args.get("dataset") + ": dataset folder not found");
-  return launch({args.get("dataset"), args.get("out"), args.get("config"), args.all("set")});
+  return launch({args.get("dataset"), args.get("out"), args.get("config"), args.all("set"), args.flagSet("report")});
 }
 
 int demoMain(int argc, char** argv) {
@@ -242,7 +252,7 @@ int demoMain(int argc, char** argv) {
     spdlog::info("demo: generating the synthetic room into {} (once)", data.string());
     synth::writeSequence(scene, data.string());
   }
-  const int rc = launch({data.string(), out.string(), "", args.all("set")});
+  const int rc = launch({data.string(), out.string(), "", args.all("set"), true});
   if (rc == 0 && fs::exists(out / "trajectory.txt")) {
     spdlog::info("compare with the ground truth: tools/rekon eval traj {} {}", (data / "groundtruth.txt").string(),
                  (out / "trajectory.txt").string());
