@@ -248,3 +248,16 @@ TEST(ReportCommand, WritesTheReportOfTheRunFolder) {
 }
 
 }  // namespace
+
+namespace {
+
+TEST(ReportCommand, BadOptionsAreOneLineErrors) {
+  rekon::test::TempDir dir;
+  std::string program = "rekon report", run_flag = "--run", view_flag = "--top-view", view = "sideways", run = dir.path();
+  char* no_run[] = {program.data()};
+  EXPECT_THROW(rekon::report::reportCommand(1, no_run), rekon::Error);
+  char* bad_view[] = {program.data(), run_flag.data(), run.data(), view_flag.data(), view.data()};
+  EXPECT_THROW(rekon::report::reportCommand(5, bad_view), rekon::Error);
+}
+
+}  // namespace
