@@ -50,13 +50,19 @@ std::vector<std::string> readLines(const std::string& path) {
 std::vector<std::string> playToListener(const std::string& dataset, int frames, const std::string& mode,
                                         const rekon::test::TempDir& dir, const std::string& extra = "") {
   const std::string script =
-      rekonBin() + " listen --frames-out " + (dir / "frames.txt") + " > " + (dir / "listener.log") + " 2>&1 & listener=$!; " +
-      playerBin() + " --dataset " + dataset + " --set player.max_frames=" + std::to_string(frames) +
+      "timeout 120 " + rekonBin() + " listen --frames-out " + (dir / "frames.txt") + " > " + (dir / "listener.log") + " 2>&1 & listener=$!; " +
+      "timeout 120 " + playerBin() + " --dataset " + dataset + " --set player.max_frames=" + std::to_string(frames) +
       " --set player.wait_for=[listener] --set transport.mode=" + mode + " --set transport.segment=rekon_test_" +
       std::to_string(getpid()) + " > " + (dir / "player.log") + " 2>&1; status=$?; [ $status -eq 0 ] || kill $listener; wait $listener; exit $status";
   std::string out;
   const int rc = runCommand(inNetns() + " bash -c '" + extra + script + "'", &out);
-  EXPECT_EQ(rc, 0) << out << "\nplayer log:\n" << [&] { std::ifstream in(dir / "player.log"); std::stringstream s; s << in.rdbuf(); return s.str(); }();
+  auto logOf = [&](const std::string& name) {
+    std::ifstream in(dir / name);
+    std::stringstream s;
+    s << in.rdbuf();
+    return s.str();
+  };
+  EXPECT_EQ(rc, 0) << out << "\nplayer log:\n" << logOf("player.log") << "\nlistener log:\n" << logOf("listener.log");
   return readLines(dir / "frames.txt");
 }
 
