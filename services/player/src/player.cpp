@@ -140,6 +140,7 @@ PlayerParams PlayerParams::fromConfig(const Config& config, const std::string& d
   p.wait_timeout_s = config.getDouble("player.wait_timeout_s");
   p.max_frames = config.getInt("player.max_frames");
   p.first_frame = config.getInt("player.first_frame");
+  p.camera = config.getString("player.camera");
   p.transport_mode = config.getString("transport.mode");
   p.segment = config.getString("transport.segment");
   p.slots = config.getInt("transport.slots");
@@ -152,6 +153,7 @@ PlayerParams PlayerParams::fromConfig(const Config& config, const std::string& d
 void runPlayer(ServiceContext& ctx, const PlayerParams& params) {
   DatasetOptions options;
   options.max_frames = params.max_frames > 0 ? params.first_frame + params.max_frames : 0;
+  if (!params.camera.empty()) options.intrinsics_override = loadIntrinsics(params.camera);
   const TumDataset dataset(params.dataset, options);
   if (params.first_frame < 0 || static_cast<size_t>(params.first_frame) >= dataset.size()) {
     throw Error("player.first_frame " + std::to_string(params.first_frame) + " is beyond the " +

@@ -16,6 +16,7 @@ struct PlayerParams {
   double wait_timeout_s = 60.0;
   int max_frames = 0;
   int first_frame = 0;
+  std::string camera;  // camera.yaml overriding the dataset's; "" = the dataset's
   std::string transport_mode = "auto";  // shm | lcm | auto
   std::string segment;
   int slots = 8;
