@@ -5,12 +5,16 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <opencv2/imgcodecs.hpp>
+
+#include <filesystem>
 #include <map>
 
 #include "rekon/common/error.hpp"
 #include "rekon/mapper/mapper.hpp"
 #include "rekon/replay/replay.hpp"
 #include "rekon/synth/synth.hpp"
+#include "test_support.hpp"
 
 using namespace rekon;
 using namespace rekon::mapper;
@@ -240,4 +244,28 @@ TEST(KeyframeStore, WithoutResumeAStaleStoreIsDiscarded) {
   EXPECT_EQ(fresh.counters().restored_keyframes, 0);
   EXPECT_EQ(fresh.volume().stats().blocks, 0);
   EXPECT_THROW(store::KeyframeStore::openExisting(p.store.segment), Error);  // removed, re-created with the first frame
+}
+
+TEST(KeyframeStore, RekonKeyframesExportsEveryStoredKeyframe) {
+  MapperParams p = testParams();
+  p.use_store = true;
+  p.store.segment = "rekon_test_export_" + std::to_string(getpid());
+  p.store.size_mb = 64;
+  store::KeyframeStore::remove(p.store.segment);
+  Mapper mapper(p);
+  play(mapper, 12);  // kappa 4: two keyframes closed and integrated, the third open (not stored yet)
+  test::TempDir dir;
+  std::string arg0 = "rekon keyframes", a1 = "--export", a2 = dir / "kf", a3 = "--segment", a4 = p.store.segment;
+  char* argv[] = {arg0.data(), a1.data(), a2.data(), a3.data(), a4.data()};
+  EXPECT_EQ(store::keyframesMain(5, argv), 0);
+  EXPECT_EQ(readTumTrajectory(dir / "kf/integrated_poses.txt").size(), 2u);
+  const RgbdFrame& first = scenario().frames[0];
+  const cv::Mat depth = cv::imread(dir / "kf/kf_000000_depth.png", cv::IMREAD_UNCHANGED);
+  ASSERT_EQ(depth.size(), first.depth.size());
+  // The fused depth of keyframe 0, re-quantised to the camera's depth_scale, where keyframe 0 has depth.
+  cv::Mat stored;
+  mapper.keyframes()[0].kf.depth.convertTo(stored, CV_16U, testCamera().depth_scale);
+  EXPECT_EQ(cv::norm(depth, stored, cv::NORM_INF), 0.0);
+  EXPECT_TRUE(std::filesystem::exists(dir / "kf/kf_000001_color.png"));
+  mapper.removeStore();
 }
