@@ -189,6 +189,15 @@ CandidateCheck LoopClosureDetector::check(int64_t candidate_id, int64_t keyframe
     }
     // Of the two initial guesses keep the better-determined result (DVO-SLAM's keepBest).
     if (fine_log_det <= best_log_det) continue;
+    // DVO-SLAM's cross validation: the same pair aligned the other way round
+    // from the inverse result must come back to it. A true minimum of the
+    // joint residual does; a wrong one reached from a far guess mostly does not.
+    const AlignResult back = aligner_.align(current.reference, reference.pyramid, fine.pose.inverse());
+    const double cross = back.valid ? (back.pose * fine.pose).translation().norm() : std::numeric_limits<double>::infinity();
+    if (cross > lp.max_cross_check_m) {
+      out.reason = "cross check";
+      continue;
+    }
     best_log_det = fine_log_det;
     LoopConstraint c;
     c.from_id = candidate_id;
@@ -198,6 +207,9 @@ CandidateCheck LoopClosureDetector::check(int64_t candidate_id, int64_t keyframe
     c.coarse_ratio = coarse_ratio;
     c.fine_ratio = fine_ratio;
     c.valid_pixels = fine.valid_pixels;
+    c.cross_check_m = cross;
+    c.intensity_sigma = fine.intensity_sigma;
+    c.depth_sigma = fine.depth_sigma;
     out.constraint = c;
     out.accepted = true;
     out.reason = "";

@@ -73,6 +73,8 @@ void LoopClosureParams::validate() const {
   require(std::isfinite(fine_entropy_ratio) && fine_entropy_ratio > 0 && fine_entropy_ratio <= 1,
           "loop_fine_entropy_ratio", fine_entropy_ratio, "in (0, 1]");
   require(min_pixel_ratio >= 0 && min_pixel_ratio < 1, "loop_min_pixel_ratio", min_pixel_ratio, "in [0, 1)");
+  require(std::isfinite(max_cross_check_m) && max_cross_check_m > 0, "loop_max_cross_check", max_cross_check_m,
+          "positive (metres)");
   require(max_candidates >= 0, "loop_max_candidates", max_candidates, "0 (all) or positive");
   require(queue_capacity >= 1, "loop_queue_capacity", queue_capacity, "at least 1");
 }
@@ -117,6 +119,7 @@ TrackerParams trackerParamsFromConfig(const Config& c) {
   p.loop.coarse_entropy_ratio = c.getDouble("tracker.loop_coarse_entropy_ratio");
   p.loop.fine_entropy_ratio = c.getDouble("tracker.loop_fine_entropy_ratio");
   p.loop.min_pixel_ratio = c.getDouble("tracker.loop_min_pixel_ratio");
+  p.loop.max_cross_check_m = c.getDouble("tracker.loop_max_cross_check");
   p.loop.max_candidates = c.getInt("tracker.loop_max_candidates");
   p.loop.queue_capacity = c.getInt("tracker.loop_queue_capacity");
   p.validate();

@@ -42,6 +42,11 @@ struct LoopConstraint {
   double coarse_ratio = 0.0;  // ln det ratios against the odometry at each stage
   double fine_ratio = 0.0;
   int valid_pixels = 0;
+  // Disagreement of the alignment run the other way round (the candidate
+  // aligned to the new keyframe from the inverse result): translation, metres.
+  double cross_check_m = 0.0;
+  double intensity_sigma = 0.0;  // robust residual scales of the fine alignment
+  double depth_sigma = 0.0;
 };
 
 // The outcome of checking one candidate.

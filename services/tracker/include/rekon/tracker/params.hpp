@@ -109,6 +109,7 @@ struct LoopClosureParams {
   static constexpr double kDefaultCoarseEntropyRatio = 0.7;
   static constexpr double kDefaultFineEntropyRatio = 0.9;
   static constexpr double kDefaultMinPixelRatio = 0.2;
+  static constexpr double kDefaultMaxCrossCheck = 0.05;
   static constexpr int kDefaultMaxCandidates = 0;
   static constexpr int kDefaultQueueCapacity = 128;
 
@@ -128,6 +129,9 @@ struct LoopClosureParams {
   // Fraction of the candidate's selected pixels that must constrain the
   // alignment at its finest level (DVO-SLAM's equation-system constraint ratio).
   double min_pixel_ratio = kDefaultMinPixelRatio;
+  // The pair aligned the other way round, from the inverse of the accepted
+  // result, must land within this many metres of it.
+  double max_cross_check_m = kDefaultMaxCrossCheck;
   // Candidates checked per keyframe, nearest views first (0 = all).
   int max_candidates = kDefaultMaxCandidates;
   // Keyframes waiting for their check; when full the oldest waiting check is
