@@ -105,7 +105,7 @@ struct LostParams {
 struct LoopClosureParams {
   static constexpr bool kDefaultEnabled = true;
   static constexpr double kDefaultSearchRadius = 1.0;
-  static constexpr int kDefaultExcludePredecessors = 1;
+  static constexpr int kDefaultExcludePredecessors = 20;
   static constexpr double kDefaultCoarseEntropyRatio = 0.7;
   static constexpr double kDefaultFineEntropyRatio = 0.9;
   static constexpr double kDefaultMinPixelRatio = 0.2;
@@ -118,7 +118,11 @@ struct LoopClosureParams {
   // metres of the new keyframe's current estimate.
   double search_radius = kDefaultSearchRadius;
   // The new keyframe's last predecessors are never candidates (1: only the one
-  // odometry already links, as DVO-SLAM).
+  // odometry already links, as DVO-SLAM). Loops to recent keyframes share the
+  // odometry's errors and the optimiser weighs them as independent: on the
+  // 7-Scenes loop (1000 frames) ATE with loop closures / odometry alone is
+  // 0.93 excluding 1, 0.81 excluding 5, 0.78 excluding 10, 0.76 excluding 20,
+  // 0.87 excluding 40 (loop_closure_bench).
   int exclude_predecessors = kDefaultExcludePredecessors;
   // Thresholds on the ratio ln det(I_loop) / mean ln det(I_odometry), i.e. the
   // paper's entropy ratio with H ~ ln det(covariance): at the coarse stage
