@@ -268,6 +268,7 @@ void LoopClosureWorker::start() {
 
 void LoopClosureWorker::submit(std::shared_ptr<const Keyframe> keyframe,
                                const std::optional<OdometryConstraint>& incoming) {
+  if (!detector_.params().enabled) return;  // nothing will ever be checked: keep no keyframes
   {
     std::lock_guard<std::mutex> lock(mutex_);
     if (waiting_checks_ >= detector_.params().queue_capacity) {
@@ -281,7 +282,7 @@ void LoopClosureWorker::submit(std::shared_ptr<const Keyframe> keyframe,
         break;
       }
     }
-    queue_.push_back(Job{std::move(keyframe), incoming, detector_.params().enabled});
+    queue_.push_back(Job{std::move(keyframe), incoming, true});
     waiting_checks_ += queue_.back().check;
   }
   wake_.notify_one();
