@@ -32,6 +32,7 @@ int listenMain(int argc, char** argv) {
         std::condition_variable done_cv;
         int64_t last_frame = -1, received = 0;
         bool done = false;
+        StopThreadsOnExit stop_threads(ctx);  // before the state above dies: the bus handlers use it
         ctx.bus().subscribe<rekon_msgs::frame_t>(channel::kFrames, [&](const rekon_msgs::frame_t& msg) {
           const auto frame = receiver.receive(msg, nullptr);
           std::lock_guard<std::mutex> lock(mutex);

@@ -133,6 +133,7 @@ void runOptimiserService(ServiceContext& ctx) {
   const OptimiserServiceParams params = optimiserParamsFromConfig(ctx.config());
   Bus& bus = ctx.bus();
   Inbox inbox;
+  StopThreadsOnExit stop_threads(ctx);  // before `inbox` dies: the bus handlers write into it
   subscribe(ctx, inbox, params.information_scale);
   ctx.setState("running");
   spdlog::info("pose graph: information x {}, {} loss (scale {}) on loop edges, outlier chi2 > {}, {} iterations "

@@ -165,6 +165,7 @@ void runPlayer(ServiceContext& ctx, const PlayerParams& params) {
                dataset.intrinsics().height, dataset.timestamp(dataset.size() - 1) - dataset.timestamp(first));
 
   ConsumerWatch watch(ctx.bus());
+  StopThreadsOnExit stop_threads(ctx);  // before `watch` dies: its handlers run on the bus thread
   if (!params.wait_for.empty()) {
     ctx.setState("waiting for consumers");
     const auto missing = watch.waitForHeartbeats(params.wait_for, params.wait_timeout_s, ctx);

@@ -59,6 +59,7 @@ void runReplayService(ServiceContext& ctx) {
   std::atomic<int64_t> last_handled{-1}, end_frame{-2};
   int64_t keyframes = 0, updates = 0, lost = 0;
 
+  StopThreadsOnExit stop_threads(ctx);  // before the state above dies: the bus handlers use it
   bus.subscribe<rekon_msgs::end_of_stream_t>(channel::kEndOfStream,
                                              [&](const rekon_msgs::end_of_stream_t& m) { end_frame.store(m.last_frame_id); });
   bus.subscribe<rekon_msgs::frame_t>(channel::kFrames, [&](const rekon_msgs::frame_t& msg) {

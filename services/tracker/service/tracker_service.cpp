@@ -125,6 +125,7 @@ void runTrackerService(ServiceContext& ctx) {
   std::atomic<int64_t> end_frame{-2};  // -2: no end of stream yet
   LoopClosureWorker loops(params, [&bus](const LoopConstraint& c) { publishLoopConstraint(bus, c); });
 
+  StopThreadsOnExit stop_threads(ctx);  // before the state above dies: the bus handlers use it
   bus.subscribe<rekon_msgs::graph_update_t>(channel::kGraphUpdates, [&loops](const rekon_msgs::graph_update_t& m) {
     std::unordered_map<int64_t, Pose> poses;
     const size_t n = std::min<size_t>({static_cast<size_t>(std::max(m.num_keyframes, 0)), m.keyframe_ids.size(),

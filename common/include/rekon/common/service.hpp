@@ -53,6 +53,21 @@ class ServiceContext {
   JsonObject stats_;
 };
 
+// Stops the bus and heartbeat threads when it goes out of scope. A service
+// body declares one right after the state its bus handlers use, so that no
+// handler runs on that state once it is destroyed — on return and on an
+// exception alike.
+class StopThreadsOnExit {
+ public:
+  explicit StopThreadsOnExit(ServiceContext& ctx) : ctx_(ctx) {}
+  ~StopThreadsOnExit() { ctx_.stopThreads(); }
+  StopThreadsOnExit(const StopThreadsOnExit&) = delete;
+  StopThreadsOnExit& operator=(const StopThreadsOnExit&) = delete;
+
+ private:
+  ServiceContext& ctx_;
+};
+
 // Runs a service: parses the common options plus those `add_options` adds,
 // sets everything up, calls `body` (which returns when the service's work is
 // done or ctx.stopRequested()), then writes stats. Returns the exit code:

@@ -100,6 +100,7 @@ void runMapperService(ServiceContext& ctx) {
     s.work_ready.notify_one();
   };
 
+  StopThreadsOnExit stop_threads(ctx);  // before the state above dies: the bus handlers use it
   bus.subscribe<rekon_msgs::frame_t>(channel::kFrames, [&](const rekon_msgs::frame_t& msg) {
     Intrinsics k;
     std::optional<RgbdFrame> frame = receiver.receive(msg, &k);  // a copy out of the ring: safe to acknowledge
