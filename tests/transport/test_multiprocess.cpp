@@ -48,12 +48,13 @@ std::vector<std::string> readLines(const std::string& path) {
 
 // Plays `frames` frames to a listener in a fresh namespace; returns the listener's lines.
 std::vector<std::string> playToListener(const std::string& dataset, int frames, const std::string& mode,
-                                        const rekon::test::TempDir& dir, const std::string& extra = "") {
+                                        const rekon::test::TempDir& dir, const std::string& extra = "",
+                                        const std::string& player_args = "") {
   const std::string script =
       "timeout 120 " + rekonBin() + " listen --frames-out " + (dir / "frames.txt") + " > " + (dir / "listener.log") + " 2>&1 & listener=$!; " +
       "timeout 120 " + playerBin() + " --dataset " + dataset + " --set player.max_frames=" + std::to_string(frames) +
       " --set player.wait_for=[listener] --set transport.mode=" + mode + " --set transport.segment=rekon_test_" +
-      std::to_string(getpid()) + " > " + (dir / "player.log") + " 2>&1; status=$?; [ $status -eq 0 ] || kill $listener; wait $listener; exit $status";
+      std::to_string(getpid()) + " " + player_args + " > " + (dir / "player.log") + " 2>&1; status=$?; [ $status -eq 0 ] || kill $listener; wait $listener; exit $status";
   std::string out;
   const int rc = runCommand(inNetns() + " bash -c '" + extra + script + "'", &out);
   auto logOf = [&](const std::string& name) {
@@ -84,9 +85,12 @@ TEST(MultiProcess, LcmLoggerRecordsARunThatDecodesFrameByFrame) {
   REKON_REQUIRE_DATASET(data, "7scenes_loop_1000");
   rekon::test::TempDir dir;
   const std::string log = dir / "run.lcmlog";
-  const std::string logger = "lcm-logger --quiet --lcm-url=udpm://239.255.76.67:7667?ttl=0 " + log +
+  // lcm-logger acknowledges nothing, so the player paces itself to real time
+  // (--rate 1) and the logger gets a large socket buffer: a loaded machine
+  // must not make it drop a 0.5 MB inline frame.
+  const std::string logger = "lcm-logger --quiet --lcm-url=udpm://239.255.76.67:7667?ttl=0\\&recv_buf_size=4194304 " + log +
                              " > /dev/null 2>&1 & logger=$!; sleep 0.3; trap \"kill -INT $logger; wait $logger\" EXIT; ";
-  const auto lines = playToListener(data, 20, "lcm", dir, logger);
+  const auto lines = playToListener(data, 20, "lcm", dir, logger, "--rate 1");
   ASSERT_EQ(lines.size(), 20u);
 
   lcm_eventlog_t* ev = lcm_eventlog_create(log.c_str(), "r");
