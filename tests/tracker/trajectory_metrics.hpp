@@ -1,8 +1,6 @@
 #pragma once
-// Trajectory error metrics for the tracker's tests and benchmark (until
-// `rekon eval traj` lands): absolute trajectory error after a rigid Horn
-// alignment, and relative pose error over one-second windows (Sturm et al.
-// IROS 2012).
+// Trajectory error metrics for the tracker's tests and benchmark: ATE and RPE
+// from rekon_eval (as `rekon eval traj`), plus drift per metre of path.
 #include "rekon/common/pose.hpp"
 
 namespace rekon::tracker::test {
