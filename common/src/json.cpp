@@ -17,7 +17,9 @@ std::string number(double v) {
   return buf;
 }
 
-std::string quoted(const std::string& s) {
+}  // namespace
+
+std::string jsonString(const std::string& s) {
   std::string out = "\"";
   for (char c : s) {
     switch (c) {
@@ -38,12 +40,10 @@ std::string quoted(const std::string& s) {
   return out + "\"";
 }
 
-}  // namespace
-
 JsonObject& JsonObject::set(const std::string& key, double value) { return setRaw(key, number(value)); }
 JsonObject& JsonObject::set(const std::string& key, long long value) { return setRaw(key, std::to_string(value)); }
 JsonObject& JsonObject::set(const std::string& key, bool value) { return setRaw(key, value ? "true" : "false"); }
-JsonObject& JsonObject::set(const std::string& key, const std::string& value) { return setRaw(key, quoted(value)); }
+JsonObject& JsonObject::set(const std::string& key, const std::string& value) { return setRaw(key, jsonString(value)); }
 JsonObject& JsonObject::set(const std::string& key, const JsonObject& value) { return setRaw(key, value.str(0, 0)); }
 
 JsonObject& JsonObject::setRaw(const std::string& key, const std::string& json) {
@@ -67,7 +67,7 @@ std::string JsonObject::str(int indent, int depth) const {
   std::ostringstream out;
   out << "{" << nl;
   for (size_t i = 0; i < fields_.size(); ++i) {
-    out << pad << quoted(fields_[i].first) << (indent > 0 ? ": " : ":") << fields_[i].second;
+    out << pad << jsonString(fields_[i].first) << (indent > 0 ? ": " : ":") << fields_[i].second;
     out << (i + 1 < fields_.size() ? "," : "") << nl;
   }
   out << close_pad << "}";

@@ -29,11 +29,6 @@ using Clock = std::chrono::steady_clock;
 std::atomic<bool> g_interrupted{false};
 void onInterrupt(int) { g_interrupted.store(true); }
 
-std::string quotedJson(const std::string& s) {
-  const std::string object = JsonObject().set("v", s).str(0);  // {"v":"..."}
-  return object.substr(5, object.size() - 6);
-}
-
 // A stats file written by a service, as JSON text (services write JSON; YAML reads it).
 std::string jsonOf(const YAML::Node& node) {
   if (node.IsMap()) {
@@ -43,7 +38,7 @@ std::string jsonOf(const YAML::Node& node) {
   }
   if (node.IsScalar()) {
     const std::string s = node.Scalar();
-    if (node.Tag() == "!") return quotedJson(s);  // a quoted string in the file stays a string
+    if (node.Tag() == "!") return jsonString(s);  // a quoted string in the file stays a string
     try {
       size_t used = 0;
       std::stod(s, &used);
@@ -51,7 +46,7 @@ std::string jsonOf(const YAML::Node& node) {
     } catch (const std::exception&) {
     }
     if (s == "true" || s == "false" || s == "null") return s;
-    return quotedJson(s);
+    return jsonString(s);
   }
   return "null";
 }

@@ -31,6 +31,9 @@ class JsonObject {
   std::vector<std::pair<std::string, std::string>> fields_;  // key -> JSON text
 };
 
+// A string as a JSON string literal (quoted and escaped).
+std::string jsonString(const std::string& s);
+
 // "key=value key=value" line of a flat object's numbers and strings (the last
 // line that rekon's tools print).
 std::string keyValueLine(const std::vector<std::pair<std::string, double>>& values);
