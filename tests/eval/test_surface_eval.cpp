@@ -4,8 +4,12 @@
 #include <cmath>
 #include <cstdio>
 #include <numbers>
+#include <vector>
+
+#include <Eigen/Geometry>
 
 #include "rekon/common/error.hpp"
+#include "rekon/common/pose.hpp"
 #include "rekon/eval/surface_eval.hpp"
 #include "test_support.hpp"
 
@@ -112,6 +116,52 @@ TEST(EvalCommand, SurfaceEndsWithKeyValues) {
   ASSERT_EQ(std::sscanf(last.c_str(), "corr_m=%lf compl_m=%lf", &corr, &compl_), 2) << out;
   EXPECT_NEAR(corr, 0.005, 1e-6);
   EXPECT_NEAR(compl_, 0.005, 1e-6);
+}
+
+// A SLAM mesh lives in its first camera's world; the ATE's alignment of its
+// trajectory onto the ground truth brings it into the reference's world.
+TEST(EvalCommand, SurfaceMovesTheMeshByTheTrajectoryAlignment) {
+  rekon::test::TempDir dir;
+  rekon::Pose world_to_slam = rekon::Pose::Identity();
+  world_to_slam.linear() = Eigen::AngleAxisd(0.4, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
+  world_to_slam.translation() = Eigen::Vector3d(0.3, -1.0, 2.0);
+  rekon::Trajectory gt, est;
+  const std::vector<Eigen::Vector3d> centres = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0.5}};
+  for (size_t i = 0; i < centres.size(); ++i) {
+    rekon::Pose p = rekon::Pose::Identity();
+    p.translation() = centres[i];
+    gt.push_back({0.1 * static_cast<double>(i), p});
+    est.push_back({0.1 * static_cast<double>(i), world_to_slam * p});
+  }
+  rekon::writeTumTrajectory(gt, dir / "gt.txt");
+  rekon::writeTumTrajectory(est, dir / "est.txt");
+  Mesh mesh = plane(1.0, 20, 0.0f);
+  for (auto& v : mesh.vertices) v = world_to_slam.cast<float>() * v;
+  rekon::writePly(mesh, dir / "mesh.ply");
+  rekon::writePly(plane(1.0, 20, 0.0f), dir / "ref.ply");
+  const std::string cmd = rekon::test::binDir() + "/rekon eval surface " + (dir / "mesh.ply") + " " + (dir / "ref.ply");
+  std::string out;
+  ASSERT_EQ(rekon::test::runCommand(cmd + " --est-trajectory " + (dir / "est.txt") + " --gt-trajectory " + (dir / "gt.txt"), &out), 0)
+      << out;
+  double corr = 0, compl_ = 0;
+  ASSERT_EQ(std::sscanf(out.substr(out.rfind("corr_m=")).c_str(), "corr_m=%lf compl_m=%lf", &corr, &compl_), 2) << out;
+  EXPECT_NEAR(corr, 0.0, 1e-5);  // float vertices moved twice
+  EXPECT_NEAR(compl_, 0.0, 1e-5);
+  ASSERT_EQ(rekon::test::runCommand(cmd, &out), 0) << out;  // without alignment the tilted plane is far off
+  ASSERT_EQ(std::sscanf(out.substr(out.rfind("corr_m=")).c_str(), "corr_m=%lf", &corr), 1) << out;
+  EXPECT_GT(corr, 0.04);
+}
+
+TEST(EvalCommand, SurfaceNeedsBothTrajectoriesOrNeither) {
+  rekon::test::TempDir dir;
+  rekon::writePly(plane(1.0, 4, 0.0f), dir / "ref.ply");
+  std::string out;
+  EXPECT_EQ(rekon::test::runCommand(rekon::test::binDir() + "/rekon eval surface " + (dir / "ref.ply") + " " + (dir / "ref.ply") +
+                                        " --est-trajectory " + (dir / "ref.ply"),
+                                    &out),
+            1)
+      << out;
+  EXPECT_NE(out.find("go together"), std::string::npos) << out;
 }
 
 }  // namespace

@@ -16,7 +16,7 @@ namespace {
 
 constexpr const char* kUsage =
     "usage: rekon eval traj GT EST [--json] [--max-dt S] [--delta S]\n"
-    "       rekon eval surface MESH REF [--json] [--cap M] [--samples N]\n"
+    "       rekon eval surface MESH REF [--json] [--cap M] [--samples N] [--est-trajectory EST --gt-trajectory GT]\n"
     "  traj     ATE (after rigid Horn/Umeyama alignment) and RPE per second of TUM trajectories\n"
     "  surface  CORR (MESH vertices to REF surface) and COMPL (REF samples to MESH), capped distances\n";
 
@@ -74,15 +74,28 @@ int surfaceMain(int argc, char** argv) {
       .positional("REF", "reference mesh (PLY), e.g. mesh_gt.ply of a synthetic sequence")
       .option("cap", "distances above this count as this (m)", fmt(SurfaceEvalOptions::kDefaultCapM, "%g"))
       .option("samples", "points sampled on REF for COMPL (0 = one per cm^2, 10k to 2M)", "0")
+      .option("est-trajectory", "the TUM trajectory MESH was built with: MESH is first moved by the rigid alignment "
+              "that maps it onto --gt-trajectory (the ATE's), so a SLAM mesh meets REF in REF's world", "")
+      .option("gt-trajectory", "ground-truth TUM trajectory in REF's world (with --est-trajectory)", "")
       .flag("json", "print JSON instead of text");
   if (!args.parse(argc, argv)) return 0;
+  if (args.get("est-trajectory").empty() != args.get("gt-trajectory").empty())
+    throw Error("--est-trajectory and --gt-trajectory go together; give both or neither");
   SurfaceEvalOptions o;
   o.cap_m = args.getDouble("cap");
   const int samples = args.getInt("samples");
   if (samples < 0) throw Error("--samples must be 0 or more");
   o.reference_samples = static_cast<size_t>(samples);
   const auto start = std::chrono::steady_clock::now();
-  const Mesh mesh = readPly(args.get("MESH")), ref = readPly(args.get("REF"));
+  Mesh mesh = readPly(args.get("MESH"));
+  const Mesh ref = readPly(args.get("REF"));
+  if (!args.get("est-trajectory").empty()) {
+    const Pose alignment =
+        evaluateTrajectory(readTumTrajectory(args.get("gt-trajectory")), readTumTrajectory(args.get("est-trajectory")))
+            .alignment;
+    const Eigen::Isometry3f a = alignment.cast<float>();
+    for (auto& v : mesh.vertices) v = a * v;
+  }
   const SurfaceErrors e = evaluateSurface(mesh, ref, o);
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   if (args.flagSet("json")) {
