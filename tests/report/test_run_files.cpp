@@ -17,6 +17,25 @@ std::string write(const rekon::test::TempDir& dir, const std::string& name, cons
   return dir / name;
 }
 
+TEST(RunFiles, RssCsvReadsTheServiceNameAsText) {
+  rekon::test::TempDir dir;
+  const auto samples = readRssCsv(write(dir, "rss.csv", "seconds,service,rss_mb\n0.5,mapper,120.5\n"));
+  ASSERT_EQ(samples.size(), 1u);
+  EXPECT_EQ(samples[0].service, "mapper");
+  EXPECT_DOUBLE_EQ(samples[0].seconds, 0.5);
+  EXPECT_DOUBLE_EQ(samples[0].rss_mb, 120.5);
+}
+
+TEST(RunFiles, RssCsvWithAnotherHeaderIsAnErrorNamingTheHeader) {
+  rekon::test::TempDir dir;
+  try {
+    readRssCsv(write(dir, "rss.csv", "time,service,mb\n0.5,mapper,120\n"));
+    FAIL() << "a wrong header should be an error";
+  } catch (const rekon::Error& e) {
+    EXPECT_NE(std::string(e.what()).find("seconds,service,rss_mb"), std::string::npos) << e.what();
+  }
+}
+
 TEST(RunFiles, TimingCsvReadsEveryColumn) {
   rekon::test::TempDir dir;
   const CsvTable t = readCsvTable(write(dir, "tracker_timing.csv", "frame_id,ms,iterations\n0,5.5,14\n# note\n\n1,nan,11\n"),

@@ -156,6 +156,35 @@ TEST(RunReport, ContainsTheStatsValues) {
   EXPECT_NE(html.find(">realtime_factor</td><td class=\"num\">0.8<"), std::string::npos);
 }
 
+TEST(RunReport, MemoryTableComparesKeyframeBytesWithTheInputFrames) {
+  FakeRun f;
+  // 100 MiB of input frames fused into 11 MiB of keyframes: 11.0 % of the input.
+  std::ofstream(f.run + "/stats.json") << R"({"tracker": {"peak_rss_mb": 74.5}, "mapper": {"peak_rss_mb": 512.25,)"
+                                       << R"( "input_frame_bytes": 104857600, "keyframe_bytes": 11534336, "voxel_bytes": 52428800}})";
+  const std::string html = readText(writeRunReport(f.run).html_path);
+  EXPECT_NE(html.find("<td>tracker</td><td class=\"num\">74.5</td>"), std::string::npos);  // peak RSS per service
+  EXPECT_NE(html.find("<td>mapper</td><td class=\"num\">512.2</td>"), std::string::npos);  // one decimal
+  EXPECT_NE(html.find("<td class=\"num\">11.0</td><td class=\"num\">11.0</td>"), std::string::npos);  // 11 MiB, 11.0 %
+  EXPECT_NE(html.find("<td class=\"num\">50.0</td><td class=\"num\">50.0</td>"), std::string::npos);  // voxels: 50 MiB
+}
+
+TEST(RunReport, RssOverTimeIsPlottedWhenTheLauncherSampledIt) {
+  FakeRun f;
+  std::ofstream(f.run + "/rss.csv") << "seconds,service,rss_mb\n0.5,tracker,60\n0.5,mapper,100\n1.0,tracker,61\n1.0,mapper,180\n";
+  const RunReportResult r = writeRunReport(f.run);
+  EXPECT_FALSE(mentions(r.absent, "rss.csv"));
+  const std::string data = readText(f.run + "/report/rss.csv");  // the plot's data: one row per sample
+  EXPECT_NE(data.find("mapper,1,180"), std::string::npos) << data;
+  EXPECT_NE(data.find("tracker,0.5,60"), std::string::npos) << data;
+}
+
+TEST(RunReport, WithoutRssCsvTheRssPlotIsListedAsAbsent) {
+  FakeRun f;
+  const RunReportResult r = writeRunReport(f.run);
+  EXPECT_TRUE(mentions(r.absent, "rss.csv: not in the run folder"));
+  EXPECT_FALSE(fs::exists(f.run + "/report/rss.svg"));
+}
+
 TEST(RunReport, AteAgainstTheDatasetGroundTruth) {
   FakeRun f;
   const RunReportResult r = writeRunReport(f.run);

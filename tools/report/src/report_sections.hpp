@@ -39,6 +39,9 @@ void meshSection(Page& page, const std::filesystem::path& run, const RunReportOp
 void timingSection(Page& page, const std::filesystem::path& run, const std::vector<std::string>& services);
 void reintegrationSection(Page& page, const std::filesystem::path& run);
 void statsSection(Page& page, const std::filesystem::path& run);
+// Peak RSS per service, the mapper's keyframe and voxel bytes against the
+// input's (stats.json), and RSS over time (rss.csv).
+void memorySection(Page& page, const std::filesystem::path& run);
 // config.yaml (folded) and, per service log, its warnings and errors.
 void setupSection(Page& page, const std::filesystem::path& run, const std::vector<std::string>& services);
 

@@ -87,6 +87,34 @@ CsvTable readCsvTable(const std::string& path) {
   return table;
 }
 
+std::vector<RssSample> readRssCsv(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw Error(path + ": cannot open the CSV file; check the path");
+  std::vector<RssSample> samples;
+  std::string line;
+  int number = 0;
+  bool header = false;
+  while (std::getline(in, line)) {
+    ++number;
+    line = trimmed(line);
+    if (line.empty() || line[0] == '#') continue;
+    const std::vector<std::string> f = splitFields(line);
+    if (!header) {
+      if (f != std::vector<std::string>{"seconds", "service", "rss_mb"})
+        throw Error(path + ":" + std::to_string(number) + ": the header must be seconds,service,rss_mb");
+      header = true;
+      continue;
+    }
+    RssSample s;
+    if (f.size() != 3 || f[1].empty() || !parseNumber(f[0], s.seconds) || !parseNumber(f[2], s.rss_mb))
+      throw Error(path + ":" + std::to_string(number) + ": expected seconds,service,rss_mb with two numbers, got '" + line + "'");
+    s.service = f[1];
+    samples.push_back(std::move(s));
+  }
+  if (!header) throw Error(path + ": no header line; the first line must be seconds,service,rss_mb");
+  return samples;
+}
+
 CsvTable readCsvTable(const std::string& path, const std::vector<std::string>& leading_columns) {
   CsvTable table = readCsvTable(path);
   bool ok = table.columns.size() >= leading_columns.size();

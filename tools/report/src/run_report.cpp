@@ -137,6 +137,7 @@ RunReportResult writeRunReport(const std::string& run_dir, const RunReportOption
   const std::vector<std::string> services = servicesOfRun(run);
   timingSection(page, run, services);
   reintegrationSection(page, run);
+  memorySection(page, run);
   statsSection(page, run);
   setupSection(page, run, services);
 

@@ -25,7 +25,13 @@
 //     time_s,graph_version,keyframes_reintegrated,ms,blocks_streamed
 //     3.40,2,5,11.8,0
 //
-// Every value is a decimal number ("nan" allowed for "not measured"). Lines
+// <out>/rss.csv (written by the launcher while the services run)
+//   Header `seconds,service,rss_mb`, one row per sample and service:
+//     seconds  since the start of the run
+//     service  the service's name (text, the only non-numeric column)
+//     rss_mb   its resident set size then, in MiB
+//
+// Every other value is a decimal number ("nan" allowed for "not measured"). Lines
 // starting with '#' and empty lines are skipped.
 #include <string>
 #include <vector>
@@ -34,6 +40,7 @@ namespace rekon::report {
 
 inline constexpr const char* kTimingSuffix = "_timing.csv";
 inline constexpr const char* kReintegrationFile = "mapper_reintegration.csv";
+inline constexpr const char* kRssFile = "rss.csv";
 inline const std::vector<std::string> kTimingColumns = {"frame_id", "ms"};
 inline const std::vector<std::string> kReintegrationColumns = {"time_s", "graph_version", "keyframes_reintegrated", "ms",
                                                               "blocks_streamed"};
@@ -52,5 +59,14 @@ struct CsvTable {
 CsvTable readCsvTable(const std::string& path);
 // The same, and requires that the header starts with `leading_columns`.
 CsvTable readCsvTable(const std::string& path, const std::vector<std::string>& leading_columns);
+
+struct RssSample {
+  double seconds = 0.0;
+  std::string service;
+  double rss_mb = 0.0;
+};
+// Reads rss.csv; throws rekon::Error naming the file and line for a wrong
+// header, a row of the wrong length or a value that is not a number.
+std::vector<RssSample> readRssCsv(const std::string& path);
 
 }  // namespace rekon::report
