@@ -13,6 +13,7 @@
 
 #include "rekon/common/error.hpp"
 #include "rekon/common/logging.hpp"
+#include "rekon_msgs/done_t.hpp"
 #include "rekon_msgs/heartbeat_t.hpp"
 #include "rekon_msgs/shutdown_t.hpp"
 
@@ -107,6 +108,67 @@ void ServiceContext::writeStats() {
   if (bus_->droppedCount() > 0) stats_.set("dropped_messages", static_cast<long long>(bus_->droppedCount()));
   if (out_dir_.empty()) return;
   stats_.save((std::filesystem::path(out_dir_) / (name_ + "_stats.json")).string());
+}
+
+PeerWatch::PeerWatch(Bus& bus) {
+  bus.subscribe<rekon_msgs::heartbeat_t>(channel::kHeartbeat, [this](const rekon_msgs::heartbeat_t& hb) {
+    std::vector<std::function<void(const std::string&, int)>> call;
+    int instance = 0;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      Peer& p = peers_[hb.service];
+      p.last_heartbeat = Clock::now();
+      p.host = hb.host;
+      p.state = hb.state;
+      // "starting" has not subscribed yet: it counts as alive, not as an instance to serve.
+      if (hb.state != "starting" && hb.pid != p.pid) {
+        p.pid = hb.pid;
+        p.done = false;
+        instance = ++p.instances;
+        if (instance > 1) call = callbacks_;
+      }
+    }
+    for (const auto& f : call) f(hb.service, instance);
+  });
+  bus.subscribe<rekon_msgs::done_t>(channel::kDone, [this](const rekon_msgs::done_t& m) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    peers_[m.service].done = true;
+  });
+}
+
+void PeerWatch::onNewInstance(std::function<void(const std::string&, int)> f) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  callbacks_.push_back(std::move(f));
+}
+
+std::optional<PeerWatch::Peer> PeerWatch::peer(const std::string& service) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  auto it = peers_.find(service);
+  if (it == peers_.end()) return std::nullopt;
+  return it->second;
+}
+
+bool PeerWatch::alive(const std::string& service, double silence_s) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  auto it = peers_.find(service);
+  return it != peers_.end() && it->second.last_heartbeat != Clock::time_point{} &&
+         Clock::now() - it->second.last_heartbeat < std::chrono::duration<double>(silence_s);
+}
+
+bool PeerWatch::finished(const std::vector<std::string>& names, double silence_s) const {
+  const auto silence = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(silence_s));
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (const auto& n : names) {
+    auto it = peers_.find(n);
+    if (it == peers_.end() || it->second.done) continue;
+    if (it->second.last_heartbeat != Clock::time_point{} && Clock::now() - it->second.last_heartbeat > silence) continue;
+    return false;
+  }
+  return true;
+}
+
+void PeerWatch::waitUntilFinished(const std::vector<std::string>& names, double silence_s, const ServiceContext& ctx) const {
+  while (!ctx.stopRequested() && !finished(names, silence_s)) std::this_thread::sleep_for(std::chrono::milliseconds(50));
 }
 
 int runService(int argc, char** argv, const std::string& name, const std::string& summary,

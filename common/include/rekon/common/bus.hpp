@@ -31,6 +31,14 @@ inline constexpr const char* kHeartbeat = "HEARTBEAT";
 inline constexpr const char* kStats = "STATS";
 inline constexpr const char* kShutdown = "SHUTDOWN";
 inline constexpr const char* kDone = "DONE";
+// Recovery (messages/recovery.lcm): a replay of the tracker's incremental
+// messages goes out on the *_RESENT channels so that live consumers (the
+// mapper) never see it twice.
+inline constexpr const char* kReplayRequest = "REPLAY_REQUEST";
+inline constexpr const char* kReplayEnd = "REPLAY_END";
+inline constexpr const char* kKeyframesResent = "KEYFRAMES_RESENT";
+inline constexpr const char* kConstraintsResent = "CONSTRAINTS_RESENT";
+inline constexpr const char* kTrackedFramesResent = "TRACKED_FRAMES_RESENT";
 }  // namespace channel
 
 struct BusOptions {

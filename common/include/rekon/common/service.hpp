@@ -4,9 +4,14 @@
 // heartbeat, stopping on SIGINT/SIGTERM or a shutdown message, and writing
 // its statistics (<out>/<name>_stats.json, with peak_rss_mb) at exit.
 #include <atomic>
+#include <chrono>
 #include <functional>
+#include <map>
 #include <memory>
+#include <mutex>
+#include <optional>
 #include <string>
+#include <vector>
 
 #include "rekon/common/bus.hpp"
 #include "rekon/common/cli.hpp"
@@ -66,6 +71,44 @@ class StopThreadsOnExit {
 
  private:
   ServiceContext& ctx_;
+};
+
+// What a service knows of its peers from their heartbeats and done_t
+// messages: which process instance of each is alive, and which are done. A
+// peer seen "running" under a new pid is a restarted instance (the launcher
+// restarts crashed services): its done flag is cleared and the callbacks given
+// to onNewInstance run on the bus thread.
+class PeerWatch {
+ public:
+  // Heartbeats come every 0.5 s; a peer silent this long has exited (and was
+  // not restarted: the launcher restarts within a fraction of a second).
+  static constexpr double kSilenceS = 5.0;
+  using Clock = std::chrono::steady_clock;
+  struct Peer {
+    int pid = 0;             // of the newest instance seen running
+    int instances = 0;       // distinct pids seen running
+    bool done = false;       // done_t from the current instance
+    std::string host, state;
+    Clock::time_point last_heartbeat{};
+  };
+  explicit PeerWatch(Bus& bus);
+  // `f(service, instance)` for every instance after a service's first.
+  void onNewInstance(std::function<void(const std::string& service, int instance)> f);
+  std::optional<Peer> peer(const std::string& service) const;
+  // A heartbeat from `service` within `silence_s`.
+  bool alive(const std::string& service, double silence_s) const;
+  // True when every service in `names` is finished: never seen at all (not
+  // part of this run), done, or silent for `silence_s` (exited for good).
+  // Services linger until their downstream services are finished, so that a
+  // restarted one still gets what it needs from them.
+  bool finished(const std::vector<std::string>& names, double silence_s) const;
+  // Waits until finished(names, silence_s) or ctx.stopRequested().
+  void waitUntilFinished(const std::vector<std::string>& names, double silence_s, const class ServiceContext& ctx) const;
+
+ private:
+  mutable std::mutex mutex_;
+  std::map<std::string, Peer> peers_;
+  std::vector<std::function<void(const std::string&, int)>> callbacks_;
 };
 
 // Runs a service: parses the common options plus those `add_options` adds,
