@@ -9,6 +9,7 @@
 #include <chrono>
 #include <filesystem>
 #include <fstream>
+#include <set>
 #include <thread>
 
 #include "process.hpp"
@@ -51,6 +52,33 @@ std::string jsonOf(const YAML::Node& node) {
   return "null";
 }
 
+// Seconds a service gets between SIGTERM and SIGKILL when the run stops.
+constexpr int kStopGraceS = 10;
+
+// Stopping order: upstream first, so that downstream services still receive
+// what the upstream ones send while finishing.
+int stopRank(const std::string& service) {
+  static const std::vector<std::string> order = {"player", "replay", "tracker", "optimiser", "mapper"};
+  const auto it = std::find(order.begin(), order.end(), service);
+  return static_cast<int>(it - order.begin());
+}
+
+// run.restart / run.max_restarts. Only services that recover their state can
+// be restarted: the mapper (keyframe store) and the optimiser (tracker replay).
+std::pair<std::set<std::string>, int> restartPolicy(const Config& config) {
+  std::set<std::string> services;
+  for (const auto& s : config.getStringList("run.restart")) {
+    if (s != "mapper" && s != "optimiser") {
+      throw Error("run.restart lists '" + s + "'; only mapper and optimiser can be restarted (they recover from the "
+                  "keyframe store and the tracker's replay); remove it");
+    }
+    services.insert(s);
+  }
+  const int max_restarts = config.getInt("run.max_restarts");
+  if (max_restarts < 0) throw Error("run.max_restarts must be 0 or more (restarts per service)");
+  return {services, max_restarts};
+}
+
 struct RunOptions {
   std::string dataset, out, config_file;
   std::vector<std::string> sets;
@@ -64,9 +92,12 @@ int launch(const RunOptions& opt) {
   const std::string out = fs::canonical(opt.out).string();
   const std::string bin = executableDir();
 
-  // One frame ring per run, so runs side by side never meet.
+  // One frame ring and one keyframe store per run, so runs side by side never meet.
   const std::string segment = config.getString("transport.segment") + "_" + std::to_string(getpid());
   config.set("transport.segment", segment);
+  const std::string store_segment = config.getString("mapper.store_segment") + "_" + std::to_string(getpid());
+  config.set("mapper.store_segment", store_segment);
+  const auto [restartable, max_restarts] = restartPolicy(config);
 
   std::vector<std::string> services;
   for (const auto& s : config.getStringList("run.services")) {
@@ -114,15 +145,22 @@ int launch(const RunOptions& opt) {
   }
   const double shutdown_timeout = config.getDouble("run.shutdown_timeout_s");
   std::optional<Clock::time_point> player_done;
-  bool stopping = !failure.empty();
-  auto stopAll = [&] {
-    for (auto& c : children) c.terminate();
-    stopping = true;
-  };
-  if (stopping) stopAll();
-  const auto stop_deadline_after = [&](double seconds) { return Clock::now() + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(seconds)); };
-  Clock::time_point kill_deadline = stop_deadline_after(1e6);
-  if (stopping) kill_deadline = stop_deadline_after(10);
+  // Stopping goes downstream, one service at a time: each gets SIGTERM once
+  // the one before it has exited, so that the optimiser's last graph update
+  // still reaches the mapper and everything produced so far is written.
+  std::vector<size_t> stop_order(children.size());
+  for (size_t i = 0; i < children.size(); ++i) stop_order[i] = i;
+  std::stable_sort(stop_order.begin(), stop_order.end(),
+                   [&](size_t a, size_t b) { return stopRank(children[a].name()) < stopRank(children[b].name()); });
+  std::vector<std::optional<Clock::time_point>> terminated_at(children.size());
+  std::vector<bool> killed(children.size(), false);
+  bool stopping = false;
+  auto stopAll = [&] { stopping = true; };
+  if (!failure.empty()) stopAll();
+
+  std::ofstream rss(out + "/rss.csv");
+  rss << "seconds,service,rss_mb\n";
+  auto next_rss = Clock::now();
   while (true) {
     bool any_running = false;
     for (auto& c : children) {
@@ -133,42 +171,69 @@ int launch(const RunOptions& opt) {
       }
       if (c.name() == "player" && *st == 0 && !player_done) {
         player_done = Clock::now();
-        spdlog::info("the player reached the end of the data; waiting for the services to finish");
+        spdlog::info("the player has finished; waiting for the services to finish");
       }
-      if (*st != 0 && failure.empty() && !g_interrupted.load()) {
-        failure = "rekon-" + c.name() + " exited with status " + std::to_string(*st) + "; see " + c.logPath();
-        spdlog::error("{}", failure);
-        if (!stopping) {
-          stopAll();
-          kill_deadline = stop_deadline_after(10);
+      if (*st == 0 || stopping || g_interrupted.load()) continue;
+      const std::string how = "rekon-" + c.name() + " " + describeExit(*st);
+      if (restartable.count(c.name()) && c.restarts() < max_restarts) {
+        spdlog::warn("{}; restarting it ({} of at most {} restarts, run.max_restarts)", how, c.restarts() + 1, max_restarts);
+        std::vector<std::string> extra;
+        // The mapper continues from its keyframe store; the optimiser rebuilds from the tracker's replay.
+        if (c.name() == "mapper") extra = {"--set", "mapper.resume=true"};
+        try {
+          c.restart(extra);
+          spdlog::info("restarted rekon-{} (pid {})", c.name(), c.pid());
+          any_running = true;
+          continue;
+        } catch (const Error& e) {
+          spdlog::error("{}", e.what());
         }
+      }
+      if (failure.empty()) {
+        failure = how + (restartable.count(c.name()) ? " (restarted " + std::to_string(c.restarts()) + " times already)" : "") +
+                  "; the run was stopped, outputs so far are in " + out + "; see " + c.logPath();
+        spdlog::error("{}", failure);
+        stopAll();
       }
     }
     if (!any_running) break;
+    if (Clock::now() >= next_rss) {
+      next_rss += std::chrono::seconds(1);
+      const double t = std::chrono::duration<double>(Clock::now() - start).count();
+      for (const auto& c : children) {
+        if (const auto mb = c.rssMb()) rss << fmt::format("{:.1f},{},{:.1f}\n", t, c.name(), *mb);
+      }
+      rss.flush();
+    }
     if (g_interrupted.load() && !stopping) {
       spdlog::warn("interrupted: stopping every service (outputs so far are kept)");
       stopAll();
-      kill_deadline = stop_deadline_after(10);
     }
     if (player_done && !stopping && Clock::now() > *player_done + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(shutdown_timeout))) {
       failure = "services did not finish within run.shutdown_timeout_s = " + std::to_string(int(shutdown_timeout)) + " s after the end of the data";
       spdlog::error("{}", failure);
       stopAll();
-      kill_deadline = stop_deadline_after(10);
     }
-    if (stopping && Clock::now() > kill_deadline) {
-      for (auto& c : children) {
-        if (c.running()) {
-          spdlog::error("rekon-{} did not stop after SIGTERM; killing it", c.name());
+    if (stopping) {
+      for (size_t i : stop_order) {
+        ChildProcess& c = children[i];
+        if (!c.running()) continue;
+        if (!terminated_at[i]) {
+          c.terminate();
+          terminated_at[i] = Clock::now();
+        } else if (!killed[i] && Clock::now() > *terminated_at[i] + std::chrono::seconds(kStopGraceS)) {
+          spdlog::error("rekon-{} did not stop within {} s of SIGTERM; killing it", c.name(), kStopGraceS);
           c.kill();
+          killed[i] = true;
         }
+        break;  // the next one once this one has exited
       }
-      kill_deadline = stop_deadline_after(1e6);
     }
     std::this_thread::sleep_for(std::chrono::milliseconds(50));
   }
   const double wall = std::chrono::duration<double>(Clock::now() - start).count();
   if (removeFrameRing(segment)) spdlog::info("removed the frame ring '{}' left by a stopped player", segment);
+  if (removeFrameRing(store_segment)) spdlog::info("removed the keyframe store '{}' left by a stopped mapper", store_segment);
 
   // stats.json: run-level figures plus each service's own stats file.
   JsonObject stats;
@@ -190,6 +255,11 @@ int launch(const RunOptions& opt) {
     }
   }
   stats.set("frames", frames).set("wall_seconds", wall);
+  JsonObject restarts;
+  for (const auto& c : children) {
+    if (c.restarts() > 0) restarts.set(c.name(), static_cast<long long>(c.restarts()));
+  }
+  stats.setRaw("restarts", restarts.str(0));
   if (sequence_seconds > 0) stats.set("realtime_factor", sequence_seconds / wall);
   for (const auto& [name, json] : per_service) stats.setRaw(name, json);
   stats.save(out + "/stats.json");

@@ -8,6 +8,7 @@
 #include <cerrno>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
 
 #include "rekon/common/error.hpp"
 
@@ -23,6 +24,7 @@ void ChildProcess::start() {
   std::vector<char*> argv;
   argv.push_back(binary_.data());
   for (auto& a : args_) argv.push_back(a.data());
+  for (auto& a : extra_args_) argv.push_back(a.data());
   argv.push_back(nullptr);
   const pid_t pid = fork();
   if (pid < 0) {
@@ -40,6 +42,27 @@ void ChildProcess::start() {
   }
   close(log_fd);
   pid_ = pid;
+}
+
+void ChildProcess::restart(const std::vector<std::string>& extra_args) {
+  extra_args_ = extra_args;
+  status_.reset();
+  pid_ = -1;
+  ++restarts_;
+  start();
+}
+
+std::optional<double> ChildProcess::rssMb() const {
+  if (!running()) return std::nullopt;
+  std::ifstream statm("/proc/" + std::to_string(pid_) + "/statm");
+  long long size = 0, resident = 0;
+  if (!(statm >> size >> resident)) return std::nullopt;
+  return static_cast<double>(resident) * static_cast<double>(sysconf(_SC_PAGESIZE)) / (1024.0 * 1024.0);
+}
+
+std::string describeExit(int status) {
+  if (status > 128) return "was killed by signal " + std::to_string(status - 128) + " (" + strsignal(status - 128) + ")";
+  return "exited with status " + std::to_string(status);
 }
 
 std::optional<int> ChildProcess::poll() {
