@@ -1,5 +1,6 @@
 #include "rekon/fusion/keyframe_fusion.hpp"
 
+#include <opencv2/core/utility.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include <algorithm>
@@ -71,16 +72,40 @@ cv::Mat toMetres(const cv::Mat& raw, double depth_scale) {
 }
 
 // Bilinear BGR sample; false outside the image.
-bool sampleBilinear(const cv::Mat& img, double u, double v, double out[3]) {
-  if (u < 0 || v < 0 || u > img.cols - 1 || v > img.rows - 1) return false;
+bool sampleBilinear(const cv::Mat& img, float u, float v, float out[3]) {
+  if (!(u >= 0 && v >= 0 && u <= static_cast<float>(img.cols - 1) && v <= static_cast<float>(img.rows - 1))) return false;
   const int x0 = std::min(static_cast<int>(u), img.cols - 2), y0 = std::min(static_cast<int>(v), img.rows - 2);
-  const double a = u - x0, b = v - y0;
-  const auto* p00 = img.ptr<cv::Vec3b>(y0) + x0;
-  const auto* p10 = img.ptr<cv::Vec3b>(y0 + 1) + x0;
-  for (int c = 0; c < 3; ++c)
-    out[c] = (1 - a) * (1 - b) * p00[0][c] + a * (1 - b) * p00[1][c] + (1 - a) * b * p10[0][c] + a * b * p10[1][c];
+  const float a = u - static_cast<float>(x0), b = v - static_cast<float>(y0);
+  const float w00 = (1 - a) * (1 - b), w01 = a * (1 - b), w10 = (1 - a) * b, w11 = a * b;
+  const uint8_t* p00 = img.ptr<uint8_t>(y0) + 3 * x0;
+  const uint8_t* p10 = img.ptr<uint8_t>(y0 + 1) + 3 * x0;
+  for (int c = 0; c < 3; ++c) out[c] = w00 * p00[c] + w01 * p00[3 + c] + w10 * p10[c] + w11 * p10[3 + c];
   return true;
 }
+
+// The pinhole camera in float for the per-pixel loops (their double and
+// std::lround versions were a third of the mapper's time).
+struct PinholeF {
+  float fx, fy, cx, cy;
+  int width, height;
+  explicit PinholeF(const Intrinsics& k)
+      : fx(static_cast<float>(k.fx)), fy(static_cast<float>(k.fy)), cx(static_cast<float>(k.cx)),
+        cy(static_cast<float>(k.cy)), width(k.width), height(k.height) {}
+  Eigen::Vector3f backProject(int x, int y, float z) const {
+    return {(static_cast<float>(x) - cx) * z / fx, (static_cast<float>(y) - cy) * z / fy, z};
+  }
+  // Where q lands (uf, vf) and its nearest pixel (u, v); false behind the camera or outside the image.
+  bool project(const Eigen::Vector3f& q, float& uf, float& vf, int& u, int& v) const {
+    if (q.z() <= 0) return false;
+    uf = fx * q.x() / q.z() + cx;
+    vf = fy * q.y() / q.z() + cy;
+    if (!(uf > -0.5f && vf > -0.5f && uf < static_cast<float>(width) - 0.5f && vf < static_cast<float>(height) - 0.5f))
+      return false;
+    u = static_cast<int>(uf + 0.5f);
+    v = static_cast<int>(vf + 0.5f);
+    return true;
+  }
+};
 
 struct Observation {
   float luma, w;
@@ -93,6 +118,7 @@ cv::Mat depthWeights(const cv::Mat& depth, const Intrinsics& k, const FusionPara
   cv::Mat w(depth.size(), CV_32F, cv::Scalar(0));
   const float zmin = static_cast<float>(p.min_depth), zmax = static_cast<float>(p.max_depth);
   const float step = static_cast<float>(p.max_depth_step);
+  const PinholeF cam(k);
   for (int y = 1; y + 1 < depth.rows; ++y) {
     const float* up = depth.ptr<float>(y - 1);
     const float* row = depth.ptr<float>(y);
@@ -106,13 +132,13 @@ cv::Mat depthWeights(const cv::Mat& depth, const Intrinsics& k, const FusionPara
       for (float zn : n4) edge |= !(zn > 0) || std::abs(zn - z) > step * z;
       if (edge) continue;
       // Depth normal from central differences of the back-projected points.
-      const Eigen::Vector3d dx = backProject(k, x + 1, y, n4[1]) - backProject(k, x - 1, y, n4[0]);
-      const Eigen::Vector3d dy = backProject(k, x, y + 1, n4[3]) - backProject(k, x, y - 1, n4[2]);
-      const Eigen::Vector3d n = dx.cross(dy);
-      const double norm = n.norm();
-      if (norm <= 0) continue;
-      const double cos_theta = std::abs(n.z()) / norm;
-      out[x] = static_cast<float>(cos_theta / (static_cast<double>(z) * z));
+      const Eigen::Vector3f dx = cam.backProject(x + 1, y, n4[1]) - cam.backProject(x - 1, y, n4[0]);
+      const Eigen::Vector3f dy = cam.backProject(x, y + 1, n4[3]) - cam.backProject(x, y - 1, n4[2]);
+      const Eigen::Vector3f n = dx.cross(dy);
+      const float norm = n.norm();
+      if (!(norm > 0)) continue;
+      const float cos_theta = std::abs(n.z()) / norm;
+      out[x] = cos_theta / (z * z);
     }
   }
   return w;
@@ -215,20 +241,19 @@ void KeyframeFuser::add(const RgbdFrame& frame, const Pose& camera_to_world) {
   const Pose kf_from_frame = kf_world_.inverse() * camera_to_world;
   const Eigen::Matrix3f r = kf_from_frame.linear().cast<float>();
   const Eigen::Vector3f t = kf_from_frame.translation().cast<float>();
+  const PinholeF cam(k_);
   const float agree = static_cast<float>(params_.depth_agreement);
+  // Serial: two frame pixels may land on the same keyframe pixel.
   for (int y = 0; y < depth.rows; ++y) {
     const float* zrow = depth.ptr<float>(y);
     const float* wrow = w_z.ptr<float>(y);
     for (int x = 0; x < depth.cols; ++x) {
       const float w = wrow[x];
       if (w <= 0) continue;
-      const float z = zrow[x];
-      const Eigen::Vector3f p(static_cast<float>((x - k_.cx) / k_.fx) * z, static_cast<float>((y - k_.cy) / k_.fy) * z, z);
-      const Eigen::Vector3f q = r * p + t;
-      if (q.z() <= 0) continue;
-      const int u = static_cast<int>(std::lround(k_.fx * q.x() / q.z() + k_.cx));
-      const int v = static_cast<int>(std::lround(k_.fy * q.y() / q.z() + k_.cy));
-      if (u < 0 || v < 0 || u >= k_.width || v >= k_.height) continue;
+      const Eigen::Vector3f q = r * cam.backProject(x, y, zrow[x]) + t;
+      float uf = 0, vf = 0;
+      int u = 0, v = 0;
+      if (!cam.project(q, uf, vf, u, v)) continue;
       float& zk = kf_.depth.at<float>(v, u);
       float& wk = kf_.weight.at<float>(v, u);
       if (wk > 0 && std::abs(q.z() - zk) > agree * zk) {
@@ -241,9 +266,8 @@ void KeyframeFuser::add(const RgbdFrame& frame, const Pose& camera_to_world) {
   }
   ColorInput in;
   in.sharp = unsharpMask(frame.color, params_.unsharp_sigma, params_.unsharp_amount);
-  in.depth = depth;
-  in.w_z = w_z;
-  in.w_b = std::max(1e-3, 1.0 - blurriness(frame.color));
+  const float w_b = static_cast<float>(std::max(1e-3, 1.0 - blurriness(frame.color)));
+  cv::merge(std::vector<cv::Mat>{depth, w_z * w_b}, in.depth_weight);
   in.keyframe_to_camera = camera_to_world.inverse() * kf_world_;
   inputs_.push_back(std::move(in));
   if (frames_ == 0) {
@@ -258,50 +282,72 @@ FusedKeyframe KeyframeFuser::finish() {
   if (frames_ == 0) throw Error("keyframe fusion: finish() without frames (begin() and add() first)");
   kf_.frames = frames_;
   kf_.color = cv::Mat(k_.height, k_.width, CV_8UC3, cv::Scalar(0, 0, 0));
-  std::vector<Observation> obs;
-  obs.reserve(inputs_.size());
-  const double agree = params_.depth_agreement;
-  for (int y = 0; y < k_.height; ++y) {
-    const float* zrow = kf_.depth.ptr<float>(y);
-    auto* crow = kf_.color.ptr<cv::Vec3b>(y);
-    for (int x = 0; x < k_.width; ++x) {
-      if (!(zrow[x] > 0)) continue;
-      const Eigen::Vector3d p = backProject(k_, x, y, zrow[x]);
-      obs.clear();
-      for (const ColorInput& in : inputs_) {
-        const Eigen::Vector3d q = in.keyframe_to_camera * p;
-        if (q.z() <= 0) continue;
-        const double u = k_.fx * q.x() / q.z() + k_.cx, v = k_.fy * q.y() / q.z() + k_.cy;
-        const int ui = static_cast<int>(std::lround(u)), vi = static_cast<int>(std::lround(v));
-        if (ui < 0 || vi < 0 || ui >= k_.width || vi >= k_.height) continue;
-        const float zi = in.depth.at<float>(vi, ui);
-        const float wz = in.w_z.at<float>(vi, ui);
-        // Only where the frame saw this very surface (not an occluder in front of it).
-        if (wz <= 0 || std::abs(zi - q.z()) > agree * q.z()) continue;
-        double bgr[3];
-        if (!sampleBilinear(in.sharp, u, v, bgr)) continue;
-        Observation o;
-        for (int c = 0; c < 3; ++c) o.bgr[c] = cv::saturate_cast<uint8_t>(bgr[c]);
-        o.luma = static_cast<float>(0.114 * bgr[0] + 0.587 * bgr[1] + 0.299 * bgr[2]);
-        o.w = static_cast<float>(in.w_b) * wz;
-        obs.push_back(o);
+  std::vector<Eigen::Matrix3f> rotations;
+  std::vector<Eigen::Vector3f> translations;
+  for (const ColorInput& in : inputs_) {
+    rotations.push_back(in.keyframe_to_camera.linear().cast<float>());
+    translations.push_back(in.keyframe_to_camera.translation().cast<float>());
+  }
+  const PinholeF cam(k_);
+  const float agree = static_cast<float>(params_.depth_agreement);
+  // Bands of rows are independent. Within a band, input after input: reading
+  // one input at a time keeps its images streaming through the cache (pixel
+  // after pixel over all inputs missed it on nearly every input).
+  constexpr int kBandRows = 8;
+  const int width = k_.width, n = static_cast<int>(inputs_.size());
+  cv::parallel_for_(cv::Range(0, (k_.height + kBandRows - 1) / kBandRows), [&](const cv::Range& bands) {
+    std::vector<Observation> obs(static_cast<size_t>(kBandRows * width * n));
+    std::vector<int> count(static_cast<size_t>(kBandRows * width));
+    for (int band = bands.start; band < bands.end; ++band) {
+      const int y0 = band * kBandRows, y1 = std::min(y0 + kBandRows, k_.height);
+      std::fill(count.begin(), count.end(), 0);
+      for (int i = 0; i < n; ++i) {
+        const ColorInput& in = inputs_[static_cast<size_t>(i)];
+        for (int y = y0; y < y1; ++y) {
+          const float* zrow = kf_.depth.ptr<float>(y);
+          for (int x = 0; x < width; ++x) {
+            if (!(zrow[x] > 0)) continue;
+            const Eigen::Vector3f q = rotations[static_cast<size_t>(i)] * cam.backProject(x, y, zrow[x]) +
+                                      translations[static_cast<size_t>(i)];
+            float uf = 0, vf = 0;
+            int ui = 0, vi = 0;
+            if (!cam.project(q, uf, vf, ui, vi)) continue;
+            const cv::Vec2f zw = in.depth_weight.at<cv::Vec2f>(vi, ui);
+            // Only where the frame saw this very surface (not an occluder in front of it).
+            if (zw[1] <= 0 || std::abs(zw[0] - q.z()) > agree * q.z()) continue;
+            float bgr[3];
+            if (!sampleBilinear(in.sharp, uf, vf, bgr)) continue;
+            const int pixel = (y - y0) * width + x;
+            Observation& o = obs[static_cast<size_t>(pixel * n + count[static_cast<size_t>(pixel)]++)];
+            for (int c = 0; c < 3; ++c) o.bgr[c] = static_cast<uint8_t>(std::min(255.0f, bgr[c] + 0.5f));
+            o.luma = 0.114f * bgr[0] + 0.587f * bgr[1] + 0.299f * bgr[2];
+            o.w = zw[1];
+          }
+        }
       }
-      if (obs.empty()) continue;
-      // Weighted median by luminance: the observation where the cumulative
-      // weight crosses half keeps its whole color (no mixed hues).
-      std::sort(obs.begin(), obs.end(), [](const Observation& a, const Observation& b) { return a.luma < b.luma; });
-      float total = 0;
-      for (const Observation& o : obs) total += o.w;
-      float acc = 0;
-      for (const Observation& o : obs) {
-        acc += o.w;
-        if (acc >= 0.5f * total) {
-          crow[x] = o.bgr;
-          break;
+      for (int y = y0; y < y1; ++y) {
+        auto* crow = kf_.color.ptr<cv::Vec3b>(y);
+        for (int x = 0; x < width; ++x) {
+          const int pixel = (y - y0) * width + x;
+          if (count[static_cast<size_t>(pixel)] == 0) continue;
+          const auto first = obs.begin() + pixel * n, last = first + count[static_cast<size_t>(pixel)];
+          // Weighted median by luminance: the observation where the cumulative
+          // weight crosses half keeps its whole color (no mixed hues).
+          std::sort(first, last, [](const Observation& a, const Observation& b) { return a.luma < b.luma; });
+          float total = 0;
+          for (auto o = first; o != last; ++o) total += o->w;
+          float acc = 0;
+          for (auto o = first; o != last; ++o) {
+            acc += o->w;
+            if (acc >= 0.5f * total) {
+              crow[x] = o->bgr;
+              break;
+            }
+          }
         }
       }
     }
-  }
+  });
   inputs_.clear();
   frames_ = 0;
   open_ = false;

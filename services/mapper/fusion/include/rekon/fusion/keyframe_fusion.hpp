@@ -105,10 +105,8 @@ class KeyframeFuser {
 
  private:
   struct ColorInput {
-    cv::Mat sharp;     // unsharp-masked BGR
-    cv::Mat depth;     // CV_32F metres, for the occlusion test
-    cv::Mat w_z;       // CV_32F
-    double w_b = 1.0;  // 1 - blurriness
+    cv::Mat sharp;         // unsharp-masked BGR
+    cv::Mat depth_weight;  // CV_32FC2: depth in metres (occlusion test) and w_b * w_z, side by side (one cache line)
     Pose keyframe_to_camera;
   };
   FusionParams params_;
