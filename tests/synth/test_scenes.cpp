@@ -163,6 +163,40 @@ TEST(Synth, CorridorWalksAtLeastSixtyMetresOutAndBack) {
   EXPECT_LT(rekon::translationDistance(traj.front().pose, traj.back().pose), 1.5) << "it comes back";
 }
 
+TEST(Synth, CorridorLapsGoRoundTheSameOvalAgain) {
+  const auto scene = Scene::make("corridor");
+  const int one = scene->defaultFrames(1), three = scene->defaultFrames(3);
+  EXPECT_GT(scene->defaultFrames(2), 10000);  // the long-run sequences: 2 laps are already 10 000 frames
+  const auto single = scene->trajectory(one, 1), laps = scene->trajectory(three, 1, 3);
+  ASSERT_EQ(static_cast<int>(laps.size()), three);
+  // The first lap is the one-lap walk until the laps slow down for the near-end turn (2.5 m, some 7 s, before it).
+  for (int i = 0; i < one - 300; ++i) ASSERT_TRUE(laps[i].pose.isApprox(single[i].pose, 1e-12)) << i;
+  // Every lap passes the start again in the outbound lane, and no faster than one lap's limits.
+  int passes = 0;
+  bool near = true;
+  for (size_t i = 1; i < laps.size(); ++i) {
+    ASSERT_TRUE(rekon::isValidPose(laps[i].pose, 1e-9));
+    ASSERT_LT(rekon::translationDistance(laps[i - 1].pose, laps[i].pose) * 30.0, 0.6) << "frame " << i;
+    ASSERT_LT(rekon::rotationAngle(laps[i - 1].pose, laps[i].pose) * 30.0 / kDeg, 35.0) << "frame " << i;
+    const bool now = rekon::translationDistance(laps.front().pose, laps[i].pose) < 0.3;
+    passes += now && !near;
+    near = now;
+  }
+  EXPECT_EQ(passes, 2);  // at the start of laps 2 and 3
+  // It ends where one lap ends: back at the near end, in the return lane.
+  EXPECT_LT((laps.back().pose.translation() - single.back().pose.translation()).head<2>().norm(), 0.05);
+}
+
+TEST(Synth, LapsAreForTheCorridorOnly) {
+  try {
+    Scene::make("room")->trajectory(100, 1, 2);
+    FAIL() << "expected rekon::Error";
+  } catch (const rekon::Error& e) {
+    EXPECT_NE(std::string(e.what()).find("--laps is for the corridor"), std::string::npos) << e.what();
+  }
+  EXPECT_THROW(Scene::make("corridor")->defaultFrames(0), rekon::Error);
+}
+
 TEST(Synth, TrajectoryIsDeterministicForASeed) {
   const auto scene = Scene::make("room");
   const auto a = scene->trajectory(50, 5), b = scene->trajectory(50, 5), c = scene->trajectory(50, 6);

@@ -28,13 +28,36 @@ AnalyticScene::AnalyticScene(std::string name, SceneModel model, std::vector<Mat
     : name_(std::move(name)),
       model_(std::move(model)),
       materials_(std::move(materials)),
-      default_frames_(default_frames),
       mesh_spacing_m_(mesh_spacing_m),
-      trajectory_(std::move(trajectory)) {}
+      default_frames_([default_frames](int) { return default_frames; }),
+      trajectory_([fn = std::move(trajectory)](int frames, uint64_t seed, int) { return fn(frames, seed); }) {}
 
-Trajectory AnalyticScene::trajectory(int frames, uint64_t seed) const {
+AnalyticScene::AnalyticScene(std::string name, SceneModel model, std::vector<Material> materials, double mesh_spacing_m,
+                             LapFramesFn default_frames, LapTrajectoryFn trajectory)
+    : name_(std::move(name)),
+      model_(std::move(model)),
+      materials_(std::move(materials)),
+      mesh_spacing_m_(mesh_spacing_m),
+      default_frames_(std::move(default_frames)),
+      trajectory_(std::move(trajectory)),
+      has_laps_(true) {}
+
+void AnalyticScene::checkLaps(int laps) const {
+  if (laps < 1) throw Error("scene " + name_ + ": " + std::to_string(laps) + " laps; give 1 or more");
+  if (laps > 1 && !has_laps_) throw Error("scene " + name_ + " is walked once; --laps is for the corridor");
+  // The walk is integrated at 600 Hz in memory; 1000 laps (about 42 h) is far beyond any use.
+  if (laps > 1000) throw Error("scene " + name_ + ": " + std::to_string(laps) + " laps is too many; give at most 1000");
+}
+
+int AnalyticScene::defaultFrames(int laps) const {
+  checkLaps(laps);
+  return default_frames_(laps);
+}
+
+Trajectory AnalyticScene::trajectory(int frames, uint64_t seed, int laps) const {
   if (frames < 0) throw Error("scene " + name_ + ": frame count " + std::to_string(frames) + " is negative; give 0 or more");
-  return trajectory_(frames, seed);
+  checkLaps(laps);
+  return trajectory_(frames, seed, laps);
 }
 
 Mesh AnalyticScene::groundTruthMesh(double vertex_spacing_m) const {

@@ -15,12 +15,20 @@ namespace rekon::synth {
 class AnalyticScene : public Scene {
  public:
   using TrajectoryFn = std::function<Trajectory(int frames, uint64_t seed)>;
+  using LapTrajectoryFn = std::function<Trajectory(int frames, uint64_t seed, int laps)>;
+  using LapFramesFn = std::function<int(int laps)>;
+  // A scene walked once.
   AnalyticScene(std::string name, SceneModel model, std::vector<Material> materials, int default_frames,
                 double mesh_spacing_m, TrajectoryFn trajectory);
+  // A scene whose trajectory can be walked any number of laps.
+  AnalyticScene(std::string name, SceneModel model, std::vector<Material> materials, double mesh_spacing_m,
+                LapFramesFn default_frames, LapTrajectoryFn trajectory);
 
   std::string name() const override { return name_; }
-  int defaultFrames() const override { return default_frames_; }
-  Trajectory trajectory(int frames, uint64_t seed) const override;
+  int defaultFrames() const override { return defaultFrames(1); }
+  int defaultFrames(int laps) const override;
+  Trajectory trajectory(int frames, uint64_t seed) const override { return trajectory(frames, seed, 1); }
+  Trajectory trajectory(int frames, uint64_t seed, int laps) const override;
   Mesh groundTruthMesh() const override { return groundTruthMesh(mesh_spacing_m_); }
   Mesh groundTruthMesh(double vertex_spacing_m) const override;
   RgbdFrame render(const Intrinsics& k, const Pose& camera_to_world, Noise noise, uint64_t seed) const override;
@@ -34,9 +42,12 @@ class AnalyticScene : public Scene {
   std::string name_;
   SceneModel model_;
   std::vector<Material> materials_;
-  int default_frames_;
   double mesh_spacing_m_;
-  TrajectoryFn trajectory_;
+  LapFramesFn default_frames_;
+  LapTrajectoryFn trajectory_;
+  bool has_laps_ = false;
+
+  void checkLaps(int laps) const;
 };
 
 std::unique_ptr<AnalyticScene> makeTabletopScene();

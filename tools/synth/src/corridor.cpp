@@ -1,6 +1,8 @@
 // The corridor: 36 m long, furnished along both walls, walked 30.5 m out, a
 // U-turn at the far end, and 30.5 m back (about 63 m of path), for streaming
-// and drift tests.
+// and drift tests. With more laps the walker turns at the near end too and
+// goes round the same oval again (64.2 m a lap), for long runs that revisit
+// every place.
 #include <cmath>
 
 #include "analytic_scene.hpp"
@@ -12,10 +14,16 @@ namespace {
 using namespace parts;
 
 constexpr float kLengthLo = -2.0f, kLengthHi = 34.0f, kHalfWidth = 1.25f, kHeight = 2.6f;
-// Path: straight out along +x, a U-turn of kTurnM (heading 0 -> pi), straight back.
+// Path: straight out along +x, a U-turn of kTurnM (heading 0 -> pi), straight
+// back; each further lap first turns at the near end (heading pi -> 2 pi, the
+// same counter-clockwise sense, back into the outbound lane).
 constexpr double kStartX = 0.0, kStartY = -0.45;
 constexpr double kOutM = 30.5, kTurnM = 1.6;
-constexpr double kPathM = 2 * kOutM + kTurnM;
+constexpr double kLegM = kOutM + kTurnM;  // a straight leg and the turn after it
+// Out, turn, back; then per further lap turn, out, turn, back.
+double pathM(int laps) { return 2 * kOutM + kTurnM + (laps - 1) * 2 * kLegM; }
+int turns(int laps) { return 2 * laps - 1; }
+double turnStart(int j) { return kOutM + j * kLegM; }
 constexpr double kCruiseMps = 0.45, kTurnMps = 0.12;
 constexpr double kSlowZoneM = 2.5;   // speed blends to kTurnMps over this distance before/after the turn
 constexpr double kAccelMps2 = 0.25;  // starting and stopping
@@ -31,33 +39,45 @@ double smootherstep(double x) {
   return t * t * t * (t * (t * 6.0 - 15.0) + 10.0);
 }
 
-// 1 inside the U-turn, 0 beyond kSlowZoneM from it.
-double turnWeight(double s) {
-  const double before = kOutM - s, after = s - (kOutM + kTurnM);
-  const double d = std::max({before, after, 0.0});
-  return 1.0 - smoothstep(0.0, kSlowZoneM, d);
+// 1 inside a U-turn, 0 beyond kSlowZoneM from every one.
+double turnWeight(double s, int laps) {
+  double w = 0.0;
+  for (int j = 0; j < turns(laps); ++j) {
+    const double before = turnStart(j) - s, after = s - (turnStart(j) + kTurnM);
+    const double d = std::max({before, after, 0.0});
+    w = std::max(w, 1.0 - smoothstep(0.0, kSlowZoneM, d));
+  }
+  return w;
 }
 
-double heading(double s) { return kPi * smootherstep((s - kOutM) / kTurnM); }
+double heading(double s, int laps) {
+  double h = 0.0;
+  for (int j = 0; j < turns(laps); ++j) h += kPi * smootherstep((s - turnStart(j)) / kTurnM);
+  return h;
+}
+
+double speed(double s, double t, int laps) {
+  const double v = kCruiseMps + (kTurnMps - kCruiseMps) * turnWeight(s, laps);
+  return std::min({v, kAccelMps2 * t + 0.02, std::sqrt(2.0 * kAccelMps2 * std::max(0.0, pathM(laps) - s))});
+}
 
 struct PathState {
   double t, x, y, s, turn;
 };
 
 // Integrates the walk (speed profile along the path, heading from the path) at kStepS.
-std::vector<PathState> walk(int frames) {
+std::vector<PathState> walk(int frames, int laps) {
   std::vector<PathState> out;
   double t = 0, x = kStartX, y = kStartY, s = 0;
   int next_frame = 0;
+  const double path = pathM(laps);
   while (next_frame < frames) {
     if (t + 1e-9 >= next_frame / kFrameRateHz) {
-      out.push_back({next_frame / kFrameRateHz, x, y, s, turnWeight(s)});
+      out.push_back({next_frame / kFrameRateHz, x, y, s, turnWeight(s, laps)});
       ++next_frame;
     }
-    double v = kCruiseMps + (kTurnMps - kCruiseMps) * turnWeight(s);
-    v = std::min({v, kAccelMps2 * t + 0.02, std::sqrt(2.0 * kAccelMps2 * std::max(0.0, kPathM - s))});
-    const double ds = std::min(v * kStepS, kPathM - s);
-    const double psi = heading(s + 0.5 * ds);
+    const double ds = std::min(speed(s, t, laps) * kStepS, path - s);
+    const double psi = heading(s + 0.5 * ds, laps);
     x += ds * std::cos(psi);
     y += ds * std::sin(psi);
     s += ds;
@@ -66,13 +86,12 @@ std::vector<PathState> walk(int frames) {
   return out;
 }
 
-int corridorDefaultFrames() {
+int corridorDefaultFrames(int laps) {
   // Walk until the end of the path, then hold still for kHoldS.
   double t = 0, s = 0;
-  while (s < kPathM - 1e-4 && t < 1000.0) {
-    double v = kCruiseMps + (kTurnMps - kCruiseMps) * turnWeight(s);
-    v = std::min({v, kAccelMps2 * t + 0.02, std::sqrt(2.0 * kAccelMps2 * std::max(0.0, kPathM - s))});
-    s += std::min(v * kStepS, kPathM - s);
+  const double path = pathM(laps);
+  while (s < path - 1e-4 && t < 1000.0 * laps) {
+    s += std::min(speed(s, t, laps) * kStepS, path - s);
     t += kStepS;
   }
   return static_cast<int>(std::ceil((t + kHoldS) * kFrameRateHz));
@@ -125,18 +144,19 @@ SceneModel corridorModel() {
   return m;
 }
 
-Trajectory corridorTrajectory(int frames, uint64_t seed) {
+Trajectory corridorTrajectory(int frames, uint64_t seed, int laps) {
   Rng rng(mixSeed(seed, 0xC0221ull));
   double ph[5];
   for (double& x : ph) x = 2 * kPi * rng.uniform();
-  const int default_frames = corridorDefaultFrames();
+  // The shake's period stays that of one lap, so every lap count shakes alike.
+  const int default_frames = corridorDefaultFrames(1);
   const Shake shake(seed, default_frames / kFrameRateHz, 0.002, 0.003);
-  const auto states = walk(frames);
+  const auto states = walk(frames, laps);
   Trajectory out;
   out.reserve(states.size());
   for (const auto& st : states) {
     const double t = st.t, look = 1.0 - st.turn;  // no looking around during the U-turn
-    const double yaw = heading(st.s) + look * 15.0 * kDeg * std::sin(2 * kPi * t / 9.0 + ph[0]);
+    const double yaw = heading(st.s, laps) + look * 15.0 * kDeg * std::sin(2 * kPi * t / 9.0 + ph[0]);
     const double pitch = -8.0 * kDeg + 4.0 * kDeg * std::sin(2 * kPi * t / 7.0 + ph[1]);
     const double roll = 1.5 * kDeg * std::sin(2 * kPi * t / 5.0 + ph[2]);
     const double z = 1.45 + 0.005 * std::sin(2 * kPi * 1.8 * t + ph[3]);
@@ -148,7 +168,7 @@ Trajectory corridorTrajectory(int frames, uint64_t seed) {
 }  // namespace
 
 std::unique_ptr<AnalyticScene> makeCorridorScene() {
-  return std::make_unique<AnalyticScene>("corridor", corridorModel(), palette(), corridorDefaultFrames(), 0.03,
+  return std::make_unique<AnalyticScene>("corridor", corridorModel(), palette(), 0.03, corridorDefaultFrames,
                                          corridorTrajectory);
 }
 

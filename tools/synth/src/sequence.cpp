@@ -67,7 +67,7 @@ Trajectory driftedTrajectory(const Trajectory& ground_truth, double translation_
 SequenceReport writeSequence(const SequenceOptions& options, const std::string& out_dir) {
   const auto start = std::chrono::steady_clock::now();
   const auto scene = Scene::make(options.scene);
-  const int frames = options.frames > 0 ? options.frames : scene->defaultFrames();
+  const int frames = options.frames > 0 ? options.frames : scene->defaultFrames(options.laps);
   if (options.frames < 0) throw Error("--frames " + std::to_string(options.frames) + " is negative; give 1 or more (0 = scene default)");
   std::error_code ec;
   fs::create_directories(fs::path(out_dir) / "rgb", ec);
@@ -76,7 +76,7 @@ SequenceReport writeSequence(const SequenceOptions& options, const std::string& 
     throw Error(out_dir + ": cannot create the output folder (" + ec.message() + "); choose a writable --out");
   }
   const Intrinsics k = defaultIntrinsics();
-  const Trajectory trajectory = scene->trajectory(frames, options.seed);
+  const Trajectory trajectory = scene->trajectory(frames, options.seed, options.laps);
 
   // Frames in parallel, each rendered on one thread: rendering and PNG
   // encoding then both use every core.
@@ -108,8 +108,10 @@ SequenceReport writeSequence(const SequenceOptions& options, const std::string& 
   if (!first_error.empty()) throw Error(first_error);
 
   std::ofstream rgb_txt(fs::path(out_dir) / "rgb.txt"), depth_txt(fs::path(out_dir) / "depth.txt");
-  rgb_txt << "# color images\n# rekon synth --scene " << options.scene << " --seed " << options.seed << "\n# timestamp filename\n";
-  depth_txt << "# depth maps\n# rekon synth --scene " << options.scene << " --seed " << options.seed << "\n# timestamp filename\n";
+  std::string command = "rekon synth --scene " + options.scene + " --seed " + std::to_string(options.seed);
+  if (options.laps != 1) command += " --laps " + std::to_string(options.laps);
+  rgb_txt << "# color images\n# " << command << "\n# timestamp filename\n";
+  depth_txt << "# depth maps\n# " << command << "\n# timestamp filename\n";
   for (const auto& sp : trajectory) {
     const std::string s = stamp(sp.timestamp);
     rgb_txt << s << " rgb/" << s << ".png\n";

@@ -13,7 +13,8 @@ int synthCommand(int argc, char** argv) {
   ArgParser args(argv[0], "Write a synthetic RGB-D sequence (TUM layout) with exact trajectory and colored mesh_gt.ply.");
   args.option("scene", "room, corridor or tabletop", "room")
       .option("out", "output folder (created)")
-      .option("frames", "number of frames (0 = the scene's default)", "0")
+      .option("frames", "number of frames (0 = the scene's default for --laps)", "0")
+      .option("laps", "corridor: times round the out-and-back path (each lap after the first adds 5484 frames)", "1")
       .option("seed", "seed of trajectory shake and sensor noise", "1")
       .option("noise", "kinect or none", "kinect")
       .option("drift", "T_PER_M,R_DEG_PER_M: also write drifted_trajectory.txt", "");
@@ -22,6 +23,7 @@ int synthCommand(int argc, char** argv) {
   SequenceOptions o;
   o.scene = args.get("scene");
   o.frames = args.getInt("frames");
+  o.laps = args.getInt("laps");
   const std::string seed_text = args.get("seed");
   try {
     size_t used = 0;

@@ -26,8 +26,14 @@ class Scene {
 
   virtual std::string name() const = 0;
   virtual int defaultFrames() const = 0;
+  // Frames of `laps` walks round the scene's path (the corridor: out, back,
+  // and again; the other scenes are walked once and throw for laps > 1).
+  virtual int defaultFrames(int laps) const = 0;
   // Camera-to-world poses at 30 Hz (timestamps i / 30); deterministic for a seed.
   virtual Trajectory trajectory(int frames, uint64_t seed) const = 0;
+  // The same over `laps` laps; the first lap's poses equal the one-lap
+  // trajectory's until it slows down for its end.
+  virtual Trajectory trajectory(int frames, uint64_t seed, int laps) const = 0;
   // The exact scene surface with colors: every surface a camera inside the
   // scene can see (faces resting on the floor or against a wall, and the floor
   // under objects, are left out), triangulated with vertices a scene-specific
@@ -59,7 +65,8 @@ Trajectory driftedTrajectory(const Trajectory& ground_truth, double translation_
 
 struct SequenceOptions {
   std::string scene = "room";
-  int frames = 0;  // 0 = the scene's default
+  int frames = 0;  // 0 = the scene's default for `laps`
+  int laps = 1;    // corridor only: times round the out-and-back path
   uint64_t seed = 1;
   Noise noise = Noise::Kinect;
   // Random-walk drift for drifted_trajectory.txt; both 0 = not written.
