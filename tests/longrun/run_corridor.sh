@@ -1,0 +1,48 @@
+#!/usr/bin/env bash
+# The long run of issue 9 (part 6): the synthetic corridor walked LAPS times
+# (2 laps = 10 325 frames, 3 = 15 808) through the whole pipeline (rekon run:
+# player, tracker, optimiser, mapper) with a keyframe store far smaller than
+# the run's keyframes, so most of them spill to disk; every service's memory
+# is sampled once a second and the store's usage every 10 s, then summarised
+# per 1000 frames (summarize.py). Not part of ctest: it takes tens of minutes
+# (the short version is tests/store, KeyframeStoreSpill.ARestartedMapper...).
+#
+#   tests/longrun/run_corridor.sh OUT [LAPS] [BIN_DIR] [--set key=value ...]
+#
+# OUT/corridor_<LAPS>laps is generated unless present (0.73 MB of PNGs a
+# frame at 640x480: 7.5 GB for 2 laps; checked against df first).
+set -euo pipefail
+here=$(cd "$(dirname "$0")" && pwd)
+out=${1:?usage: run_corridor.sh OUT [LAPS] [BIN_DIR] [--set key=value ...]}
+laps=${2:-2}
+bin=$(cd "${3:-$here/../../build/bin}" && pwd)
+shift $(( $# < 3 ? $# : 3 ))
+store_mb=${STORE_MB:-256}
+segment=rekon_longrun_$$
+data=$out/corridor_${laps}laps
+run=$out/run_${laps}laps
+mkdir -p "$out"
+if [ ! -f "$data/rgb.txt" ]; then
+  frames=$(( 4841 + (laps - 1) * 5484 ))
+  need_kb=$(( frames * 800 ))
+  avail_kb=$(df -Pk "$out" | awk 'NR==2 {print $4}')
+  if [ "$avail_kb" -lt $(( need_kb + 2 * 1024 * 1024 )) ]; then
+    echo "run_corridor.sh: $out has $(( avail_kb / 1024 )) MiB free; $laps laps need about $(( need_kb / 1024 )) MiB plus 2 GiB" >&2
+    exit 1
+  fi
+  "$bin/rekon" synth --scene corridor --laps "$laps" --out "$data"
+fi
+rm -rf "$run"
+mkdir -p "$run"
+python3 "$here/sample_memory.py" "$bin" "$segment" "$run" &
+sampler=$!
+trap 'kill $sampler 2>/dev/null || true' EXIT
+start=$(date +%s)
+status=0
+"$here/../support/in_netns.sh" "$bin/rekon" run --dataset "$data" --out "$run" \
+  --set mapper.store_mb="$store_mb" --set mapper.store_segment="$segment" \
+  --set mapper.store_spill_dir="$run/keyframe_spill" "$@" || status=$?
+echo "rekon run exited $status after $(( $(date +%s) - start )) s"
+kill $sampler 2>/dev/null || true
+python3 "$here/summarize.py" "$run"
+exit $status

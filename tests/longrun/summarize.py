@@ -1,0 +1,94 @@
+#!/usr/bin/env python3
+"""Summarises a long run (run_corridor.sh): every service's RSS, the mapper's
+voxel blocks (total and active) and the keyframe store (in shared memory and
+spilled) each 1000 frames, from memory.csv, store.csv and the mapper's
+progress lines. Usage: summarize.py RUN_DIR"""
+import bisect
+import csv
+import datetime
+import json
+import os
+import re
+import sys
+
+run = sys.argv[1]
+kappa = 20
+try:
+    for line in open(os.path.join(run, "config.yaml")):
+        m = re.match(r"\s+kappa:\s*(\d+)", line)
+        if m:
+            kappa = int(m.group(1))
+except OSError:
+    pass
+
+# Mapper progress: (unix time, frames fused, blocks, active blocks).
+progress = []
+pattern = re.compile(r"^\[((?:[\d-]+ )?[\d:.]+)\].*mapper: (\d+) KF keyframes so far.*?(?:frames (\d+) blocks (\d+) active (\d+).*)?$")
+# Log lines carry the time of day only: the date is the run's (from the first memory sample).
+with open(os.path.join(run, "memory.csv")) as f:
+    next(f)
+    first_sample = float(next(f).split(",")[0])
+run_date = datetime.datetime.fromtimestamp(first_sample).strftime("%Y-%m-%d")
+for line in open(os.path.join(run, "mapper.log"), errors="replace"):
+    m = pattern.match(line.strip())
+    if not m:
+        continue
+    stamp = m.group(1) if " " in m.group(1) else run_date + " " + m.group(1)
+    t = datetime.datetime.strptime(stamp, "%Y-%m-%d %H:%M:%S.%f").timestamp()
+    frames = int(m.group(3)) if m.group(3) else int(m.group(2)) * kappa
+    blocks = int(m.group(4)) if m.group(4) else None
+    active = int(m.group(5)) if m.group(5) else None
+    progress.append((t, frames, blocks, active))
+
+memory = {}  # service -> sorted [(t, rss, anon, shmem)]
+with open(os.path.join(run, "memory.csv")) as f:
+    for r in csv.DictReader(f):
+        memory.setdefault(r["service"], []).append(
+            (float(r["unix_time"]), float(r["rss_mb"]), float(r["anon_mb"]), float(r["shmem_mb"])))
+store = []
+try:
+    with open(os.path.join(run, "store.csv")) as f:
+        store = [(float(r["unix_time"]), r) for r in csv.DictReader(f)]
+except OSError:
+    pass
+
+
+def at(series, t):
+    """The sample nearest before t (or the first)."""
+    keys = [s[0] for s in series]
+    i = max(0, bisect.bisect_right(keys, t) - 1)
+    return series[i] if series else None
+
+
+services = [s for s in ("player", "tracker", "optimiser", "mapper") if s in memory]
+print(f"run {run}: {len(progress)} mapper progress lines, memory samples: " +
+      ", ".join(f"{s} {len(memory[s])}" for s in services))
+header = ["frames", "s"] + [f"{s}_rss_mb" for s in services] + ["mapper_anon_mb", "mapper_shm_mb", "blocks", "active",
+                                                                  "store_shm", "store_disk", "spilled_mib"]
+print(" ".join(header))
+t0 = min(s[0][0] for s in memory.values()) if memory else 0
+next_mark = 0
+rows = []
+for t, frames, blocks, active in progress:
+    if frames < next_mark:
+        continue
+    next_mark = (frames // 1000 + 1) * 1000
+    row = [str(frames), f"{t - t0:.0f}"]
+    for s in services:
+        sample = at(memory[s], t)
+        row.append(f"{sample[1]:.0f}" if sample else "-")
+    m = at(memory.get("mapper", []), t)
+    row += [f"{m[2]:.0f}" if m else "-", f"{m[3]:.0f}" if m else "-",
+            str(blocks) if blocks is not None else "-", str(active) if active is not None else "-"]
+    st = at(store, t)
+    row += [st[1]["resident"], st[1]["spilled"], st[1]["spilled_mib"]] if st else ["-", "-", "-"]
+    rows.append(row)
+    print(" ".join(row))
+for s in services:
+    peak = max(x[1] for x in memory[s])
+    print(f"peak RSS {s}: {peak:.0f} MB")
+try:
+    stats = json.load(open(os.path.join(run, "stats.json")))
+    print("stats.json: frames", stats.get("frames"), "wall_seconds", stats.get("wall_seconds"))
+except (OSError, ValueError):
+    print("no stats.json")
