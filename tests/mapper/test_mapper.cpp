@@ -7,6 +7,8 @@
 
 #include <opencv2/imgcodecs.hpp>
 
+#include <algorithm>
+#include <array>
 #include <filesystem>
 #include <map>
 
@@ -183,6 +185,87 @@ TEST(Mapper, WithoutCorrectionTheVolumeDiffersFromTheFinalPoses) {
     corrected.integrate(r.kf.depth, r.kf.color, r.kf.weight, testCamera(), anchors.at(r.kf.anchor_keyframe_id) * r.kf.pose_in_anchor);
   const Difference d = compare(snapshot(mapper.volume()), snapshot(corrected));
   EXPECT_GT(d.weight_or_sdf, d.observed / 10);  // centimetres of drift change most voxels
+}
+
+// Vertex positions in a canonical order: extraction visits active and host
+// blocks in hash order, which streaming changes.
+std::vector<std::array<float, 3>> sortedVertices(const Mesh& m) {
+  std::vector<std::array<float, 3>> v;
+  for (const auto& p : m.vertices) v.push_back({p.x(), p.y(), p.z()});
+  std::sort(v.begin(), v.end());
+  return v;
+}
+
+TEST(Mapper, UncorrectedMeshIsTheMeshOfAMapperThatNeverCorrects) {
+  Mapper corrected(testParams());
+  play(corrected, kFrames);
+  corrected.finish();
+  MapperParams none = testParams();
+  none.mode = ReintegrationMode::kNone;  // same stream and graph updates, keyframes never moved
+  Mapper baseline(none);
+  play(baseline, kFrames);
+  baseline.finish();
+  ASSERT_GT(corrected.counters().reintegrations, 0);
+  const auto uncorrected = sortedVertices(corrected.extractUncorrectedMesh());
+  EXPECT_GT(uncorrected.size(), 10000u);  // a real surface
+  EXPECT_EQ(uncorrected, sortedVertices(baseline.extractMesh()));
+  EXPECT_NE(uncorrected, sortedVertices(corrected.extractMesh()));  // the correction moved the surface
+}
+
+TEST(Mapper, UncorrectedMeshEqualsTheMeshWhenNothingMoved) {
+  Mapper mapper(testParams());
+  const Scenario& s = scenario();
+  replay::ReplayScript script(s.drifted, s.ground_truth, replayParams(), kFrames);
+  for (int i = 0; i < kFrames; ++i) {  // no graph updates
+    const replay::ReplayTracked t = script.onFrame(i, s.frames[i].timestamp);
+    if (t.new_keyframe_world) mapper.setKeyframeEstimate(t.keyframe_id, *t.new_keyframe_world);
+    mapper.addFrame(s.frames[i], testCamera(), t.keyframe_id, t.pose_in_keyframe, t.lost);
+  }
+  mapper.finish();
+  EXPECT_EQ(mapper.counters().reintegrations, 0);
+  EXPECT_EQ(sortedVertices(mapper.extractUncorrectedMesh()), sortedVertices(mapper.extractMesh()));
+}
+
+TEST(Mapper, GraphUpdateRoundsAddUpToTheReintegrationCounters) {
+  MapperParams p = testParams();
+  Mapper mapper(p);
+  const Scenario& s = scenario();
+  replay::ReplayScript script(s.drifted, s.ground_truth, replayParams(), kFrames);
+  int64_t keyframes = 0, blocks = 0;
+  auto apply = [&](const replay::ReplayGraphUpdate& u) {
+    const ReintegrationRound r = mapper.applyGraphUpdate(u.poses);
+    EXPECT_LE(r.keyframes, p.m);  // at most m per update
+    EXPECT_GE(r.ms, 0.0);
+    keyframes += r.keyframes;
+    blocks += r.blocks_streamed;
+  };
+  for (int i = 0; i < kFrames; ++i) {
+    const replay::ReplayTracked t = script.onFrame(i, s.frames[i].timestamp);
+    if (t.new_keyframe_world) mapper.setKeyframeEstimate(t.keyframe_id, *t.new_keyframe_world);
+    mapper.addFrame(s.frames[i], testCamera(), t.keyframe_id, t.pose_in_keyframe, t.lost);
+    if (auto u = script.dueUpdate()) apply(*u);
+  }
+  for (const auto& u : script.finalUpdates()) apply(u);
+  int64_t final_keyframes = 0;
+  for (const ReintegrationRound& r : mapper.finish()) final_keyframes += r.keyframes;
+  const MapperCounters& c = mapper.counters();
+  EXPECT_GT(keyframes, 0);
+  EXPECT_EQ(keyframes, c.reintegrations - c.final_pass_reintegrations);
+  EXPECT_EQ(final_keyframes, c.final_pass_reintegrations);
+  EXPECT_EQ(blocks, c.reintegration_blocks_streamed);
+  EXPECT_GT(blocks, 0);  // the 1 m streaming sphere: a round moves it away from the camera and back
+}
+
+TEST(Mapper, MemoryUseCountsInputFramesAndKeyframes) {
+  Mapper mapper(testParams());
+  play(mapper, kFrames);
+  mapper.finish();
+  const MemoryUse m = mapper.memoryUse();
+  const int64_t pixels = 320 * 240;
+  EXPECT_EQ(m.input_frame_bytes, kFrames * pixels * (2 + 3));     // 16-bit depth + BGR per frame
+  EXPECT_EQ(m.keyframe_bytes, kFrames / 4 * pixels * (4 + 4 + 3));  // float depth, float weight, BGR per KF keyframe
+  EXPECT_EQ(m.keyframe_store_bytes, -1);                            // no store in these tests
+  EXPECT_EQ(m.voxel_bytes, mapper.volume().stats().blocks * 512 * mapper.volume().stats().bytes_per_voxel);
 }
 
 TEST(KeyframeStore, ARestartedMapperRebuildsTheSameVolume) {

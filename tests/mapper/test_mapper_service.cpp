@@ -8,6 +8,8 @@
 #include <fstream>
 #include <sstream>
 
+#include "rekon/common/mesh.hpp"
+#include "rekon/report/run_files.hpp"
 #include "rekon/store/keyframe_store.hpp"
 #include "rekon/synth/synth.hpp"
 #include "test_support.hpp"
@@ -33,35 +35,99 @@ long long jsonInt(const std::string& json, const std::string& key) {
 
 }  // namespace
 
-TEST(MapperService, ReplayedPosesAreCorrectedAndTheMeshWritten) {
-  rekon::test::TempDir dir;
-  rekon::synth::SequenceOptions o;
-  o.scene = "tabletop";
-  o.frames = 30;
-  o.drift_translation_per_m = 0.05;
-  o.drift_rotation_deg_per_m = 3.0;
-  rekon::synth::writeSequence(o, dir / "data");
-  const std::string bin = rekon::test::binDir(), id = std::to_string(getpid());
-  const std::string seg = "rekon_mst_" + id, store = "rekon_mst_kf_" + id;
-  const std::string script =
-      bin + "/rekon-mapper --out " + (dir / "out") + " --set mapper.kappa=5 --set mapper.m=2 --set mapper.store_segment=" +
-      store + " > " + (dir / "mapper.log") + " 2>&1 & m=$!; " + bin + "/rekon-replay --trajectory " +
-      (dir / "data/drifted_trajectory.txt") + " --target " + (dir / "data/groundtruth.txt") + " --gap-ms 50 > " +
-      (dir / "replay.log") + " 2>&1 & r=$!; " + bin + "/rekon-player --dataset " + (dir / "data") +
-      " --set player.wait_for=[replay,mapper] --set transport.mode=shm --set transport.segment=" + seg + " > " +
-      (dir / "player.log") + " 2>&1; p=$?; wait $r; rr=$?; wait $m; mm=$?; echo $p $rr $mm; [ $p$rr$mm = 000 ]";
-  std::string out;
-  const int rc = runCommand(rekon::test::sourceDir() + "/tests/support/in_netns.sh bash -c '" + script + "'", &out);
-  ASSERT_EQ(rc, 0) << out << "\nmapper:\n" << readText(dir / "mapper.log") << "\nreplay:\n" << readText(dir / "replay.log");
-  EXPECT_TRUE(fs::exists(dir / "out/mesh.ply"));
-  const std::string stats = readText(dir / "out/mapper_stats.json");
+// One pipeline run (30 tabletop frames, drifted poses replayed with graph
+// updates toward the ground truth) shared by the tests of its outputs.
+class MapperServiceRun : public ::testing::Test {
+ protected:
+  static constexpr int kFrames = 30;
+  static void SetUpTestSuite() {
+    dir_ = new rekon::test::TempDir();
+    const rekon::test::TempDir& dir = *dir_;
+    rekon::synth::SequenceOptions o;
+    o.scene = "tabletop";
+    o.frames = kFrames;
+    o.drift_translation_per_m = 0.05;
+    o.drift_rotation_deg_per_m = 3.0;
+    rekon::synth::writeSequence(o, dir / "data");
+    const std::string bin = rekon::test::binDir(), id = std::to_string(getpid());
+    const std::string seg = "rekon_mst_" + id;
+    store_ = "rekon_mst_kf_" + id;
+    const std::string script =
+        bin + "/rekon-mapper --out " + (dir / "out") + " --set mapper.kappa=5 --set mapper.m=2 --set mapper.store_segment=" +
+        store_ + " > " + (dir / "mapper.log") + " 2>&1 & m=$!; " + bin + "/rekon-replay --trajectory " +
+        (dir / "data/drifted_trajectory.txt") + " --target " + (dir / "data/groundtruth.txt") + " --gap-ms 50 > " +
+        (dir / "replay.log") + " 2>&1 & r=$!; " + bin + "/rekon-player --dataset " + (dir / "data") +
+        " --set player.wait_for=[replay,mapper] --set transport.mode=shm --set transport.segment=" + seg + " > " +
+        (dir / "player.log") + " 2>&1; p=$?; wait $r; rr=$?; wait $m; mm=$?; echo $p $rr $mm; [ $p$rr$mm = 000 ]";
+    std::string out;
+    rc_ = runCommand(rekon::test::sourceDir() + "/tests/support/in_netns.sh bash -c '" + script + "'", &out);
+    log_ = out + "\nmapper:\n" + readText(dir / "mapper.log") + "\nreplay:\n" + readText(dir / "replay.log");
+  }
+  static void TearDownTestSuite() {
+    delete dir_;
+    dir_ = nullptr;
+  }
+  void SetUp() override { ASSERT_EQ(rc_, 0) << log_; }
+  static std::string out(const std::string& name) { return *dir_ / ("out/" + name); }
+
+  static rekon::test::TempDir* dir_;
+  static std::string store_, log_;
+  static int rc_;
+};
+rekon::test::TempDir* MapperServiceRun::dir_ = nullptr;
+std::string MapperServiceRun::store_, MapperServiceRun::log_;
+int MapperServiceRun::rc_ = -1;
+
+TEST_F(MapperServiceRun, ReplayedPosesAreCorrectedAndTheMeshWritten) {
+  EXPECT_TRUE(fs::exists(out("mesh.ply")));
+  const std::string stats = readText(out("mapper_stats.json"));
   EXPECT_EQ(jsonInt(stats, "frames_fused"), 30);   // every frame has a replayed pose
   EXPECT_EQ(jsonInt(stats, "kf_keyframes"), 6);    // 30 frames / kappa 5
   EXPECT_EQ(jsonInt(stats, "integrations"), 6);
   EXPECT_EQ(jsonInt(stats, "deintegrations"), jsonInt(stats, "reintegrations"));
   EXPECT_GT(jsonInt(stats, "voxel_blocks"), 0);
   // A clean end removes the keyframe store.
-  EXPECT_FALSE(fs::exists("/dev/shm/" + store));
+  EXPECT_FALSE(fs::exists("/dev/shm/" + store_));
+}
+
+TEST_F(MapperServiceRun, TimingCsvHasOneRowPerFrameInTheReportsFormat) {
+  const rekon::report::CsvTable t = rekon::report::readCsvTable(out("mapper_timing.csv"), rekon::report::kTimingColumns);
+  ASSERT_EQ(t.rows.size(), static_cast<size_t>(kFrames));
+  for (int i = 0; i < kFrames; ++i) EXPECT_EQ(t.rows[i][0], i);  // frames in the order the player numbered them
+  const int integrate = t.column("integrate_ms");
+  ASSERT_GE(integrate, 0);
+  int frames_that_integrated = 0;
+  for (const auto& row : t.rows) frames_that_integrated += row[integrate] > 0;
+  EXPECT_EQ(frames_that_integrated, 5);  // frames 5, 10, ..., 25 close a KF keyframe; the sixth closes at the end
+}
+
+TEST_F(MapperServiceRun, ReintegrationCsvHasARoundPerGraphUpdateAndTheFinalPass) {
+  const rekon::report::CsvTable t =
+      rekon::report::readCsvTable(out("mapper_reintegration.csv"), rekon::report::kReintegrationColumns);
+  const std::string stats = readText(out("mapper_stats.json"));
+  const int final_pass = t.column("final_pass");
+  ASSERT_GE(final_pass, 0);
+  long long updates = 0, keyframes = 0;
+  for (const auto& row : t.rows) {
+    updates += row[final_pass] == 0;
+    keyframes += static_cast<long long>(row[2]);
+  }
+  EXPECT_EQ(updates, jsonInt(stats, "graph_updates")) << stats << readText(out("mapper_reintegration.csv"));
+  EXPECT_EQ(keyframes, jsonInt(stats, "reintegrations"));
+}
+
+TEST_F(MapperServiceRun, WritesTheUncorrectedMeshBesideTheMesh) {
+  // Its content (every KF keyframe at its first pose) is specified in test_mapper.cpp.
+  ASSERT_TRUE(fs::exists(out("mesh_uncorrected.ply")));
+  EXPECT_GT(rekon::readPly(out("mesh_uncorrected.ply")).vertices.size(), 1000u);  // a surface, not an empty file
+}
+
+TEST_F(MapperServiceRun, StatsCompareKeyframeBytesWithTheInputFrames) {
+  const std::string stats = readText(out("mapper_stats.json"));
+  EXPECT_EQ(jsonInt(stats, "input_frame_bytes"), 30LL * 640 * 480 * (2 + 3));  // 16-bit depth + BGR per frame
+  EXPECT_EQ(jsonInt(stats, "keyframe_bytes"), 6LL * 640 * 480 * (4 + 4 + 3));  // float depth, weight, BGR per KF keyframe
+  EXPECT_GT(jsonInt(stats, "keyframe_store_bytes"), jsonInt(stats, "keyframe_bytes"));  // the store adds its headers
+  EXPECT_GT(jsonInt(stats, "voxel_bytes"), 0);
 }
 
 TEST(MapperService, AKilledMapperRestartedWithResumeContinuesFromTheStore) {

@@ -2,12 +2,33 @@
 
 #include <spdlog/spdlog.h>
 
+#include <time.h>
+
 #include <chrono>
 
 #include "rekon/common/error.hpp"
 #include "rekon/volume/volume_config.hpp"
 
 namespace rekon::mapper {
+namespace {
+
+
+int64_t streamedBlocks(const volume::TsdfVolume& v) {
+  const volume::VolumeStats s = v.stats();
+  return s.streamed_in + s.streamed_out;
+}
+
+int64_t matBytes(const cv::Mat& m) { return static_cast<int64_t>(m.total() * m.elemSize()); }
+
+}  // namespace
+
+double Mapper::clockMs() const {
+  if (!params_.cpu_time_counters)
+    return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now().time_since_epoch()).count();
+  timespec ts{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return 1e3 * static_cast<double>(ts.tv_sec) + 1e-6 * static_cast<double>(ts.tv_nsec);
+}
 
 MapperParams MapperParams::fromConfig(const Config& c) {
   MapperParams p;
@@ -67,6 +88,7 @@ void Mapper::restoreFromStore() {
       volume_->integrate(r.kf.depth, r.kf.color, r.kf.weight, *camera_, infos[i].integrated_pose);
       r.integrated = true;
       r.integrated_pose = infos[i].integrated_pose;
+      r.first_pose = infos[i].integrated_pose;  // the store keeps no older pose: the baseline starts here
       camera_position_ = infos[i].integrated_pose.translation();
     }
     ++counters_.restored_keyframes;
@@ -119,6 +141,7 @@ std::vector<double> Mapper::movements() const {
 bool Mapper::addFrame(const RgbdFrame& frame, const Intrinsics& k, int64_t keyframe_id, const Pose& pose_in_keyframe,
                       bool lost) {
   ensureCamera(k);
+  counters_.input_frame_bytes += matBytes(frame.depth) + matBytes(frame.color);
   const auto anchor = keyframePose(keyframe_id);
   if (lost || !anchor) {
     if (!lost) spdlog::warn("frame {}: DVO keyframe {} has no pose yet; frame skipped", frame.id, keyframe_id);
@@ -126,11 +149,15 @@ bool Mapper::addFrame(const RgbdFrame& frame, const Intrinsics& k, int64_t keyfr
     return false;
   }
   const Pose world = orthonormalised(*anchor * pose_in_keyframe);
+  double t0 = clockMs();
   if (fuser_->startsNewKeyframe(keyframe_id, world)) {
+    counters_.fuse_ms_total += clockMs() - t0;
     closeKeyframe();
+    t0 = clockMs();
     fuser_->begin(next_kf_id_++, keyframe_id, pose_in_keyframe, world);
   }
   fuser_->add(frame, world);
+  counters_.fuse_ms_total += clockMs() - t0;
   camera_position_ = world.translation();
   ++counters_.frames;
   return true;
@@ -139,28 +166,36 @@ bool Mapper::addFrame(const RgbdFrame& frame, const Intrinsics& k, int64_t keyfr
 void Mapper::closeKeyframe() {
   if (!fuser_ || !fuser_->active()) return;
   KeyframeRecord rec;
-  rec.kf = fuser_->finish();
+  const double t0 = clockMs();
+  rec.kf = fuser_->finish();  // the color fusion
+  counters_.fuse_ms_total += clockMs() - t0;
   ++counters_.kf_keyframes;
   if (store_) store_->add(rec.kf);
   keyframes_.push_back(std::move(rec));
   const auto pose = currentPose(keyframes_.back().kf);
   if (!pose) throw Error("mapper: KF keyframe's DVO keyframe lost its pose");  // anchors are never forgotten
+  const double t1 = clockMs();
   integrateKeyframe(keyframes_.back(), *pose);
+  keyframes_.back().first_pose = *pose;
+  counters_.first_integration_ms_total += clockMs() - t1;
   ++counters_.integrations;
 }
 
 void Mapper::integrateKeyframe(KeyframeRecord& rec, const Pose& pose) {
-  const auto t0 = std::chrono::steady_clock::now();
+  const double t0 = clockMs();
   volume_->streamAround(pose.translation());
   volume_->integrate(rec.kf.depth, rec.kf.color, rec.kf.weight, *camera_, pose);
-  counters_.integrate_ms_total += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  counters_.integrate_ms_total += clockMs() - t0;
   rec.integrated = true;
   rec.integrated_pose = pose;
   if (store_) store_->setIntegratedPose(rec.kf.id, pose);
 }
 
-int Mapper::reintegrate(const std::vector<size_t>& chosen) {
-  if (chosen.empty()) return 0;
+ReintegrationRound Mapper::reintegrate(const std::vector<size_t>& chosen) {
+  ReintegrationRound round;
+  if (chosen.empty()) return round;
+  const double t0 = clockMs();
+  const int64_t streamed_before = streamedBlocks(*volume_);
   std::vector<Pose> updated;
   for (size_t i : chosen) updated.push_back(*currentPose(keyframes_[i].kf));
   // Paper 4.3: the sphere around the first keyframe's old pose, de-integrate
@@ -179,10 +214,13 @@ int Mapper::reintegrate(const std::vector<size_t>& chosen) {
     ++counters_.reintegrations;
   }
   volume_->streamAround(camera_position_);
-  return static_cast<int>(chosen.size());
+  round.keyframes = static_cast<int>(chosen.size());
+  round.ms = clockMs() - t0;
+  round.blocks_streamed = streamedBlocks(*volume_) - streamed_before;
+  return round;
 }
 
-void Mapper::applyGraphUpdate(const std::vector<std::pair<int64_t, Pose>>& poses) {
+ReintegrationRound Mapper::applyGraphUpdate(const std::vector<std::pair<int64_t, Pose>>& poses) {
   for (const auto& [id, pose] : poses) {
     graph_poses_[id] = pose;
     if (store_) store_->setAnchorPose(id, pose);
@@ -190,19 +228,23 @@ void Mapper::applyGraphUpdate(const std::vector<std::pair<int64_t, Pose>>& poses
   ++counters_.graph_updates;
   const std::vector<double> moved = movements();
   const auto chosen = selectForReintegration(params_.mode, moved, params_.m, params_.min_movement);
-  const int n = reintegrate(chosen);
-  if (n > 0)
-    spdlog::debug("graph update {}: re-integrated {} KF keyframes from {}", counters_.graph_updates, n,
-                  keyframes_[chosen.front()].kf.id);
+  const ReintegrationRound round = reintegrate(chosen);
+  counters_.reintegration_ms_total += round.ms;
+  counters_.reintegration_blocks_streamed += round.blocks_streamed;
+  if (round.keyframes > 0)
+    spdlog::debug("graph update {}: re-integrated {} KF keyframes from {} in {:.1f} ms", counters_.graph_updates,
+                  round.keyframes, keyframes_[chosen.front()].kf.id, round.ms);
+  return round;
 }
 
 void Mapper::flush() { closeKeyframe(); }
 
-void Mapper::finish() {
+std::vector<ReintegrationRound> Mapper::finish() {
   closeKeyframe();
+  std::vector<ReintegrationRound> rounds;
   if (params_.mode == ReintegrationMode::kNone) {
     spdlog::info("final pass skipped (mapper.reintegration: none)");
-    return;
+    return rounds;
   }
   const std::vector<double> moved = movements();
   std::vector<size_t> chosen;
@@ -212,10 +254,36 @@ void Mapper::finish() {
   // In runs of m so that the streaming sphere follows the trajectory.
   for (size_t begin = 0; begin < chosen.size(); begin += static_cast<size_t>(params_.m)) {
     const size_t end = std::min(chosen.size(), begin + static_cast<size_t>(params_.m));
-    counters_.final_pass_reintegrations +=
-        reintegrate(std::vector<size_t>(chosen.begin() + static_cast<std::ptrdiff_t>(begin),
-                                        chosen.begin() + static_cast<std::ptrdiff_t>(end)));
+    rounds.push_back(reintegrate(std::vector<size_t>(chosen.begin() + static_cast<std::ptrdiff_t>(begin),
+                                                     chosen.begin() + static_cast<std::ptrdiff_t>(end))));
+    counters_.final_pass_reintegrations += rounds.back().keyframes;
+    counters_.final_pass_ms_total += rounds.back().ms;
   }
+  return rounds;
+}
+
+Mesh Mapper::extractUncorrectedMesh() const {
+  if (!camera_) return Mesh{};
+  // Same settings and order as the first integrations, so that an unmoved run gives the same voxels.
+  volume::TsdfVolume baseline(params_.volume);
+  for (const KeyframeRecord& r : keyframes_) {
+    if (!r.integrated) continue;
+    baseline.streamAround(r.first_pose.translation());
+    baseline.integrate(r.kf.depth, r.kf.color, r.kf.weight, *camera_, r.first_pose);
+  }
+  return baseline.extractMesh();
+}
+
+MemoryUse Mapper::memoryUse() const {
+  MemoryUse m;
+  m.input_frame_bytes = counters_.input_frame_bytes;
+  for (const KeyframeRecord& r : keyframes_) m.keyframe_bytes += matBytes(r.kf.depth) + matBytes(r.kf.weight) + matBytes(r.kf.color);
+  if (store_) m.keyframe_store_bytes = static_cast<int64_t>(store_->totalBytes() - store_->freeBytes());
+  const volume::VolumeStats vs = volume_->stats();
+  const int64_t block_bytes = static_cast<int64_t>(volume::kBlockVoxels) * vs.bytes_per_voxel;
+  m.voxel_bytes = vs.blocks * block_bytes;
+  m.active_voxel_bytes_peak = vs.peak_active_blocks * block_bytes;
+  return m;
 }
 
 void Mapper::removeStore() {

@@ -7,6 +7,7 @@
 #include <condition_variable>
 #include <deque>
 #include <filesystem>
+#include <fstream>
 #include <map>
 #include <mutex>
 #include <thread>
@@ -69,11 +70,42 @@ bool contains(const std::vector<std::string>& list, const std::string& s) {
   return std::find(list.begin(), list.end(), s) != list.end();
 }
 
+// One row of mapper_timing.csv (tools/report/README.md): the wall time of a
+// frame, split into keyframe fusion and the integration of a KF keyframe it closed.
+struct FrameTiming {
+  int64_t frame_id;
+  double ms, fuse_ms, integrate_ms;
+};
+// One row of mapper_reintegration.csv.
+struct RoundRecord {
+  double time_s;
+  int64_t graph_version;
+  ReintegrationRound round;
+  bool final_pass;
+};
+
+void writeFrameTiming(const std::vector<FrameTiming>& rows, const std::string& path) {
+  std::ofstream out(path);
+  out << "frame_id,ms,fuse_ms,integrate_ms\n";
+  for (const FrameTiming& r : rows) out << r.frame_id << ',' << r.ms << ',' << r.fuse_ms << ',' << r.integrate_ms << '\n';
+  if (!out) throw Error("cannot write " + path + "; check that the output folder is writable");
+}
+
+void writeRounds(const std::vector<RoundRecord>& rows, const std::string& path) {
+  std::ofstream out(path);
+  out << "time_s,graph_version,keyframes_reintegrated,ms,blocks_streamed,final_pass\n";
+  for (const RoundRecord& r : rows)
+    out << r.time_s << ',' << r.graph_version << ',' << r.round.keyframes << ',' << r.round.ms << ','
+        << r.round.blocks_streamed << ',' << (r.final_pass ? 1 : 0) << '\n';
+  if (!out) throw Error("cannot write " + path + "; check that the output folder is writable");
+}
+
 }  // namespace
 
 void runMapperService(ServiceContext& ctx) {
   const MapperParams params = MapperParams::fromConfig(ctx.config());
   const size_t max_queued = static_cast<size_t>(std::max(1, ctx.config().getInt("mapper.max_queued_frames")));
+  const bool write_uncorrected = ctx.config().getBool("mapper.write_uncorrected_mesh");
   const bool wait_for_optimiser =
       ctx.config().getBool("mapper.wait_for_optimiser") && contains(ctx.config().getStringList("run.services"), "optimiser");
   Bus& bus = ctx.bus();
@@ -81,6 +113,15 @@ void runMapperService(ServiceContext& ctx) {
   Shared s;
   optimiser::GraphUpdateFilter filter;  // each update carries every pose: only the newest matters
   FrameReceiver receiver;
+  // Written by the worker only (read after it joined).
+  std::vector<FrameTiming> frame_timing;
+  std::vector<RoundRecord> rounds;
+  std::optional<std::chrono::steady_clock::time_point> first_frame_time;
+  int64_t last_graph_version = 0;
+  auto secondsSinceFirstFrame = [&] {
+    if (!first_frame_time) return 0.0;
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - *first_frame_time).count();
+  };
 
   auto ack = [&](int64_t frame_id) {
     rekon_msgs::frame_ack_t a{};
@@ -208,11 +249,22 @@ void runMapperService(ServiceContext& ctx) {
       lock.unlock();
       try {
         if (auto* f = std::get_if<FrameWork>(&w)) {
+          const auto t0 = std::chrono::steady_clock::now();
+          if (!first_frame_time) first_frame_time = t0;
+          const MapperCounters before = mapper.counters();
           mapper.addFrame(f->frame, f->k, f->tracked.keyframe_id, f->tracked.pose_in_keyframe, f->tracked.lost);
+          const MapperCounters& after = mapper.counters();
+          frame_timing.push_back({f->frame.id,
+                                  std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count(),
+                                  after.fuse_ms_total - before.fuse_ms_total,
+                                  after.first_integration_ms_total - before.first_integration_ms_total});
         } else if (auto* kf = std::get_if<KeyframeWork>(&w)) {
           mapper.setKeyframeEstimate(kf->id, kf->world);
         } else {
-          mapper.applyGraphUpdate(std::get<GraphWork>(w).poses);
+          const GraphWork& g = std::get<GraphWork>(w);
+          const ReintegrationRound round = mapper.applyGraphUpdate(g.poses);
+          last_graph_version = g.version;
+          rounds.push_back({secondsSinceFirstFrame(), g.version, round, false});
         }
       } catch (const std::exception& e) {  // rekon::Error, or OpenCV's for a broken image
         lock.lock();
@@ -270,8 +322,9 @@ void runMapperService(ServiceContext& ctx) {
   if (!s.worker_error.empty()) throw Error(s.worker_error);
   if (!s.images.empty()) spdlog::warn("{} frames never got a tracked frame; dropped", s.images.size());
 
-  if (clean) mapper.finish();
-  else {
+  if (clean) {
+    for (const ReintegrationRound& r : mapper.finish()) rounds.push_back({secondsSinceFirstFrame(), last_graph_version, r, true});
+  } else {
     mapper.flush();
     spdlog::warn("mapper stopped before the end: no final pass; the keyframe store is kept (mapper.resume=true continues from it)");
   }
@@ -280,6 +333,18 @@ void runMapperService(ServiceContext& ctx) {
     const Mesh mesh = mapper.extractMesh();
     writePly(mesh, path);
     spdlog::info("wrote {} ({} vertices)", path, mesh.vertices.size());
+    const std::filesystem::path out(ctx.outDir());
+    writeFrameTiming(frame_timing, (out / "mapper_timing.csv").string());
+    writeRounds(rounds, (out / "mapper_reintegration.csv").string());
+    // With reintegration none mesh.ply already is the uncorrected baseline.
+    if (write_uncorrected && params.mode != ReintegrationMode::kNone) {
+      const auto t0 = std::chrono::steady_clock::now();
+      const Mesh uncorrected = mapper.extractUncorrectedMesh();
+      writePly(uncorrected, (out / "mesh_uncorrected.ply").string());
+      spdlog::info("wrote {} ({} vertices, {:.1f} s: every KF keyframe at its first pose)",
+                   (out / "mesh_uncorrected.ply").string(), uncorrected.vertices.size(),
+                   std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+    }
   }
   if (clean) {
     rekon_msgs::done_t done{};
@@ -292,6 +357,8 @@ void runMapperService(ServiceContext& ctx) {
   }
   const MapperCounters& c = mapper.counters();
   const volume::VolumeStats vs = mapper.volume().stats();
+  const MemoryUse mem = mapper.memoryUse();
+  const double n_frames = static_cast<double>(std::max<int64_t>(1, c.frames + c.skipped_frames));
   ctx.stats()
       .set("frames_fused", static_cast<long long>(c.frames))
       .set("frames_skipped", static_cast<long long>(c.skipped_frames))
@@ -310,9 +377,21 @@ void runMapperService(ServiceContext& ctx) {
       .set("active_blocks_peak", static_cast<long long>(vs.peak_active_blocks))
       .set("streamed_out", static_cast<long long>(vs.streamed_out))
       .set("streamed_in", static_cast<long long>(vs.streamed_in))
+      .set("fuse_ms_per_frame", c.fuse_ms_total / n_frames)
+      .set("integration_ms_per_frame", c.first_integration_ms_total / n_frames)
+      .set("reintegration_ms_per_frame", c.reintegration_ms_total / n_frames)
+      .set("final_pass_ms", c.final_pass_ms_total)
+      .set("reintegration_blocks_streamed", static_cast<long long>(c.reintegration_blocks_streamed))
+      .set("input_frame_bytes", static_cast<long long>(mem.input_frame_bytes))
+      .set("keyframe_bytes", static_cast<long long>(mem.keyframe_bytes))
+      .set("keyframe_over_input_bytes",
+           static_cast<double>(mem.keyframe_bytes) / static_cast<double>(std::max<int64_t>(1, mem.input_frame_bytes)))
+      .set("voxel_bytes", static_cast<long long>(mem.voxel_bytes))
+      .set("active_voxel_bytes_peak", static_cast<long long>(mem.active_voxel_bytes_peak))
       .set("reintegration", toString(params.mode))
       .set("m", params.m)
       .set("kappa", params.fusion.kappa);
+  if (mem.keyframe_store_bytes >= 0) ctx.stats().set("keyframe_store_bytes", static_cast<long long>(mem.keyframe_store_bytes));
   spdlog::info("mapper: {} frames into {} KF keyframes; {} re-integrations ({} in the final pass); {} blocks",
                c.frames, c.kf_keyframes, c.reintegrations, c.final_pass_reintegrations, vs.blocks);
   if (clean) mapper.removeStore();
