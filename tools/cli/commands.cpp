@@ -5,6 +5,7 @@
 #include "rekon/render/render.hpp"
 
 #include "rekon/volume/fuse_command.hpp"
+#include "rekon/mapper_bench/bench_command.hpp"
 #include "rekon/store/keyframe_store.hpp"
 #include "rekon/tracker/odometry_command.hpp"
 #include "launcher.hpp"
@@ -27,6 +28,7 @@ const std::vector<Command>& commands() {
       {"keyframes", "list or export the KF keyframes in the mapper's shared-memory keyframe store", store::keyframesMain},
       {"listen", "receive frames from the bus as a consumer and log their hashes", &listenMain},
       {"report", "self-contained report.html of a run folder: mesh views, trajectory, timing, stats", &report::reportCommand},
+      {"bench", "the paper's Figures 5 and 7 on rekon's mapper: bench keyframes | bench reintegration", &mapper_bench::benchMain},
   };
   return table;
 }

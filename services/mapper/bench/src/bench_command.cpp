@@ -1,0 +1,27 @@
+#include "rekon/mapper_bench/bench_command.hpp"
+
+#include <iostream>
+#include <string>
+
+#include "rekon/common/error.hpp"
+
+namespace rekon::mapper_bench {
+
+int benchMain(int argc, char** argv) {
+  const std::string usage =
+      "usage: rekon bench keyframes --dataset DIR --out DIR [...]      (paper Figure 5)\n"
+      "       rekon bench reintegration --dataset DIR --out DIR [...]  (paper Figure 7)\n"
+      "       rekon bench SUBCOMMAND --help for the options\n";
+  if (argc < 2 || std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h") {
+    std::cout << usage;
+    return 0;
+  }
+  const std::string what = argv[1];
+  std::string program = std::string(argv[0]) + " " + what;
+  argv[1] = program.data();  // the subcommand sees "rekon bench NAME" as its program
+  if (what == "keyframes") return benchKeyframesMain(argc - 1, argv + 1);
+  if (what == "reintegration") return benchReintegrationMain(argc - 1, argv + 1);
+  throw Error("rekon bench: unknown subcommand '" + what + "'; use keyframes or reintegration");
+}
+
+}  // namespace rekon::mapper_bench
