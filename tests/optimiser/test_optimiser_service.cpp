@@ -235,7 +235,12 @@ TEST(OptimiserService, ClosesTheLoopAndWritesEveryTrackedFrame) {
   EXPECT_NE(stats.find("\"loop_closures\": 1"), std::string::npos) << stats;
   EXPECT_NE(stats.find("\"loop_edges_removed\": 0"), std::string::npos) << stats;
   EXPECT_NE(stats.find("\"keyframes\": 40"), std::string::npos) << stats;
-  EXPECT_NE(stats.find("\"rejected_messages\": 2"), std::string::npos) << "the two malformed constraints\n" << stats;
+  // The NaN information is rejected on arrival; the edge to keyframe 999 is
+  // held for a keyframe that may still come (the service's restart
+  // recovery) and left out, with a logged error, at the end.
+  EXPECT_NE(stats.find("\"rejected_messages\": 1"), std::string::npos) << "the NaN constraint\n" << stats;
+  EXPECT_NE(readFile(dir / "optimiser.log").find("1 constraints name a keyframe that never arrived"), std::string::npos)
+      << readFile(dir / "optimiser.log");
 }
 
 }  // namespace

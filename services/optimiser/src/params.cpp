@@ -54,8 +54,23 @@ const char* toString(RobustLoss loss) {
   return "?";
 }
 
+Solver solverFromString(const std::string& name) {
+  if (name == "block_cholesky") return Solver::BlockCholesky;
+  if (name == "ceres") return Solver::Ceres;
+  throw Error("optimiser.solver = '" + name + "' is unknown; use block_cholesky or ceres");
+}
+
+const char* toString(Solver solver) {
+  switch (solver) {
+    case Solver::BlockCholesky: return "block_cholesky";
+    case Solver::Ceres: return "ceres";
+  }
+  return "?";
+}
+
 OptimiserServiceParams optimiserParamsFromConfig(const Config& config) {
   OptimiserServiceParams p;
+  p.graph.solver = solverFromString(config.getString("optimiser.solver"));
   p.graph.loop_loss = robustLossFromString(config.getString("optimiser.loop_loss"));
   p.graph.loop_loss_scale = config.getDouble("optimiser.loop_loss_scale");
   p.graph.loop_outlier_chi2 = config.getDouble("optimiser.loop_outlier_chi2");

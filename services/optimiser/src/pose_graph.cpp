@@ -8,9 +8,12 @@
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <chrono>
+#include <cmath>
+#include <ctime>
 #include <deque>
 #include <set>
 
+#include "block_cholesky.hpp"
 #include "rekon/common/error.hpp"
 #include "relative_pose_cost.hpp"
 
@@ -106,6 +109,8 @@ void PoseGraph::addConstraint(const Constraint& c) {
   e.c = c;
   e.c.information = sym;
   e.sqrt_information = llt.matrixU();
+  e.z = std::make_shared<detail::RelativeMeasurement>(Eigen::Quaterniond(c.relative.linear()).conjugate(),
+                                                      c.relative.translation());
   const size_t index = edges_.size();
   edges_.push_back(e);
   Node& from = nodes_.at(c.from_id);
@@ -168,6 +173,11 @@ double PoseGraph::edgeChi2(const Edge& e) const {
 }
 
 int PoseGraph::solve(bool final, OptimiseReport& report, bool first_round) {
+  return params_.solver == Solver::Ceres ? solveCeres(final, report, first_round)
+                                         : solveBlockCholesky(final, report, first_round);
+}
+
+int PoseGraph::solveCeres(bool final, OptimiseReport& report, bool first_round) {
   ceres::Problem::Options problem_options;
   problem_options.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   problem_options.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
@@ -178,9 +188,7 @@ int PoseGraph::solve(bool final, OptimiseReport& report, bool first_round) {
     Node& a = nodes_.at(e.c.from_id);
     Node& b = nodes_.at(e.c.to_id);
     if (!a.attached || !b.attached) continue;
-    const Eigen::Quaterniond qz(e.c.relative.linear());
-    auto* cost = new ceres::AutoDiffCostFunction<detail::RelativePoseCost, 6, 7, 7>(
-        new detail::RelativePoseCost{qz.conjugate(), e.c.relative.translation(), e.sqrt_information});
+    auto* cost = new detail::RelativePoseCost(*e.z, e.sqrt_information);
     problem.AddResidualBlock(cost, e.c.kind == EdgeKind::Loop ? loop_loss_.get() : nullptr, a.x, b.x);
     ++edges;
   }
@@ -215,8 +223,191 @@ int PoseGraph::solve(bool final, OptimiseReport& report, bool first_round) {
   return static_cast<int>(summary.iterations.size());
 }
 
+namespace {
+
+// Robust loss rho(s) of a squared whitened residual s and its slope, as
+// Ceres' CauchyLoss / HuberLoss with scale a define them.
+struct Robust {
+  double rho, slope;
+};
+Robust robust(RobustLoss loss, double a, double s) {
+  const double a2 = a * a;
+  switch (loss) {
+    case RobustLoss::Cauchy: return {a2 * std::log1p(s / a2), 1.0 / (1.0 + s / a2)};
+    case RobustLoss::Huber:
+      if (s <= a2) return {s, 1.0};
+      return {2.0 * a * std::sqrt(s) - a2, a / std::sqrt(s)};
+    case RobustLoss::None: break;
+  }
+  return {s, 1.0};
+}
+
+// Ceres' EigenQuaternionManifold retraction with phi = 2 delta: q' = Exp(phi) q.
+void retract(const double* x, const double* step, double* out) {
+  for (int i = 0; i < 3; ++i) out[i] = x[i] + step[i];
+  const Eigen::Vector3d phi(step[3], step[4], step[5]);
+  const double angle = phi.norm();
+  Eigen::Quaterniond dq = Eigen::Quaterniond::Identity();
+  if (angle > 0) dq = Eigen::Quaterniond(Eigen::AngleAxisd(angle, phi / angle));
+  const Eigen::Quaterniond q = (dq * Eigen::Quaterniond(x + 3)).normalized();
+  for (int i = 0; i < 4; ++i) out[3 + i] = q.coeffs()[i];
+}
+
+}  // namespace
+
+int PoseGraph::solveBlockCholesky(bool final, OptimiseReport& report, bool first_round) {
+  const auto start = std::chrono::steady_clock::now();
+  // Variables: the attached keyframes but the anchor, ascending id.
+  std::vector<Node*> vars;
+  std::map<int64_t, int> index;
+  for (auto& [id, n] : nodes_) {
+    if (!n.attached || (anchor_ && id == *anchor_)) continue;
+    index[id] = static_cast<int>(vars.size());
+    vars.push_back(&n);
+  }
+  struct Term {
+    const Edge* edge;
+    const double* a;
+    const double* b;
+    int ia, ib, pair;
+  };
+  std::vector<Term> terms;
+  std::vector<std::pair<int, int>> pairs;
+  std::set<int64_t> used;
+  for (const Edge& e : edges_) {
+    if (!e.kept) continue;
+    const Node& a = nodes_.at(e.c.from_id);
+    const Node& b = nodes_.at(e.c.to_id);
+    if (!a.attached || !b.attached) continue;
+    const auto ia = index.find(e.c.from_id), ib = index.find(e.c.to_id);
+    Term t{&e, a.x, b.x, ia == index.end() ? -1 : ia->second, ib == index.end() ? -1 : ib->second, -1};
+    if (t.ia >= 0 && t.ib >= 0) pairs.emplace_back(t.ia, t.ib);
+    terms.push_back(t);
+    used.insert(e.c.from_id);
+    used.insert(e.c.to_id);
+  }
+  report.edges_used = static_cast<int>(terms.size());
+  report.keyframes_optimised = static_cast<int>(used.size());
+  if (terms.empty()) return 0;
+  const int n = static_cast<int>(vars.size());
+  // The symbolic analysis is redone only when the pattern changed (a new
+  // keyframe or edge, a removed outlier).
+  if (!cholesky_ || cholesky_pairs_ != pairs || cholesky_->size() != n) {
+    if (!cholesky_) cholesky_ = std::make_unique<detail::BlockCholesky>();
+    cholesky_->analyse(n, pairs);
+    cholesky_pairs_ = pairs;
+  }
+  detail::BlockCholesky& chol = *cholesky_;
+  for (Term& t : terms) {
+    if (t.ia >= 0 && t.ib >= 0) t.pair = chol.pairIndex(t.ia, t.ib);
+  }
+
+  const auto cost = [&](const std::vector<const double*>* moved) {
+    double total = 0.0;
+    Vector6d e;
+    for (const Term& t : terms) {
+      const double* a = t.ia >= 0 && moved ? (*moved)[static_cast<size_t>(t.ia)] : t.a;
+      const double* b = t.ib >= 0 && moved ? (*moved)[static_cast<size_t>(t.ib)] : t.b;
+      detail::relativeErrorAndJacobians(a, b, *t.edge->z, e, nullptr, nullptr);
+      // U is stored with its zeros: a plain fixed-size product is faster than a triangular view.
+      const Vector6d r = t.edge->sqrt_information * e;
+      const double s = r.squaredNorm();
+      total += t.edge->c.kind == EdgeKind::Loop ? robust(params_.loop_loss, params_.loop_loss_scale, s).rho : s;
+    }
+    return 0.5 * total;
+  };
+  // Normal equations J^T W J and gradient J^T W r at the current poses, with
+  // the robust loss as iteratively reweighted least squares.
+  Eigen::VectorXd gradient(6 * n);
+  const auto linearise = [&] {
+    chol.setZero();
+    gradient.setZero();
+    auto& diag = chol.diagonal();
+    auto& off = chol.offDiagonal();
+    Vector6d e;
+    Matrix6d ja, jb;
+    for (const Term& t : terms) {
+      detail::relativeErrorAndJacobians(t.a, t.b, *t.edge->z, e, &ja, &jb);
+      const Matrix6d& u = t.edge->sqrt_information;
+      const Vector6d r = u * e;
+      const double w = t.edge->c.kind == EdgeKind::Loop
+                           ? robust(params_.loop_loss, params_.loop_loss_scale, r.squaredNorm()).slope
+                           : 1.0;
+      Matrix6d wa, wb;
+      wa.noalias() = u * ja;
+      wb.noalias() = u * jb;
+      if (t.ia >= 0) {
+        diag[static_cast<size_t>(t.ia)].noalias() += w * wa.transpose() * wa;
+        gradient.segment<6>(6 * t.ia).noalias() += w * wa.transpose() * r;
+      }
+      if (t.ib >= 0) {
+        diag[static_cast<size_t>(t.ib)].noalias() += w * wb.transpose() * wb;
+        gradient.segment<6>(6 * t.ib).noalias() += w * wb.transpose() * r;
+      }
+      if (t.pair >= 0) {
+        if (chol.pairRows()[static_cast<size_t>(t.pair)].first == t.ia)
+          off[static_cast<size_t>(t.pair)].noalias() += w * wa.transpose() * wb;
+        else
+          off[static_cast<size_t>(t.pair)].noalias() += w * wb.transpose() * wa;
+      }
+    }
+  };
+
+  const int max_iterations = final ? params_.final_max_iterations : params_.max_iterations;
+  const double tolerance = final ? params_.final_function_tolerance : params_.function_tolerance;
+  std::vector<double> candidate(7 * static_cast<size_t>(n));
+  std::vector<const double*> moved(static_cast<size_t>(n));
+  for (int i = 0; i < n; ++i) moved[static_cast<size_t>(i)] = candidate.data() + 7 * i;
+  double current = cost(nullptr);
+  if (first_round) report.initial_cost = current;
+  // Levenberg-Marquardt on H + lambda diag(H): close to Gauss-Newton while
+  // steps succeed, a shorter gradient-like step after one that failed.
+  double lambda = kInitialDamping;
+  int iterations = 0;
+  bool relinearise = true;
+  Eigen::VectorXd step;
+  while (iterations < max_iterations) {
+    if (!final && std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count() >
+                      params_.max_solver_time_s)
+      break;
+    if (relinearise) linearise();
+    relinearise = false;
+    ++iterations;
+    if (!chol.factorize(lambda)) {
+      lambda *= 10.0;
+      continue;
+    }
+    step = -gradient;
+    chol.solve(step);
+    for (int i = 0; i < n; ++i) retract(vars[static_cast<size_t>(i)]->x, step.data() + 6 * i, candidate.data() + 7 * i);
+    const double next = cost(&moved);
+    if (!(next < current)) {
+      lambda = std::min(lambda * 10.0, kMaxDamping);
+      if (lambda >= kMaxDamping) break;  // no step along the gradient lowers the cost: converged
+      continue;
+    }
+    for (int i = 0; i < n; ++i) std::copy_n(candidate.data() + 7 * i, 7, vars[static_cast<size_t>(i)]->x);
+    const double decrease = (current - next) / current;
+    current = next;
+    lambda = std::max(lambda / 10.0, kMinDamping);
+    relinearise = true;
+    if (decrease < tolerance) break;
+  }
+  report.final_cost = current;
+  return iterations;
+}
+
+namespace {
+double threadCpuMs() {
+  timespec ts{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return 1e3 * static_cast<double>(ts.tv_sec) + 1e-6 * static_cast<double>(ts.tv_nsec);
+}
+}  // namespace
+
 OptimiseReport PoseGraph::optimise(bool final) {
   const auto start = std::chrono::steady_clock::now();
+  const double cpu_start = threadCpuMs();
   OptimiseReport report;
   for (int round = 0;; ++round) {
     const int iterations = solve(final, report, round == 0);
@@ -243,6 +434,7 @@ OptimiseReport PoseGraph::optimise(bool final) {
     recomputeAttachment();
   }
   report.ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  report.cpu_ms = threadCpuMs() - cpu_start;
   return report;
 }
 

@@ -27,6 +27,11 @@ class Manifold;
 
 namespace rekon::optimiser {
 
+namespace detail {
+struct RelativeMeasurement;
+class BlockCholesky;
+}  // namespace detail
+
 using Vector6d = Eigen::Matrix<double, 6, 1>;
 using Matrix6d = Eigen::Matrix<double, 6, 6>;
 
@@ -57,6 +62,7 @@ struct OptimiseReport {
   double initial_cost = 0.0;     // 0.5 * sum of (robustified) squared whitened residuals
   double final_cost = 0.0;
   double ms = 0.0;               // wall time of the whole call
+  double cpu_ms = 0.0;           // CPU time of the calling thread (what a loaded machine does not inflate)
 };
 
 class PoseGraph {
@@ -107,6 +113,7 @@ class PoseGraph {
   struct Edge {
     Constraint c;
     Matrix6d sqrt_information;  // upper triangular U with U^T U = information
+    std::shared_ptr<const detail::RelativeMeasurement> z;
     bool kept = true;
   };
 
@@ -116,8 +123,19 @@ class PoseGraph {
   // The unattached keyframes linked to `start` by kept edges.
   std::vector<int64_t> unattachedGroup(int64_t start) const;
   void recomputeAttachment();
-  // One Ceres solve over the attached keyframes; returns iterations.
+  // One solve over the attached keyframes with params_.solver; returns
+  // iterations, -1 when the solver failed (the poses are unchanged then).
   int solve(bool final, OptimiseReport& report, bool first_round);
+  int solveCeres(bool final, OptimiseReport& report, bool first_round);
+  int solveBlockCholesky(bool final, OptimiseReport& report, bool first_round);
+
+  // Levenberg-Marquardt damping of solveBlockCholesky: lambda scales diag(H).
+  // Starting small makes the first steps Gauss-Newton steps (a pose graph
+  // from chained odometry is well within their basin); beyond the maximum a
+  // step is too short to matter and the solve ends.
+  static constexpr double kInitialDamping = 1e-6;
+  static constexpr double kMinDamping = 1e-9;
+  static constexpr double kMaxDamping = 1e6;
 
   PoseGraphParams params_;
   std::map<int64_t, Node> nodes_;
@@ -126,6 +144,8 @@ class PoseGraph {
   size_t loop_edges_removed_ = 0;
   std::unique_ptr<ceres::Manifold> pose_manifold_;
   std::unique_ptr<ceres::LossFunction> loop_loss_;
+  std::unique_ptr<detail::BlockCholesky> cholesky_;  // with the pattern it was analysed for
+  std::vector<std::pair<int, int>> cholesky_pairs_;
 };
 
 }  // namespace rekon::optimiser
