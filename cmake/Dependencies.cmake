@@ -7,6 +7,7 @@ find_package(spdlog REQUIRED)
 find_package(yaml-cpp REQUIRED)
 find_package(GTest REQUIRED)
 find_package(Threads REQUIRED)
+find_package(ZLIB REQUIRED)  # PNG chunk checksums in image_io (zlib1g-dev comes with libpng-dev)
 
 find_program(LCM_GEN lcm-gen REQUIRED)
 find_path(LCM_INCLUDE_DIR lcm/lcm-cpp.hpp REQUIRED)

@@ -3,8 +3,14 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include <zlib.h>
+
+#include <algorithm>
+#include <cctype>
+#include <cstdint>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 
 #include "rekon/common/error.hpp"
 
@@ -18,8 +24,97 @@ void requireSize(const cv::Mat& m, int width, int height, const std::string& wha
   }
 }
 
+uint32_t bigEndian(const uint8_t* p, int bytes) {
+  uint32_t v = 0;
+  for (int i = 0; i < bytes; ++i) v = (v << 8) | p[i];
+  return v;
+}
+
+// Every chunk of a PNG in place with its CRC, up to IEND: libpng would report
+// a cut or damaged file on stderr (a second, unclear line) before failing.
+void requireCompletePng(const uint8_t* data, size_t size, const std::string& what) {
+  size_t pos = 8;
+  while (pos + 12 <= size) {
+    const size_t length = bigEndian(data + pos, 4);
+    if (length > size - pos - 12) break;
+    if (::crc32(::crc32(0L, Z_NULL, 0), data + pos + 4, static_cast<uInt>(length + 4)) != bigEndian(data + pos + 8 + length, 4)) {
+      std::string name(reinterpret_cast<const char*>(data) + pos + 4, 4);
+      for (char& c : name) c = std::isalpha(static_cast<unsigned char>(c)) ? c : '?';
+      throw Error(what + ": PNG chunk '" + name + "' fails its checksum (corrupt file); replace the file");
+    }
+    if (std::equal(data + pos + 4, data + pos + 8, "IEND")) return;
+    pos += 12 + length;
+  }
+  throw Error(what + ": PNG ends before its IEND chunk (truncated); replace the file");
+}
+
+// What the header of a PNG or JPEG declares, read without decoding: a hostile
+// header (a 30000x30000 image in a few bytes) is rejected by its size before
+// the decoder allocates anything, and a JPEG cut short (which libjpeg would
+// decode into a half-grey image with warnings) is rejected as truncated.
+struct ImageHeader {
+  bool png = false;
+  uint32_t width = 0, height = 0;
+};
+
+ImageHeader readHeader(const uint8_t* data, size_t size, const std::string& what) {
+  static const uint8_t kPngSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
+  ImageHeader h;
+  if (size >= 8 && std::equal(kPngSignature, kPngSignature + 8, data)) {
+    if (size < 33 || std::string(reinterpret_cast<const char*>(data) + 12, 4) != "IHDR") {
+      throw Error(what + ": PNG without its IHDR header (corrupt or truncated); replace the file");
+    }
+    h.png = true;
+    h.width = bigEndian(data + 16, 4);
+    h.height = bigEndian(data + 20, 4);
+    return h;
+  }
+  if (size >= 3 && data[0] == 0xFF && data[1] == 0xD8 && data[2] == 0xFF) {
+    // The end-of-image marker, possibly followed by padding; entropy-coded
+    // data never contains FF D9, so its absence means the file was cut.
+    size_t end = size;
+    while (end > 2 && (data[end - 1] == 0x00 || data[end - 1] == '\n' || data[end - 1] == '\r' || data[end - 1] == ' ')) --end;
+    if (end < 4 || data[end - 2] != 0xFF || data[end - 1] != 0xD9) {
+      throw Error(what + ": JPEG ends without its end-of-image marker (truncated); replace the file");
+    }
+    // Walk the marker segments up to the frame header (SOFn: C0-CF except C4 DHT, C8 JPG, CC DAC).
+    size_t pos = 2;
+    while (pos + 4 <= size) {
+      if (data[pos] != 0xFF) break;
+      const uint8_t marker = data[pos + 1];
+      if (marker == 0xFF) {  // fill byte
+        ++pos;
+        continue;
+      }
+      if (marker == 0x01 || (marker >= 0xD0 && marker <= 0xD8)) {  // markers without a length
+        pos += 2;
+        continue;
+      }
+      const size_t length = bigEndian(data + pos + 2, 2);
+      if (marker >= 0xC0 && marker <= 0xCF && marker != 0xC4 && marker != 0xC8 && marker != 0xCC) {
+        if (length < 7 || pos + 9 > size) break;
+        h.height = bigEndian(data + pos + 5, 2);
+        h.width = bigEndian(data + pos + 7, 2);
+        return h;
+      }
+      if (length < 2) break;
+      pos += 2 + length;
+    }
+    throw Error(what + ": JPEG without a readable frame header (corrupt or truncated); replace the file");
+  }
+  throw Error(what + ": neither PNG nor JPEG data (corrupt, truncated or another format); replace the file");
+}
+
+void requireDeclaredSize(const ImageHeader& h, int width, int height, const std::string& what) {
+  if (h.width != static_cast<uint32_t>(width) || h.height != static_cast<uint32_t>(height)) {
+    throw Error(what + ": image is " + std::to_string(h.width) + "x" + std::to_string(h.height) + " but the camera is " +
+                std::to_string(width) + "x" + std::to_string(height) + "; fix camera.yaml or the image");
+  }
+}
+
 cv::Mat decode(const uint8_t* data, size_t size, int flags, const std::string& what) {
   if (size == 0) throw Error(what + ": empty image data; the file or message is truncated");
+  if (size > static_cast<size_t>(std::numeric_limits<int>::max())) throw Error(what + ": image data larger than 2 GiB");
   cv::Mat m;
   try {
     m = cv::imdecode(cv::Mat(1, static_cast<int>(size), CV_8UC1, const_cast<uint8_t*>(data)), flags);
@@ -39,6 +134,11 @@ std::vector<uint8_t> readFileBytes(const std::string& path) {
 }
 
 cv::Mat decodeDepthPng(const uint8_t* data, size_t size, int width, int height, const std::string& what) {
+  if (size == 0) throw Error(what + ": empty image data; the file or message is truncated");
+  const ImageHeader h = readHeader(data, size, what);
+  if (!h.png) throw Error(what + ": depth must be a 16-bit single-channel PNG, found a JPEG; convert the depth image");
+  requireDeclaredSize(h, width, height, what);
+  requireCompletePng(data, size, what);
   cv::Mat m = decode(data, size, cv::IMREAD_ANYDEPTH | cv::IMREAD_GRAYSCALE, what);
   if (m.type() != CV_16UC1) {
     throw Error(what + ": depth must be a 16-bit single-channel PNG, found " + std::to_string(m.elemSize1() * 8) +
@@ -49,6 +149,10 @@ cv::Mat decodeDepthPng(const uint8_t* data, size_t size, int width, int height, 
 }
 
 cv::Mat decodeColor(const uint8_t* data, size_t size, int width, int height, const std::string& what) {
+  if (size == 0) throw Error(what + ": empty image data; the file or message is truncated");
+  const ImageHeader h = readHeader(data, size, what);
+  requireDeclaredSize(h, width, height, what);
+  if (h.png) requireCompletePng(data, size, what);
   cv::Mat m = decode(data, size, cv::IMREAD_COLOR, what);
   if (m.type() != CV_8UC3) throw Error(what + ": color must be 8-bit; convert the color image");
   requireSize(m, width, height, what);

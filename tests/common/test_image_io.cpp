@@ -1,0 +1,110 @@
+// Image decoding of hostile bytes: every broken input is one rekon::Error that
+// names the source and says what is wrong, before any large allocation.
+#include <gtest/gtest.h>
+
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <string>
+#include <vector>
+
+#include "rekon/common/error.hpp"
+#include "rekon/common/image_io.hpp"
+
+namespace {
+
+constexpr int kWidth = 32, kHeight = 24;
+
+cv::Mat colorImage() {
+  cv::Mat m(kHeight, kWidth, CV_8UC3);
+  cv::randu(m, 0, 255);
+  return m;
+}
+
+cv::Mat depthImage() {
+  cv::Mat m(kHeight, kWidth, CV_16UC1);
+  cv::randu(m, 500, 4000);
+  return m;
+}
+
+// The message of the rekon::Error that decoding `bytes` throws ("" if none).
+std::string colorError(const std::vector<uint8_t>& bytes) {
+  try {
+    rekon::decodeColor(bytes.data(), bytes.size(), kWidth, kHeight, "frame 7 color");
+  } catch (const rekon::Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+std::string depthError(const std::vector<uint8_t>& bytes) {
+  try {
+    rekon::decodeDepthPng(bytes.data(), bytes.size(), kWidth, kHeight, "frame 7 depth");
+  } catch (const rekon::Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+}  // namespace
+
+TEST(ImageIo, ValidPngAndJpegDecodeToTheirSize) {
+  EXPECT_EQ(colorError(rekon::encodePng(colorImage())), "");
+  EXPECT_EQ(colorError(rekon::encodeJpeg(colorImage())), "");
+  const cv::Mat depth = depthImage();
+  const auto png = rekon::encodePng(depth);
+  const cv::Mat back = rekon::decodeDepthPng(png.data(), png.size(), kWidth, kHeight, "depth");
+  EXPECT_EQ(cv::norm(back, depth, cv::NORM_INF), 0.0);  // PNG is lossless
+}
+
+TEST(ImageIo, TruncatedJpegIsAnErrorNotAHalfGreyImage) {
+  auto jpeg = rekon::encodeJpeg(colorImage());
+  jpeg.resize(jpeg.size() * 2 / 3);
+  const std::string e = colorError(jpeg);
+  EXPECT_NE(e.find("frame 7 color"), std::string::npos) << e;
+  EXPECT_NE(e.find("truncated"), std::string::npos) << e;
+}
+
+TEST(ImageIo, TruncatedPngIsAnErrorAtEveryLength) {
+  const auto png = rekon::encodePng(depthImage());
+  for (size_t n = 1; n < png.size(); n += 7) {
+    const std::vector<uint8_t> cut(png.begin(), png.begin() + static_cast<long>(n));
+    EXPECT_NE(depthError(cut).find("frame 7 depth"), std::string::npos) << "cut at " << n;
+  }
+}
+
+TEST(ImageIo, HugeDeclaredSizeIsRejectedFromTheHeader) {
+  // A 30000x30000 header in a few bytes must not make the decoder allocate 2.7 GB.
+  auto png = rekon::encodePng(colorImage());
+  png[16] = 0, png[17] = 0, png[18] = 0x75, png[19] = 0x30;  // IHDR width 30000
+  png[20] = 0, png[21] = 0, png[22] = 0x75, png[23] = 0x30;  // IHDR height 30000
+  EXPECT_NE(colorError(png).find("30000x30000"), std::string::npos) << colorError(png);
+  auto jpeg = rekon::encodeJpeg(colorImage());
+  for (size_t i = 2; i + 9 < jpeg.size(); ++i) {
+    if (jpeg[i] == 0xFF && jpeg[i + 1] == 0xC0) {  // baseline frame header: height, width at +5, +7
+      jpeg[i + 5] = 0x75, jpeg[i + 6] = 0x30, jpeg[i + 7] = 0x75, jpeg[i + 8] = 0x30;
+      break;
+    }
+  }
+  EXPECT_NE(colorError(jpeg).find("30000x30000"), std::string::npos) << colorError(jpeg);
+}
+
+TEST(ImageIo, OtherFormatsAndGarbageAreNamed) {
+  std::vector<uint8_t> bmp;
+  cv::imencode(".bmp", colorImage(), bmp);
+  EXPECT_NE(colorError(bmp).find("neither PNG nor JPEG"), std::string::npos) << colorError(bmp);
+  EXPECT_NE(colorError({1, 2, 3}).find("neither PNG nor JPEG"), std::string::npos);
+  EXPECT_NE(colorError({}).find("empty image data"), std::string::npos);
+}
+
+TEST(ImageIo, DepthMustBeA16BitPng) {
+  EXPECT_NE(depthError(rekon::encodeJpeg(colorImage())).find("found a JPEG"), std::string::npos);
+  cv::Mat eight(kHeight, kWidth, CV_8UC1, cv::Scalar(3));
+  EXPECT_NE(depthError(rekon::encodePng(eight)).find("16-bit"), std::string::npos);
+}
+
+TEST(ImageIo, WrongSizeNamesBothSizes) {
+  cv::Mat small(kHeight - 1, kWidth, CV_8UC3, cv::Scalar(1, 2, 3));
+  const std::string e = colorError(rekon::encodePng(small));
+  EXPECT_NE(e.find("32x23"), std::string::npos) << e;
+  EXPECT_NE(e.find("32x24"), std::string::npos) << e;
+}
