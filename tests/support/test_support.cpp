@@ -1,11 +1,13 @@
 #include "test_support.hpp"
 
 #include <sys/wait.h>
+#include <unistd.h>
 
 #include <array>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <sstream>
 
 namespace rekon::test {
 namespace fs = std::filesystem;
@@ -43,6 +45,41 @@ int runCommand(const std::string& command, std::string* output) {
   const int status = pclose(pipe);
   if (output) *output = out;
   return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+}
+
+bool insideNetns() {
+  static const char* kInside = "REKON_TEST_INSIDE_NETNS";
+  if (std::getenv(kInside)) return true;
+  const std::string in_netns = sourceDir() + "/tests/support/in_netns.sh";
+  if (runCommand(in_netns + " true") != 0) {
+    ADD_FAILURE() << "cannot create a network namespace (unshare -n); multi-process tests need root";
+    return false;
+  }
+  const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+  const std::string filter = std::string(info->test_suite_name()) + "." + info->name();
+  std::string out;
+  const int rc = runCommand(std::string(kInside) + "=1 " + in_netns + " /proc/" + std::to_string(getpid()) +
+                                "/exe --gtest_filter=" + filter,
+                            &out);
+  EXPECT_EQ(rc, 0) << out;
+  return false;
+}
+
+std::string crashLines(const std::string& output) {
+  static const char* kSigns[] = {"Sanitizer",     "runtime error:", "terminate called", "Segmentation fault",
+                                 "Aborted",       "core dumped",    "libpng",           "Corrupt JPEG",
+                                 "Premature end", "std::bad_alloc", "Assertion"};
+  std::string found, line;
+  std::istringstream in(output);
+  while (std::getline(in, line)) {
+    for (const char* sign : kSigns) {
+      if (line.find(sign) != std::string::npos) {
+        found += line + "\n";
+        break;
+      }
+    }
+  }
+  return found;
 }
 
 }  // namespace rekon::test

@@ -33,4 +33,14 @@ std::string sourceDir();
 // Runs a shell command, returns its exit status; stdout+stderr go to `output`.
 int runCommand(const std::string& command, std::string* output = nullptr);
 
+// Multi-process tests whose own process talks on the bus: runs the current
+// test again inside tests/support/in_netns.sh and reports its result; returns
+// true only in that inner process, which then does the work.
+//   TEST(X, Y) { if (!rekon::test::insideNetns()) return; ... }
+bool insideNetns();
+
+// Lines of `output` that look like a crash rather than a handled error
+// (sanitizer reports, aborts, uncaught exceptions, decoder noise).
+std::string crashLines(const std::string& output);
+
 }  // namespace rekon::test
