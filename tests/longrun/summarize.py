@@ -69,8 +69,8 @@ print(" ".join(header))
 t0 = min(s[0][0] for s in memory.values()) if memory else 0
 next_mark = 0
 rows = []
-for t, frames, blocks, active in progress:
-    if frames < next_mark:
+for n, (t, frames, blocks, active) in enumerate(progress):
+    if frames < next_mark and n != len(progress) - 1:  # every 1000 frames, and the last line
         continue
     next_mark = (frames // 1000 + 1) * 1000
     row = [str(frames), f"{t - t0:.0f}"]
