@@ -32,8 +32,23 @@ struct Bus::Impl {
   std::uniform_real_distribution<double> uniform{0.0, 1.0};
 };
 
+namespace {
+
+// Inline frames are 0.5-1 MB; the kernel's default UDP receive buffer (about
+// 200 KB) holds less than one, so a receiver busy for a moment loses frames.
+// Ask for 4 MiB unless the URL says otherwise (the kernel caps it at
+// net.core.rmem_max).
+constexpr const char* kRecvBufOption = "recv_buf_size=4194304";
+
+std::string withReceiveBuffer(const std::string& url) {
+  if (url.rfind("udpm://", 0) != 0 || url.find("recv_buf_size") != std::string::npos) return url;
+  return url + (url.find('?') == std::string::npos ? "?" : "&") + kRecvBufOption;
+}
+
+}  // namespace
+
 Bus::Bus(const BusOptions& options) : impl_(std::make_unique<Impl>()), prefix_(options.prefix) {
-  impl_->lcm = lcm_create(options.url.c_str());
+  impl_->lcm = lcm_create(withReceiveBuffer(options.url).c_str());
   if (!impl_->lcm) {
     throw Error("LCM could not start on " + options.url +
                 "; check that a multicast route exists (ip route add 224.0.0.0/4 dev lo) and lcm.url is valid");
