@@ -1,0 +1,60 @@
+#!/usr/bin/env bash
+# Records a whole `rekon run` with lcm-logger, then replays the log:
+#   sensor/  fresh tracker, optimiser and mapper fed only the sensor channels
+#            (REKON_FRAMES, REKON_END_OF_STREAM) by lcm-logplayer;
+#   store/   a mapper fed the logged frames and tracked poses, stopped before
+#            its final pass so that its keyframe store stays;
+#   graph/   a mapper resuming from that store, fed only the pose and graph
+#            channels (tracked frames, keyframes, graph updates, end, done).
+# Every process runs under a timeout; run it inside tests/support/in_netns.sh.
+# usage: log_replay.sh BIN_DIR DATASET OUT_DIR
+set -euo pipefail
+bin=$1 data=$2 dir=$3
+url="udpm://239.255.76.67:7667?ttl=0&recv_buf_size=8388608"
+mkdir -p "$dir/sensor" "$dir/store" "$dir/graph"
+
+# A service has subscribed to its inputs once it logs this line.
+ready_line() { case $1 in tracker) echo "tracking levels" ;; optimiser) echo "pose graph:" ;; mapper) echo "mapper: KF strategy" ;; esac; }
+wait_ready() {  # FOLDER SERVICE...
+  local folder=$1; shift
+  for s in "$@"; do
+    for _ in $(seq 1 600); do grep -q "$(ready_line "$s")" "$folder/$s.log" 2> /dev/null && break; sleep 0.1; done
+    grep -q "$(ready_line "$s")" "$folder/$s.log" || { echo "rekon-$s did not start; see $folder/$s.log"; exit 1; }
+  done
+}
+start() {  # FOLDER SERVICE [--set ...]
+  local folder=$1 s=$2; shift 2
+  timeout 240 "$bin/rekon-$s" --config "$dir/live/config.yaml" --out "$folder" "$@" > "$folder/$s.log" 2>&1 &
+}
+
+# The live run, recorded. Inline frames, so that the log holds the images.
+timeout 300 lcm-logger --quiet --lcm-url="$url" "$dir/run.lcmlog" > /dev/null 2>&1 &
+logger=$!
+sleep 0.5
+timeout 240 "$bin/rekon" run --dataset "$data" --out "$dir/live" --set transport.mode=lcm > "$dir/live.out" 2>&1
+kill -INT $logger
+wait $logger || true
+
+# Sensor replay into fresh services: they finish through the usual done chain.
+for s in tracker optimiser mapper; do start "$dir/sensor" $s --set mapper.store_segment=rekon_keyframes_sensor_$$; done
+wait_ready "$dir/sensor" tracker optimiser mapper
+timeout 240 lcm-logplayer --lcm-url="$url" -e '^REKON_(FRAMES|END_OF_STREAM)$' "$dir/run.lcmlog"
+wait
+
+# A keyframe store from the logged frames and tracked poses; SIGTERM before
+# the final pass keeps it.
+store=rekon_keyframes_replay_$$
+start "$dir/store" mapper --set mapper.store_segment=$store --set mapper.wait_for_optimiser=false --set transport.mode=lcm
+mapper=$!
+wait_ready "$dir/store" mapper
+timeout 240 lcm-logplayer --lcm-url="$url" -e '^REKON_(FRAMES|TRACKED_FRAMES|KEYFRAMES)$' "$dir/run.lcmlog"
+sleep 2  # the last frames through the mapper's queue
+kill -TERM $mapper
+wait $mapper || true
+
+# Pose and graph channels only, into a mapper resuming from that store.
+start "$dir/graph" mapper --set mapper.store_segment=$store --set mapper.resume=true
+wait_ready "$dir/graph" mapper
+# No images: 5x the recorded speed is easy for the mapper.
+timeout 240 lcm-logplayer --speed 5 --lcm-url="$url" -e '^REKON_(TRACKED_FRAMES|KEYFRAMES|GRAPH_UPDATES|END_OF_STREAM|DONE)$' "$dir/run.lcmlog"
+wait
