@@ -6,11 +6,3 @@ target_compile_options(rekon_warnings INTERFACE
 if(REKON_WERROR)
   target_compile_options(rekon_warnings INTERFACE $<$<COMPILE_LANGUAGE:CXX>:-Werror>)
 endif()
-if(REKON_SANITIZE)
-  add_compile_options(-fsanitize=address,undefined -fno-sanitize-recover=undefined -fno-omit-frame-pointer)
-  add_link_options(-fsanitize=address,undefined)
-endif()
-if(REKON_FUZZ)
-  # Coverage instrumentation for libFuzzer in every library the fuzzers link.
-  add_compile_options(-fsanitize=fuzzer-no-link)
-endif()

@@ -1,0 +1,27 @@
+# REKON_SANITIZE=address: AddressSanitizer + UndefinedBehaviorSanitizer (any
+# report aborts, so a finding fails its test); REKON_SANITIZE=thread:
+# ThreadSanitizer. Applied to every target of the build; CI builds only the
+# tests it runs under them (tools/rekon sanitize). REKON_FUZZ implies address.
+string(TOLOWER "${REKON_SANITIZE}" _rekon_sanitize)
+if(REKON_FUZZ AND NOT _rekon_sanitize STREQUAL "address")
+  if(_rekon_sanitize MATCHES "^(thread)$")
+    message(FATAL_ERROR "REKON_FUZZ needs REKON_SANITIZE=address (libFuzzer runs under ASan), not ${REKON_SANITIZE}")
+  endif()
+  set(_rekon_sanitize address)
+endif()
+if(_rekon_sanitize MATCHES "^(on|yes|true|1|address)$")
+  set(REKON_SANITIZER address)
+  add_compile_options("$<$<COMPILE_LANGUAGE:C,CXX>:-fsanitize=address,undefined;-fno-sanitize-recover=undefined;-fno-omit-frame-pointer>")
+  add_link_options(-fsanitize=address,undefined)
+elseif(_rekon_sanitize STREQUAL "thread")
+  set(REKON_SANITIZER thread)
+  add_compile_options("$<$<COMPILE_LANGUAGE:C,CXX>:-fsanitize=thread;-fno-omit-frame-pointer>")
+  add_link_options(-fsanitize=thread)
+elseif(_rekon_sanitize MATCHES "^(off|no|false|0|)$")
+  set(REKON_SANITIZER "")
+else()
+  message(FATAL_ERROR "REKON_SANITIZE=${REKON_SANITIZE} is unknown; use OFF, address or thread")
+endif()
+if(REKON_SANITIZER)
+  message(STATUS "rekon: sanitizer ${REKON_SANITIZER} on every target")
+endif()
