@@ -17,9 +17,9 @@ using rekon::test::runCommand;
 
 namespace {
 
-// 4 s of the synthetic room: 6 KF keyframes at kappa 20, small enough for a
+// 3 s of the synthetic room: 4 KF keyframes at kappa 20, small enough for a
 // loaded 2-core machine, long enough to kill a service with 2 of them stored.
-constexpr int kFrames = 120;
+constexpr int kFrames = 90;
 constexpr int kKillAfterKeyframes = 2;
 
 std::string bin() { return rekon::test::binDir(); }
@@ -39,7 +39,7 @@ struct Baseline {
 };
 const Baseline& baseline() {
   static const Baseline b = [] {
-    std::string key;
+    std::string key = std::to_string(kFrames) + "_";
     for (const char* s : {"rekon", "rekon-player", "rekon-tracker", "rekon-optimiser", "rekon-mapper"}) {
       struct stat st {};
       stat((bin() + "/" + s).c_str(), &st);
