@@ -41,7 +41,7 @@ start=$(date +%s)
 status=0
 "$here/../support/in_netns.sh" "$bin/rekon" run --dataset "$data" --out "$run" \
   --set mapper.store_mb="$store_mb" --set mapper.store_segment="$segment" \
-  --set mapper.store_spill_dir="$run/keyframe_spill" "$@" || status=$?
+  --set mapper.store_spill_dir="$run/keyframe_spill" --set run.shutdown_timeout_s=1800 "$@" || status=$?
 echo "rekon run exited $status after $(( $(date +%s) - start )) s"
 kill $sampler 2>/dev/null || true
 python3 "$here/summarize.py" "$run"
