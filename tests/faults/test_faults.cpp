@@ -128,11 +128,12 @@ TEST(Faults, KilledMapperIsRestartedAndItsMeshMatchesAnUninterruptedRun) {
   const Faulty f = runKilling("mapper", out);
   ASSERT_NE(f.output.find("killed rekon-mapper"), std::string::npos) << f.output;
   ASSERT_EQ(f.rc, 0) << f.output;
-  EXPECT_NE(readFile(out + "/stats.json").find("\"restarts\": {\"mapper\":1}"), std::string::npos);
+  EXPECT_NE(readFile(out + "/stats.json").find("\"restarts\": {\"mapper\":1}"), std::string::npos) << f.output;
   // The restarted mapper rebuilt from its store and got every later frame again.
-  EXPECT_NE(readFile(out + "/player.log").find("rekon-mapper restarted: sending frames"), std::string::npos);
+  EXPECT_NE(readFile(out + "/player.log").find("rekon-mapper restarted: sending frames"), std::string::npos)
+      << readFile(out + "/player.log");
   // Issue 9: CORR within 1 mm of the uninterrupted run's.
-  EXPECT_NEAR(corrOf(out), corrOf(baseline().run), 0.001);
+  EXPECT_NEAR(corrOf(out), corrOf(baseline().run), 0.001) << readFile(out + "/mapper.log");
   EXPECT_EQ(leftoverSegments(out), std::vector<std::string>{});
 }
 
