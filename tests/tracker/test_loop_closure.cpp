@@ -142,6 +142,41 @@ TEST_F(LoopClosureTest, AGraphUpdateMovesTheEstimateAndAnOlderOneIsIgnored) {
   EXPECT_LT(translationDistance(d.estimate(1), moved), 1e-9);
 }
 
+// A loop pose aligned both ways round: `forward` the new keyframe in the
+// candidate, `backward` the candidate in the new keyframe.
+AlignResult aligned(const Pose& pose, double information) {
+  AlignResult r;
+  r.pose = pose;
+  r.information = information * Matrix6d::Identity();
+  r.valid = true;
+  return r;
+}
+
+TEST(LoopBothDirections, AgreeingDirectionsGiveTheirCommonPose) {
+  Pose t = Pose::Identity();
+  t.linear() = Eigen::AngleAxisd(0.4, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
+  t.translation() = Eigen::Vector3d(0.3, -0.1, 0.2);
+  const Pose mean = bothDirections(aligned(t, 1e4), aligned(t.inverse(), 1e4));
+  EXPECT_LT(translationDistance(mean, t), 1e-9);
+  EXPECT_LT(rotationAngle(mean, t), 1e-9);
+}
+
+TEST(LoopBothDirections, TheMeanIsTheMidpoint) {
+  Pose t = Pose::Identity();
+  t.translation() = Eigen::Vector3d(0.3, -0.1, 0.2);
+  Pose other = t;
+  other.translation().x() += 0.02;  // the backward alignment says 2 cm further along x
+  other.linear() = Eigen::AngleAxisd(0.01, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  // Halfway: 1 cm along x (to 1e-4: the half rotation bends the SE(3) path by
+  // about 0.005 rad x 2 cm) and 0.005 rad about z, whatever the informations.
+  for (const double backward_information : {1e2, 1e4, 1e6}) {
+    const Pose mid = bothDirections(aligned(t, 1e4), aligned(other.inverse(), backward_information));
+    EXPECT_NEAR(mid.translation().x(), 0.31, 1e-4);
+    EXPECT_NEAR(rotationAngle(mid, t), 0.005, 1e-9);
+    EXPECT_NEAR(rotationAngle(mid, other), 0.005, 1e-9);
+  }
+}
+
 TEST(LoopClosureWorker, AFullQueueDropsTheOldestChecks) {
   TrackerParams params;
   params.loop.queue_capacity = 2;

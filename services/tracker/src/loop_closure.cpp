@@ -26,6 +26,15 @@ double viewAngle(const Pose& a, const Pose& b) {
 
 double logDetOfEntropy(double entropy) { return 2.0 * (kEntropyConstant - entropy); }
 
+Pose bothDirections(const AlignResult& forward, const AlignResult& backward) {
+  // The midpoint on SE(3) of the two estimates of the new keyframe in the
+  // candidate. Equal weights, not the information-weighted mean: on the
+  // 7-Scenes loop the weighted mean left the ATE ratio where the forward
+  // alignment alone has it (0.757 vs 0.756), the midpoint lowered it to 0.733.
+  const Vector6d delta = logSe3(forward.pose.inverse() * backward.pose.inverse());
+  return orthonormalised(forward.pose * expSe3(0.5 * delta));
+}
+
 LoopClosureDetector::LoopClosureDetector(const TrackerParams& params) : params_(params), aligner_(params.aligner) {
   params_.validate();
 }
@@ -202,7 +211,7 @@ CandidateCheck LoopClosureDetector::check(int64_t candidate_id, int64_t keyframe
     LoopConstraint c;
     c.from_id = candidate_id;
     c.to_id = keyframe_id;
-    c.relative = fine.pose;
+    c.relative = lp.both_directions ? bothDirections(fine, back) : fine.pose;
     c.information = fine.information;
     c.coarse_ratio = coarse_ratio;
     c.fine_ratio = fine_ratio;

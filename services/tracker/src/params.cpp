@@ -120,6 +120,7 @@ TrackerParams trackerParamsFromConfig(const Config& c) {
   p.loop.fine_entropy_ratio = c.getDouble("tracker.loop_fine_entropy_ratio");
   p.loop.min_pixel_ratio = c.getDouble("tracker.loop_min_pixel_ratio");
   p.loop.max_cross_check_m = c.getDouble("tracker.loop_max_cross_check");
+  p.loop.both_directions = c.getBool("tracker.loop_both_directions");
   p.loop.max_candidates = c.getInt("tracker.loop_max_candidates");
   p.loop.queue_capacity = c.getInt("tracker.loop_queue_capacity");
   p.validate();

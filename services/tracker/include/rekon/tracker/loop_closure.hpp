@@ -31,6 +31,11 @@ namespace rekon::tracker {
 // (entropyOfInformation): the quantity DVO-SLAM's entropy ratio divides.
 double logDetOfEntropy(double entropy);
 
+// The mean (SE(3) midpoint) of a loop pose aligned both ways: `forward` is
+// the new keyframe aligned to the candidate, `backward` the candidate aligned
+// to the new keyframe (both valid).
+Pose bothDirections(const AlignResult& forward, const AlignResult& backward);
+
 // A validated loop closure: pose of keyframe `to_id` (the new one) in the
 // frame of `from_id` (the earlier candidate), right-perturbation information
 // in (v, w) order, as OdometryConstraint.

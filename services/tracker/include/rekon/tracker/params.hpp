@@ -112,6 +112,7 @@ struct LoopClosureParams {
   static constexpr double kDefaultMaxCrossCheck = 0.05;
   static constexpr int kDefaultMaxCandidates = 0;
   static constexpr int kDefaultQueueCapacity = 128;
+  static constexpr bool kDefaultBothDirections = true;
 
   bool enabled = kDefaultEnabled;
   // Candidates: earlier keyframes whose camera centre lies within this many
@@ -136,6 +137,17 @@ struct LoopClosureParams {
   // The pair aligned the other way round, from the inverse of the accepted
   // result, must land within this many metres of it.
   double max_cross_check_m = kDefaultMaxCrossCheck;
+  // The loop's pose is the mean (SE(3) midpoint) of both directions'
+  // alignments (the cross check's and the forward one) rather than the
+  // forward one alone. Each direction warps only its reference keyframe's
+  // selected pixels and carries its own bias (7-Scenes: color not registered
+  // to depth); the mean halves what is not shared. The information stays the
+  // forward alignment's. loop_closure_bench, ATE with loops / odometry alone:
+  // 7-Scenes loop 0.756 -> 0.733 (the information-weighted mean: 0.757);
+  // synthetic room 0.475 -> 0.427 (loop edge error median 0.6 -> 0.3 mm),
+  // every 3rd frame 0.387 -> 0.393 (sub-millimetre either way); TUM teddy has
+  // no loop (ATE 1.41 cm either way).
+  bool both_directions = kDefaultBothDirections;
   // Candidates checked per keyframe, nearest views first (0 = all).
   int max_candidates = kDefaultMaxCandidates;
   // Keyframes waiting for their check; when full the oldest waiting check is
