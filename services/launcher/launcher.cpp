@@ -20,6 +20,7 @@
 #include "rekon/common/json.hpp"
 #include "rekon/common/logging.hpp"
 #include "rekon/report/run_report.hpp"
+#include "rekon/store/keyframe_store.hpp"
 #include "rekon/synth/synth.hpp"
 
 namespace rekon {
@@ -233,7 +234,8 @@ int launch(const RunOptions& opt) {
   }
   const double wall = std::chrono::duration<double>(Clock::now() - start).count();
   if (removeFrameRing(segment)) spdlog::info("removed the frame ring '{}' left by a stopped player", segment);
-  if (removeFrameRing(store_segment)) spdlog::info("removed the keyframe store '{}' left by a stopped mapper", store_segment);
+  // With its spill files, when a mapper that died for good left it.
+  if (store::KeyframeStore::remove(store_segment)) spdlog::info("removed the keyframe store '{}' left by a stopped mapper", store_segment);
 
   // stats.json: run-level figures plus each service's own stats file.
   JsonObject stats;
