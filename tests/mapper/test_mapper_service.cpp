@@ -90,40 +90,37 @@ TEST_F(MapperServiceRun, ReplayedPosesAreCorrectedAndTheMeshWritten) {
   EXPECT_FALSE(fs::exists("/dev/shm/" + store_));
 }
 
-TEST_F(MapperServiceRun, TimingCsvHasOneRowPerFrameInTheReportsFormat) {
-  const rekon::report::CsvTable t = rekon::report::readCsvTable(out("mapper_timing.csv"), rekon::report::kTimingColumns);
-  ASSERT_EQ(t.rows.size(), static_cast<size_t>(kFrames));
-  for (int i = 0; i < kFrames; ++i) EXPECT_EQ(t.rows[i][0], i);  // frames in the order the player numbered them
-  const int integrate = t.column("integrate_ms");
+// One test for all of them: under ctest every test is its own process and would run the pipeline again.
+TEST_F(MapperServiceRun, WritesWhatTheReportReads) {
+  // mapper_timing.csv: one row per frame, in the order the player numbered them.
+  const rekon::report::CsvTable timing = rekon::report::readCsvTable(out("mapper_timing.csv"), rekon::report::kTimingColumns);
+  ASSERT_EQ(timing.rows.size(), static_cast<size_t>(kFrames));
+  for (int i = 0; i < kFrames; ++i) EXPECT_EQ(timing.rows[i][0], i);
+  const int integrate = timing.column("integrate_ms");
   ASSERT_GE(integrate, 0);
   int frames_that_integrated = 0;
-  for (const auto& row : t.rows) frames_that_integrated += row[integrate] > 0;
+  for (const auto& row : timing.rows) frames_that_integrated += row[integrate] > 0;
   EXPECT_EQ(frames_that_integrated, 5);  // frames 5, 10, ..., 25 close a KF keyframe; the sixth closes at the end
-}
 
-TEST_F(MapperServiceRun, ReintegrationCsvHasARoundPerGraphUpdateAndTheFinalPass) {
-  const rekon::report::CsvTable t =
-      rekon::report::readCsvTable(out("mapper_reintegration.csv"), rekon::report::kReintegrationColumns);
+  // mapper_reintegration.csv: a round per applied graph update, and the final pass's runs.
   const std::string stats = readText(out("mapper_stats.json"));
-  const int final_pass = t.column("final_pass");
+  const rekon::report::CsvTable rounds =
+      rekon::report::readCsvTable(out("mapper_reintegration.csv"), rekon::report::kReintegrationColumns);
+  const int final_pass = rounds.column("final_pass");
   ASSERT_GE(final_pass, 0);
   long long updates = 0, keyframes = 0;
-  for (const auto& row : t.rows) {
+  for (const auto& row : rounds.rows) {
     updates += row[final_pass] == 0;
     keyframes += static_cast<long long>(row[2]);
   }
-  EXPECT_EQ(updates, jsonInt(stats, "graph_updates")) << stats << readText(out("mapper_reintegration.csv"));
+  EXPECT_EQ(updates, jsonInt(stats, "graph_updates"));
   EXPECT_EQ(keyframes, jsonInt(stats, "reintegrations"));
-}
 
-TEST_F(MapperServiceRun, WritesTheUncorrectedMeshBesideTheMesh) {
-  // Its content (every KF keyframe at its first pose) is specified in test_mapper.cpp.
+  // mesh_uncorrected.ply beside mesh.ply; its content is specified in test_mapper.cpp.
   ASSERT_TRUE(fs::exists(out("mesh_uncorrected.ply")));
-  EXPECT_GT(rekon::readPly(out("mesh_uncorrected.ply")).vertices.size(), 1000u);  // a surface, not an empty file
-}
+  EXPECT_GT(rekon::readPly(out("mesh_uncorrected.ply")).vertices.size(), 1000u);
 
-TEST_F(MapperServiceRun, StatsCompareKeyframeBytesWithTheInputFrames) {
-  const std::string stats = readText(out("mapper_stats.json"));
+  // Memory in mapper_stats.json.
   EXPECT_EQ(jsonInt(stats, "input_frame_bytes"), 30LL * 640 * 480 * (2 + 3));  // 16-bit depth + BGR per frame
   EXPECT_EQ(jsonInt(stats, "keyframe_bytes"), 6LL * 640 * 480 * (4 + 4 + 3));  // float depth, weight, BGR per KF keyframe
   EXPECT_GT(jsonInt(stats, "keyframe_store_bytes"), jsonInt(stats, "keyframe_bytes"));  // the store adds its headers
