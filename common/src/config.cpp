@@ -25,6 +25,11 @@ std::vector<std::string> splitKey(const std::string& key) {
 void overlay(YAML::Node base, const YAML::Node& over, const std::string& prefix, const std::string& source) {
   if (!over.IsMap()) throw Error(source + ": " + (prefix.empty() ? "top level" : prefix) + " must be a mapping; " + kFix);
   for (const auto& kv : over) {
+    // A sequence or mapping as a key (`? [a, b] : 1`) has no name to look up.
+    if (!kv.first.IsScalar()) {
+      throw Error(source + ": a key under " + (prefix.empty() ? "the top level" : "'" + prefix + "'") +
+                  " is a list or mapping, not a name; " + kFix);
+    }
     const std::string name = kv.first.as<std::string>();
     const std::string key = prefix.empty() ? name : prefix + "." + name;
     const YAML::Node existing = static_cast<const YAML::Node&>(base)[name];

@@ -50,6 +50,20 @@ TEST(Config, InvalidYamlIsAnErrorNamingTheFile) {
   }
 }
 
+// Found by fuzz_config: a list as a key ended in std::terminate (an uncaught
+// YAML conversion error) instead of a rekon::Error.
+TEST(Config, AListOrMappingAsAKeyIsAnErrorNamingTheSection) {
+  rekon::test::TempDir dir;
+  std::ofstream(dir / "keys.yaml") << "tracker:\n  ? [finest_level, coarsest_level]\n  : 1\n";
+  try {
+    Config::load(dir / "keys.yaml");
+    FAIL();
+  } catch (const rekon::Error& e) {
+    EXPECT_NE(std::string(e.what()).find("keys.yaml"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("'tracker'"), std::string::npos) << e.what();
+  }
+}
+
 TEST(Config, WrongTypeIsAnErrorNamingTheKey) {
   const Config c = Config::load("", {"transport.slots=many"});
   EXPECT_THROW(c.getInt("transport.slots"), rekon::Error);
