@@ -43,8 +43,7 @@ MapperParams MapperParams::fromConfig(const Config& c) {
   if (!(p.min_movement >= 0)) throw Error("mapper.min_movement must not be negative");
   p.use_store = c.getBool("mapper.use_store");
   p.resume = c.getBool("mapper.resume");
-  p.store.segment = c.getString("mapper.store_segment");
-  p.store.size_mb = c.getInt("mapper.store_mb");
+  p.store = store::StoreOptions::fromConfig(c);  // segment, size and spill folder (mapper.store_*)
   return p;
 }
 
