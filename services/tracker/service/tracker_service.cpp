@@ -267,6 +267,7 @@ void runTrackerService(ServiceContext& ctx) {
   });
   bus.subscribe<rekon_msgs::frame_t>(channel::kFrames, [&](const rekon_msgs::frame_t& msg) {
     last_frame_at.store(std::chrono::steady_clock::now().time_since_epoch().count());
+    bool tracked = false;
     if (msg.frame_id <= last_handled.load()) {
       // Sent again: for a restarted mapper, or because its acknowledgement was lost.
       ++duplicates;
@@ -282,6 +283,7 @@ void runTrackerService(ServiceContext& ctx) {
         const double t0 = threadCpuSeconds();
         const auto w0 = std::chrono::steady_clock::now();
         const TrackResult r = state.tracker.track(*frame, k);
+        tracked = true;
         state.frame_ms.emplace_back(
             r.frame_id, std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - w0).count());
         state.track_cpu_s += threadCpuSeconds() - t0;
@@ -301,7 +303,9 @@ void runTrackerService(ServiceContext& ctx) {
     ack.service = ctx.name();
     ack.frame_id = msg.frame_id;
     bus.publish(channel::kFrameAck, ack);
-    if (msg.frame_id > last_handled.load()) {
+    // Only a tracked frame moves the mark: a rejected one with a huge id would
+    // make every later frame a duplicate and end the stream early.
+    if (tracked && msg.frame_id > last_handled.load()) {
       ctx.setLastFrame(msg.frame_id);
       last_handled.store(msg.frame_id);
     }
