@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "rekon/common/config.hpp"
+#include "rekon/common/cpu_time.hpp"
 #include "rekon/common/dataset.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/synth/synth.hpp"
@@ -64,16 +65,11 @@ int main(int argc, char** argv) {
     rekon::Trajectory trajectory;
     int lost = 0;
     double worst_ms = 0.0;
-    // CPU time of this thread as well as wall time: other processes on a
-    // shared machine inflate the wall time but not the thread's own CPU time.
-    auto cpuSeconds = [] {
-      timespec ts{};
-      clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-      return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
-    };
     long long iterations = 0;
     std::vector<double> sigma_i, sigma_z, ratios;
-    const double cpu0 = cpuSeconds();
+    // CPU time of this thread as well as wall time: other processes on a
+    // shared machine inflate the wall time but not the thread's own CPU time.
+    const double cpu0 = rekon::threadCpuMs();
     const auto t0 = std::chrono::steady_clock::now();
     for (const auto& f : frames) {
       const auto a = std::chrono::steady_clock::now();
@@ -90,7 +86,7 @@ int main(int argc, char** argv) {
     }
     const double ms =
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count() / frames.size();
-    const double cpu_ms = 1e3 * (cpuSeconds() - cpu0) / frames.size();
+    const double cpu_ms = (rekon::threadCpuMs() - cpu0) / frames.size();
     std::printf(
         "frames=%zu keyframes=%lld lost=%d ms_per_frame=%.2f cpu_ms_per_frame=%.2f worst_ms=%.2f "
         "iterations_per_frame=%.1f load_ms_per_frame=%.2f\n",

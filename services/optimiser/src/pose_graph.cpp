@@ -9,11 +9,11 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <ctime>
 #include <deque>
 #include <set>
 
 #include "block_cholesky.hpp"
+#include "rekon/common/cpu_time.hpp"
 #include "rekon/common/error.hpp"
 #include "relative_pose_cost.hpp"
 
@@ -397,13 +397,6 @@ int PoseGraph::solveBlockCholesky(bool final, OptimiseReport& report, bool first
   return iterations;
 }
 
-namespace {
-double threadCpuMs() {
-  timespec ts{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return 1e3 * static_cast<double>(ts.tv_sec) + 1e-6 * static_cast<double>(ts.tv_nsec);
-}
-}  // namespace
 
 OptimiseReport PoseGraph::optimise(bool final) {
   const auto start = std::chrono::steady_clock::now();

@@ -15,6 +15,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "rekon/common/cpu_time.hpp"
 #include "rekon/common/frame_transport.hpp"
 #include "rekon/common/messages.hpp"
 #include "rekon/common/pose.hpp"
@@ -35,11 +36,6 @@
 namespace rekon::tracker {
 namespace {
 
-double threadCpuSeconds() {
-  timespec ts{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
-}
 
 // Everything the bus thread's frame handler touches, behind one mutex so that
 // the main thread can read the totals at the end.
@@ -280,13 +276,13 @@ void runTrackerService(ServiceContext& ctx) {
       if (!frame) {
         ++state.undecodable;  // the receiver logged why; acknowledge so the source is not held up
       } else {
-        const double t0 = threadCpuSeconds();
+        const double t0 = threadCpuMs();
         const auto w0 = std::chrono::steady_clock::now();
         const TrackResult r = state.tracker.track(*frame, k);
         tracked = true;
         state.frame_ms.emplace_back(
             r.frame_id, std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - w0).count());
-        state.track_cpu_s += threadCpuSeconds() - t0;
+        state.track_cpu_s += 1e-3 * (threadCpuMs() - t0);
         ++state.frames;
         state.lost += r.state == TrackingState::Lost;
         state.keyframes += r.new_keyframe;

@@ -9,6 +9,7 @@
 
 #include "rekon/common/cli.hpp"
 #include "rekon/common/config.hpp"
+#include "rekon/common/cpu_time.hpp"
 #include "rekon/common/dataset.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/common/json.hpp"
@@ -19,13 +20,6 @@
 namespace rekon::tracker {
 namespace {
 
-// CPU time of the calling thread: on a shared machine other processes inflate
-// the wall time of tracking but not this.
-double threadCpuSeconds() {
-  timespec ts{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
-}
 
 }  // namespace
 
@@ -66,9 +60,9 @@ int odometryMain(int argc, char** argv) {
     RgbdFrame frame = dataset.load(i);
     frame.id = static_cast<int64_t>(i);
     const auto t1 = Clock::now();
-    const double c1 = threadCpuSeconds();
+    const double c1 = threadCpuMs();
     const TrackResult result = tracker.track(frame, dataset.intrinsics());
-    track_cpu_s += threadCpuSeconds() - c1;
+    track_cpu_s += 1e-3 * (threadCpuMs() - c1);
     const auto t2 = Clock::now();
     load_s += std::chrono::duration<double>(t1 - t0).count();
     track_s += std::chrono::duration<double>(t2 - t1).count();

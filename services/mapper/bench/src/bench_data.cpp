@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <sstream>
 
+#include "rekon/common/cpu_time.hpp"
 #include "rekon/common/dataset.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/tracker/params.hpp"
@@ -46,9 +47,7 @@ BenchFrames loadFrames(const std::string& dataset_dir, const std::string& pose_f
 double benchClockMs(bool cpu_time) {
   if (!cpu_time)
     return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now().time_since_epoch()).count();
-  timespec ts{};
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
-  return 1e3 * static_cast<double>(ts.tv_sec) + 1e-6 * static_cast<double>(ts.tv_nsec);
+  return processCpuMs();
 }
 
 TrackingRun runTracker(const BenchFrames& data, const Config& config, bool cpu_time) {

@@ -6,12 +6,11 @@
 #include <opencv2/core/utility.hpp>
 #include <spdlog/spdlog.h>
 
-#include <sys/resource.h>
-
 #include <chrono>
 #include <vector>
 
 #include "rekon/common/cli.hpp"
+#include "rekon/common/cpu_time.hpp"
 #include "rekon/common/dataset.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/common/logging.hpp"
@@ -21,12 +20,6 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 double msSince(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
-// CPU time of all threads (ms): steadier than wall time on a shared machine.
-double cpuMs() {
-  rusage u{};
-  getrusage(RUSAGE_SELF, &u);
-  return (u.ru_utime.tv_sec + u.ru_stime.tv_sec) * 1e3 + (u.ru_utime.tv_usec + u.ru_stime.tv_usec) * 1e-3;
-}
 
 }  // namespace
 
@@ -58,10 +51,10 @@ int main(int argc, char** argv) try {
   int keyframes = 0;
   auto finish = [&] {
     const auto t = Clock::now();
-    const double c = cpuMs();
+    const double c = rekon::processCpuMs();
     fuser.finish();
     finish_wall += msSince(t);
-    finish_cpu += cpuMs() - c;
+    finish_cpu += rekon::processCpuMs() - c;
     ++keyframes;
   };
   for (size_t i = 0; i < frames.size(); ++i) {
@@ -70,10 +63,10 @@ int main(int argc, char** argv) try {
       fuser.begin(keyframes, 0, rekon::Pose::Identity(), poses[i]);
     }
     const auto t = Clock::now();
-    const double c = cpuMs();
+    const double c = rekon::processCpuMs();
     fuser.add(frames[i], poses[i]);
     add_wall += msSince(t);
-    add_cpu += cpuMs() - c;
+    add_cpu += rekon::processCpuMs() - c;
   }
   if (fuser.active()) finish();
   const double n = static_cast<double>(frames.size());

@@ -6,6 +6,7 @@
 
 #include <chrono>
 
+#include "rekon/common/cpu_time.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/volume/volume_config.hpp"
 
@@ -25,9 +26,7 @@ int64_t matBytes(const cv::Mat& m) { return static_cast<int64_t>(m.total() * m.e
 double Mapper::clockMs() const {
   if (!params_.cpu_time_counters)
     return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now().time_since_epoch()).count();
-  timespec ts{};
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
-  return 1e3 * static_cast<double>(ts.tv_sec) + 1e-6 * static_cast<double>(ts.tv_nsec);
+  return processCpuMs();
 }
 
 MapperParams MapperParams::fromConfig(const Config& c) {

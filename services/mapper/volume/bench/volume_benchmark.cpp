@@ -4,14 +4,13 @@
 //   rekon_volume_benchmark [--dataset DIR] [--frames N] [--backend auto|cpu|cuda]
 #include <spdlog/spdlog.h>
 
-#include <sys/resource.h>
-
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
 
 #include "rekon/common/cli.hpp"
+#include "rekon/common/cpu_time.hpp"
 #include "rekon/common/dataset.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/common/logging.hpp"
@@ -24,13 +23,6 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 double msSince(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
-// CPU time of all threads (ms): with other processes on the machine, wall time
-// varies run to run, CPU time much less; ideal wall time is CPU time / cores.
-double cpuMs() {
-  rusage u{};
-  getrusage(RUSAGE_SELF, &u);
-  return (u.ru_utime.tv_sec + u.ru_stime.tv_sec) * 1e3 + (u.ru_utime.tv_usec + u.ru_stime.tv_usec) * 1e-3;
-}
 
 struct Frame {
   cv::Mat depth, color, raw_depth;
@@ -72,14 +64,14 @@ int main(int argc, char** argv) try {
   rekon::volume::TsdfVolume volume(params);
 
   auto t = Clock::now();
-  double cpu = cpuMs();
+  double cpu = rekon::processCpuMs();
   int64_t updated_blocks = 0;
   for (const Frame& f : frames) {
     volume.integrate(f.depth, f.color, cv::Mat(), k, f.pose);
     updated_blocks += volume.stats().last_update_blocks;
   }
   const double integrate_ms = msSince(t) / frames.size();
-  const double integrate_cpu_ms = (cpuMs() - cpu) / frames.size();
+  const double integrate_cpu_ms = (rekon::processCpuMs() - cpu) / frames.size();
   const rekon::volume::VolumeStats s = volume.stats();
 
   t = Clock::now();
@@ -87,9 +79,9 @@ int main(int argc, char** argv) try {
   const double mesh_s = msSince(t) / 1000.0;
 
   t = Clock::now();
-  cpu = cpuMs();
+  cpu = rekon::processCpuMs();
   const rekon::volume::RaycastImages ray = volume.raycast(k, frames.front().pose);
-  const double raycast_ms = msSince(t), raycast_cpu_ms = cpuMs() - cpu;
+  const double raycast_ms = msSince(t), raycast_cpu_ms = rekon::processCpuMs() - cpu;
   int hits = 0;
   for (int v = 0; v < ray.depth.rows; ++v) {
     for (int u = 0; u < ray.depth.cols; ++u) hits += ray.depth.at<float>(v, u) > 0.f;
@@ -97,10 +89,10 @@ int main(int argc, char** argv) try {
 
   // De-integrate in reverse order: the volume must end empty.
   t = Clock::now();
-  cpu = cpuMs();
+  cpu = rekon::processCpuMs();
   for (auto it = frames.rbegin(); it != frames.rend(); ++it) volume.deintegrate(it->depth, it->color, cv::Mat(), k, it->pose);
   const double deintegrate_ms = msSince(t) / frames.size();
-  const double deintegrate_cpu_ms = (cpuMs() - cpu) / frames.size();
+  const double deintegrate_cpu_ms = (rekon::processCpuMs() - cpu) / frames.size();
 
   std::printf("dataset=%s frames=%zu backend=%s voxel=%.3f truncation=%.3f max_depth=%.1f allocation_stride=%d\n",
               args.get("dataset").c_str(), frames.size(), s.backend.c_str(), params.voxel_size, params.truncation,
