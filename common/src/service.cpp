@@ -144,7 +144,8 @@ void PeerWatch::onNewInstance(std::function<void(const std::string&, int)> f) {
 std::optional<PeerWatch::Peer> PeerWatch::peer(const std::string& service) const {
   std::lock_guard<std::mutex> lock(mutex_);
   auto it = peers_.find(service);
-  if (it == peers_.end()) return std::nullopt;
+  // A done_t alone (its heartbeat not seen yet) makes an entry but no peer.
+  if (it == peers_.end() || it->second.last_heartbeat == Clock::time_point{}) return std::nullopt;
   return it->second;
 }
 

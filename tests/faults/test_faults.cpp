@@ -144,8 +144,9 @@ TEST(Faults, KilledOptimiserRebuildsItsGraphFromTheTrackerAndTheTrajectoryMatche
   ASSERT_NE(f.output.find("killed rekon-optimiser"), std::string::npos) << f.output;
   ASSERT_EQ(f.rc, 0) << f.output;
   EXPECT_NE(readFile(out + "/stats.json").find("\"restarts\": {\"optimiser\":1}"), std::string::npos);
-  EXPECT_NE(readFile(out + "/optimiser.log").find("rebuilding from its replay"), std::string::npos);
-  EXPECT_EQ(lineCount(out + "/trajectory.txt"), static_cast<size_t>(kFrames));
+  const std::string logs = "optimiser.log:\n" + readFile(out + "/optimiser.log") + "tracker.log:\n" + readFile(out + "/tracker.log");
+  EXPECT_NE(logs.find("rebuilding from its replay"), std::string::npos) << logs;
+  EXPECT_EQ(lineCount(out + "/trajectory.txt"), static_cast<size_t>(kFrames)) << logs;
   // Issue 9: ATE within 5 mm of the uninterrupted run's.
   EXPECT_NEAR(ateOf(out), ateOf(baseline().run), 0.005);
   EXPECT_EQ(leftoverSegments(out), std::vector<std::string>{});

@@ -290,6 +290,12 @@ void runOptimiserService(ServiceContext& ctx) {
                    "({} keyframes, {} constraints, {} tracked frames)",
                    end->graph_version, end->keyframes, end->constraints, end->tracked_frames);
     }
+    // Its done_t may have gone out before we subscribed: the replay says so.
+    if (end->done) {
+      spdlog::info("the tracker finished before this optimiser started: final optimisation after the replay");
+      std::lock_guard<std::mutex> lock(inbox.mutex);
+      inbox.upstream_done = true;
+    }
   }
   auto lastFrame = [&] {
     std::lock_guard<std::mutex> lock(inbox.mutex);

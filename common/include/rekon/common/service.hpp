@@ -94,6 +94,7 @@ class PeerWatch {
   explicit PeerWatch(Bus& bus);
   // `f(service, instance)` for every instance after a service's first.
   void onNewInstance(std::function<void(const std::string& service, int instance)> f);
+  // A service whose heartbeat has been seen; nullopt before its first one.
   std::optional<Peer> peer(const std::string& service) const;
   // A heartbeat from `service` within `silence_s`.
   bool alive(const std::string& service, double silence_s) const;
