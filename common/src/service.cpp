@@ -13,6 +13,7 @@
 
 #include "rekon/common/error.hpp"
 #include "rekon/common/logging.hpp"
+#include "rekon/common/memory.hpp"
 #include "rekon_msgs/done_t.hpp"
 #include "rekon_msgs/heartbeat_t.hpp"
 #include "rekon_msgs/shutdown_t.hpp"
@@ -186,6 +187,7 @@ int runService(int argc, char** argv, const std::string& name, const std::string
     setupLogging(name, config.getString("log.level"));
     const std::string out = args.get("out");
     if (!out.empty()) std::filesystem::create_directories(out);
+    keepFreedMemory();
     signal(SIGINT, onSignal);
     signal(SIGTERM, onSignal);
     signal(SIGPIPE, SIG_IGN);

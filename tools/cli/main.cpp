@@ -7,8 +7,10 @@
 
 #include "commands.hpp"
 #include "rekon/common/error.hpp"
+#include "rekon/common/memory.hpp"
 
 int main(int argc, char** argv) {
+  rekon::keepFreedMemory();  // the benchmarks run the services' code: the same allocator settings
   const auto& table = rekon::commands();
   if (argc < 2 || std::strcmp(argv[1], "--help") == 0 || std::strcmp(argv[1], "-h") == 0) {
     std::cout << "usage: rekon COMMAND [options]   (rekon COMMAND --help for its options)\n\ncommands:\n";

@@ -14,6 +14,7 @@
 #include "rekon/common/dataset.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/common/logging.hpp"
+#include "rekon/common/memory.hpp"
 #include "rekon/fusion/keyframe_fusion.hpp"
 
 namespace {
@@ -24,6 +25,7 @@ double msSince(Clock::time_point t) { return std::chrono::duration<double, std::
 }  // namespace
 
 int main(int argc, char** argv) try {
+  rekon::keepFreedMemory();
   rekon::setupLogging("fusion_benchmark", "info");
   rekon::ArgParser args("rekon_fusion_benchmark", "keyframe fusion speed (add per frame, finish per KF keyframe)");
   args.option("dataset", "TUM-layout dataset with groundtruth.txt", REKON_DEFAULT_DATASET)
