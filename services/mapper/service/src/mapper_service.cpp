@@ -47,7 +47,11 @@ struct GraphWork {
   int64_t version;
   std::vector<std::pair<int64_t, Pose>> poses;
 };
-using Work = std::variant<FrameWork, KeyframeWork, GraphWork>;
+// The stream is over but the optimiser is not done yet: the worker would be
+// idle, so it closes the last KF keyframe and writes mesh_uncorrected.ply now
+// rather than after the final pass.
+struct BaselineWork {};
+using Work = std::variant<FrameWork, KeyframeWork, GraphWork, BaselineWork>;
 
 // What the bus thread and the worker share, behind one mutex.
 struct Shared {
@@ -63,6 +67,7 @@ struct Shared {
   int64_t last_resolved = -1;  // newest frame joined or given up on
   bool optimiser_done = false, tracker_done = false;
   int64_t dropped_frames = 0, dropped_updates = 0, coalesced_updates = 0;
+  bool baseline_queued = false;
   std::string worker_error;
 };
 
@@ -128,6 +133,19 @@ void runMapperService(ServiceContext& ctx) {
     a.service = ctx.name();
     a.frame_id = frame_id;
     bus.publish(channel::kFrameAck, a);
+  };
+  // mesh_uncorrected.ply: every KF keyframe at the pose of its first
+  // integration. With reintegration none mesh.ply already is that baseline.
+  const bool baseline_wanted = write_uncorrected && params.mode != ReintegrationMode::kNone && !ctx.outDir().empty();
+  bool baseline_written = false;  // by the worker (read after it joined)
+  auto writeBaseline = [&] {
+    const auto t0 = std::chrono::steady_clock::now();
+    const std::string path = (std::filesystem::path(ctx.outDir()) / "mesh_uncorrected.ply").string();
+    const Mesh uncorrected = mapper.extractUncorrectedMesh();
+    writePly(uncorrected, path);
+    spdlog::info("wrote {} ({} vertices, {:.1f} s: every KF keyframe at its first pose)", path, uncorrected.vertices.size(),
+                 std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+    baseline_written = true;
   };
   // Under the lock: moves a frame whose images and pose both arrived into the queue.
   auto join = [&](int64_t id) {
@@ -260,6 +278,9 @@ void runMapperService(ServiceContext& ctx) {
                                   after.first_integration_ms_total - before.first_integration_ms_total});
         } else if (auto* kf = std::get_if<KeyframeWork>(&w)) {
           mapper.setKeyframeEstimate(kf->id, kf->world);
+        } else if (std::holds_alternative<BaselineWork>(w)) {
+          mapper.flush();  // no frame comes after the end of the stream: the last KF keyframe is complete
+          writeBaseline();
         } else {
           const GraphWork& g = std::get<GraphWork>(w);
           const ReintegrationRound round = mapper.applyGraphUpdate(g.poses);
@@ -301,6 +322,11 @@ void runMapperService(ServiceContext& ctx) {
       std::lock_guard<std::mutex> lock(s.mutex);
       const bool frames_done = s.end_frame != -2 && (s.tracker_done || s.last_resolved >= s.end_frame);
       if (s.end_frame != -2 && (wait_for_optimiser ? s.optimiser_done : frames_done)) break;
+      if (frames_done && baseline_wanted && !s.baseline_queued) {
+        s.baseline_queued = true;
+        s.queue.push_back(BaselineWork{});  // after every frame's work
+        s.work_ready.notify_one();
+      }
     }
     if (std::chrono::steady_clock::now() - last_progress > std::chrono::seconds(5)) {
       last_progress = std::chrono::steady_clock::now();
@@ -336,15 +362,7 @@ void runMapperService(ServiceContext& ctx) {
     const std::filesystem::path out(ctx.outDir());
     writeFrameTiming(frame_timing, (out / "mapper_timing.csv").string());
     writeRounds(rounds, (out / "mapper_reintegration.csv").string());
-    // With reintegration none mesh.ply already is the uncorrected baseline.
-    if (write_uncorrected && params.mode != ReintegrationMode::kNone) {
-      const auto t0 = std::chrono::steady_clock::now();
-      const Mesh uncorrected = mapper.extractUncorrectedMesh();
-      writePly(uncorrected, (out / "mesh_uncorrected.ply").string());
-      spdlog::info("wrote {} ({} vertices, {:.1f} s: every KF keyframe at its first pose)",
-                   (out / "mesh_uncorrected.ply").string(), uncorrected.vertices.size(),
-                   std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
-    }
+    if (baseline_wanted && !baseline_written) writeBaseline();
   }
   if (clean) {
     rekon_msgs::done_t done{};
