@@ -6,6 +6,7 @@
 #include <unistd.h>
 
 #include <chrono>
+#include <condition_variable>
 #include <filesystem>
 #include <iostream>
 #include <mutex>
@@ -46,6 +47,7 @@ struct ServiceContext::Threads {
   std::atomic<bool> stop_requested{false};
   std::atomic<bool> threads_stop{false};
   std::mutex state_mutex;
+  std::condition_variable state_changed;  // wakes the heartbeat thread: a new state goes out at once
   std::string state = "starting";
   std::thread bus_thread, heartbeat_thread;
 };
@@ -65,8 +67,12 @@ bool ServiceContext::stopRequested() const { return threads_->stop_requested.loa
 void ServiceContext::requestStop() { threads_->stop_requested.store(true); }
 
 void ServiceContext::setState(const std::string& state) {
-  std::lock_guard<std::mutex> lock(threads_->state_mutex);
-  threads_->state = state;
+  {
+    std::lock_guard<std::mutex> lock(threads_->state_mutex);
+    if (threads_->state == state) return;
+    threads_->state = state;
+  }
+  threads_->state_changed.notify_all();
 }
 
 void ServiceContext::start() {
@@ -92,13 +98,21 @@ void ServiceContext::start() {
         hb.state = threads_->state;
       }
       bus_->publish(channel::kHeartbeat, hb);
-      for (int i = 0; i < 5 && !threads_->threads_stop.load(); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(100));
+      // Every 0.5 s, and at once when the state changes (a player waiting
+      // for its consumers starts as soon as they are running).
+      std::unique_lock<std::mutex> lock(threads_->state_mutex);
+      threads_->state_changed.wait_for(lock, std::chrono::milliseconds(500),
+                                       [&] { return threads_->threads_stop.load() || threads_->state != hb.state; });
     }
   });
 }
 
 void ServiceContext::stopThreads() {
-  threads_->threads_stop.store(true);
+  {
+    std::lock_guard<std::mutex> lock(threads_->state_mutex);  // so that the heartbeat thread cannot miss it
+    threads_->threads_stop.store(true);
+  }
+  threads_->state_changed.notify_all();
   if (threads_->bus_thread.joinable()) threads_->bus_thread.join();
   if (threads_->heartbeat_thread.joinable()) threads_->heartbeat_thread.join();
 }
