@@ -84,21 +84,23 @@ bool sampleBilinear(const cv::Mat& img, float u, float v, float out[3]) {
 }
 
 // The pinhole camera in float for the per-pixel loops (their double and
-// std::lround versions were a third of the mapper's time).
+// std::lround versions were a third of the mapper's time), multiplying by
+// reciprocals (add() 12 -> 8 ms per 640x480 frame without the divisions).
 struct PinholeF {
-  float fx, fy, cx, cy;
+  float fx, fy, cx, cy, inv_fx, inv_fy;
   int width, height;
   explicit PinholeF(const Intrinsics& k)
       : fx(static_cast<float>(k.fx)), fy(static_cast<float>(k.fy)), cx(static_cast<float>(k.cx)),
-        cy(static_cast<float>(k.cy)), width(k.width), height(k.height) {}
+        cy(static_cast<float>(k.cy)), inv_fx(1.0f / fx), inv_fy(1.0f / fy), width(k.width), height(k.height) {}
   Eigen::Vector3f backProject(int x, int y, float z) const {
-    return {(static_cast<float>(x) - cx) * z / fx, (static_cast<float>(y) - cy) * z / fy, z};
+    return {(static_cast<float>(x) - cx) * inv_fx * z, (static_cast<float>(y) - cy) * inv_fy * z, z};
   }
   // Where q lands (uf, vf) and its nearest pixel (u, v); false behind the camera or outside the image.
   bool project(const Eigen::Vector3f& q, float& uf, float& vf, int& u, int& v) const {
     if (q.z() <= 0) return false;
-    uf = fx * q.x() / q.z() + cx;
-    vf = fy * q.y() / q.z() + cy;
+    const float inv_z = 1.0f / q.z();
+    uf = fx * q.x() * inv_z + cx;
+    vf = fy * q.y() * inv_z + cy;
     if (!(uf > -0.5f && vf > -0.5f && uf < static_cast<float>(width) - 0.5f && vf < static_cast<float>(height) - 0.5f))
       return false;
     u = static_cast<int>(uf + 0.5f);
@@ -154,6 +156,7 @@ double blurriness(const cv::Mat& color_bgr) {
   cv::Mat b_ver, b_hor;
   cv::blur(gray, b_ver, cv::Size(1, 9));
   cv::blur(gray, b_hor, cv::Size(9, 1));
+  // A row's sums in float (vectorised; at most 640 x 255 each), the image's in double.
   double s_f_ver = 0, s_v_ver = 0, s_f_hor = 0, s_v_hor = 0;
   for (int y = 1; y < gray.rows; ++y) {
     const float* f0 = gray.ptr<float>(y - 1);
@@ -161,14 +164,19 @@ double blurriness(const cv::Mat& color_bgr) {
     const float* bv0 = b_ver.ptr<float>(y - 1);
     const float* bv1 = b_ver.ptr<float>(y);
     const float* bh = b_hor.ptr<float>(y);
+    float r_f_ver = 0, r_v_ver = 0, r_f_hor = 0, r_v_hor = 0;
     for (int x = 1; x < gray.cols; ++x) {
-      const double d_f_ver = std::abs(f1[x] - f0[x]), d_b_ver = std::abs(bv1[x] - bv0[x]);
-      const double d_f_hor = std::abs(f1[x] - f1[x - 1]), d_b_hor = std::abs(bh[x] - bh[x - 1]);
-      s_f_ver += d_f_ver;
-      s_v_ver += std::max(0.0, d_f_ver - d_b_ver);
-      s_f_hor += d_f_hor;
-      s_v_hor += std::max(0.0, d_f_hor - d_b_hor);
+      const float d_f_ver = std::abs(f1[x] - f0[x]), d_b_ver = std::abs(bv1[x] - bv0[x]);
+      const float d_f_hor = std::abs(f1[x] - f1[x - 1]), d_b_hor = std::abs(bh[x] - bh[x - 1]);
+      r_f_ver += d_f_ver;
+      r_v_ver += std::max(0.0f, d_f_ver - d_b_ver);
+      r_f_hor += d_f_hor;
+      r_v_hor += std::max(0.0f, d_f_hor - d_b_hor);
     }
+    s_f_ver += r_f_ver;
+    s_v_ver += r_v_ver;
+    s_f_hor += r_f_hor;
+    s_v_hor += r_v_hor;
   }
   if (s_f_ver <= 0 || s_f_hor <= 0) return 1.0;  // a flat image carries no sharpness
   return std::max((s_f_ver - s_v_ver) / s_f_ver, (s_f_hor - s_v_hor) / s_f_hor);
