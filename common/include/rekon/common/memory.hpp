@@ -7,7 +7,7 @@ namespace rekon {
 // unmapped on every frame, and the page faults of touching them afresh cost
 // as much as the work on them: keyframe fusion's add() takes 12 instead of
 // 23 ms per 640x480 frame with this (rekon_fusion_benchmark), at the same
-// peak RSS, and `rekon run` on 7scenes_loop_1000 plays 40 instead of 33
+// peak RSS, and `rekon run` on 7scenes_loop_1000 plays 36-40 instead of 33
 // frames/s. Called once at start by every service and tool.
 void keepFreedMemory();
 
