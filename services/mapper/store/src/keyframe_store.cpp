@@ -387,14 +387,21 @@ void KeyframeStore::add(const fusion::FusedKeyframe& kf) {
       kf.color.type() != CV_8UC3)
     throw Error("keyframe store: keyframe " + std::to_string(kf.id) + " does not match the store's " +
                 std::to_string(h.width) + "x" + std::to_string(h.height) + " camera");
-  auto l = impl_->lock();
-  if (impl_->find(kf.id) != nullptr) throw Error("keyframe store: keyframe " + std::to_string(kf.id) + " is stored already");
+  // The images are copied outside the lock: a writer killed while holding
+  // it leaves the store locked for good, and the copy (3.3 MiB into fresh
+  // pages) is nearly all of the time add() takes. An unindexed block is
+  // reached by nobody; a writer killed during the copy only leaks it.
   std::optional<Eigen::Vector3d> camera;
-  if (const auto a = impl_->anchorPose(kf.anchor_keyframe_id)) camera = (*a * kf.pose_in_anchor).translation();
-  else camera = impl_->newestPosition();
   const std::string what = "keyframe " + std::to_string(kf.id);
+  uint8_t* data = nullptr;
+  {
+    auto l = impl_->lock();
+    if (impl_->find(kf.id) != nullptr) throw Error("keyframe store: keyframe " + std::to_string(kf.id) + " is stored already");
+    if (const auto a = impl_->anchorPose(kf.anchor_keyframe_id)) camera = (*a * kf.pose_in_anchor).translation();
+    else camera = impl_->newestPosition();
+    data = impl_->allocate(imageBytes(h.width, h.height), what, camera);
+  }
   const size_t pixels = static_cast<size_t>(h.width) * h.height;
-  uint8_t* data = impl_->allocate(imageBytes(h.width, h.height), what, camera);
   kf.depth.copyTo(cv::Mat(h.height, h.width, CV_32F, data));
   kf.weight.copyTo(cv::Mat(h.height, h.width, CV_32F, data + 4 * pixels));
   kf.color.copyTo(cv::Mat(h.height, h.width, CV_8UC3, data + 8 * pixels));
@@ -410,6 +417,7 @@ void KeyframeStore::add(const fusion::FusedKeyframe& kf) {
   rec.integrated_pose = toShm(Pose::Identity());
   rec.spilled = 0;
   rec.data = data;
+  auto l = impl_->lock();
   try {
     impl_->pushBack(*impl_->keyframes, rec, "the index entry of " + what, camera);
   } catch (...) {
