@@ -147,8 +147,9 @@ void expectOptimiserRebuilt(const std::string& sets) {
   ASSERT_NE(f.output.find("killed rekon-optimiser"), std::string::npos) << f.output;
   ASSERT_EQ(f.rc, 0) << f.output;
   EXPECT_NE(readFile(out + "/stats.json").find("\"restarts\": {\"optimiser\":1}"), std::string::npos);
-  const std::string logs = "optimiser.log:\n" + readFile(out + "/optimiser.log") + "tracker.log:\n" + readFile(out + "/tracker.log");
-  EXPECT_NE(logs.find("rebuilding from its replay"), std::string::npos) << logs;
+  const std::string optimiser_log = readFile(out + "/optimiser.log");
+  const std::string logs = "optimiser.log:\n" + optimiser_log + "tracker.log:\n" + readFile(out + "/tracker.log");
+  EXPECT_NE(optimiser_log.find("rebuilding from its replay"), std::string::npos) << logs;
   EXPECT_EQ(lineCount(out + "/trajectory.txt"), static_cast<size_t>(kFrames)) << logs;
   // Issue 9: ATE within 5 mm of the uninterrupted run's.
   EXPECT_NEAR(ateOf(out), ateOf(baseline().run), 0.005);
