@@ -3,6 +3,8 @@
 // ways to corrupt a frame (missing depth, black image, a painted patch).
 #include <opencv2/core.hpp>
 
+#include <algorithm>
+#include <cstdlib>
 #include <memory>
 
 #include "rekon/common/camera.hpp"
@@ -33,6 +35,17 @@ class RoomViews {
 
 inline RgbdFrame withoutDepth(RgbdFrame f) {
   f.depth = cv::Mat::zeros(f.depth.size(), f.depth.type());
+  return f;
+}
+
+// Color moved `dx` pixels right and `dy` down against depth (edges
+// replicated), as when color is not registered to depth (7-Scenes).
+inline RgbdFrame colorShifted(RgbdFrame f, int dx, int dy) {
+  cv::Mat shifted;
+  const cv::Rect from(std::max(-dx, 0), std::max(-dy, 0), f.color.cols - std::abs(dx), f.color.rows - std::abs(dy));
+  cv::copyMakeBorder(f.color(from), shifted, std::max(dy, 0), std::max(-dy, 0), std::max(dx, 0), std::max(-dx, 0),
+                     cv::BORDER_REPLICATE);
+  f.color = shifted;
   return f;
 }
 

@@ -63,7 +63,9 @@ class LoopClosureTest : public ::testing::Test {
   static inline Trajectory* truth_ = nullptr;
 
   TrackerParams params;
+  int color_shift_px = 0;  // every rendered keyframe's color moved this far right and down against depth
   const Pose& truthAt(int frame) const { return (*truth_)[static_cast<size_t>(frame)].pose; }
+  Pose loopPose(double refine_weight);
 
   // Adds keyframes rendered at `frames` (consecutive ids from `first_id`),
   // each linked by odometry to the one before, at world poses `offset` x truth.
@@ -72,7 +74,8 @@ class LoopClosureTest : public ::testing::Test {
     std::shared_ptr<const Keyframe> prev;
     int prev_frame = 0;
     for (size_t i = 0; i < frames.size(); ++i) {
-      const RgbdFrame f = room_->render(truthAt(frames[i]), synth::Noise::Kinect, frames[i]);
+      const RgbdFrame f = test::colorShifted(room_->render(truthAt(frames[i]), synth::Noise::Kinect, frames[i]),
+                                             color_shift_px, color_shift_px);
       auto kf = makeKeyframe(first_id + static_cast<int64_t>(i), f, room_->intrinsics(), offset * truthAt(frames[i]),
                              params.aligner);
       std::optional<OdometryConstraint> odo;
@@ -98,6 +101,34 @@ TEST_F(LoopClosureTest, TheLoopsEndIsAcceptedAgainstItsStartWithTheTrueRelativeP
   EXPECT_LT(translationDistance(c.constraint->relative, truth), 0.01);
   EXPECT_LT(rotationAngle(c.constraint->relative, truth) / kDeg, 0.5);
   EXPECT_TRUE(c.constraint->information.allFinite());
+}
+
+// The loop pose of the room's end (frames 550-574) against its start, with
+// the accepted alignments refined at `refine_weight` (1: not refined).
+Pose LoopClosureTest::loopPose(double refine_weight) {
+  params.loop.refine_photometric_weight = refine_weight;
+  LoopClosureDetector d(params);
+  addChain(d, 0, {0, 12, 24});
+  addChain(d, 3, {550, 562, 574}, drift());
+  const CandidateCheck c = d.check(0, 5);
+  EXPECT_TRUE(c.accepted) << c.reason << " coarse " << c.best_coarse_ratio << " fine " << c.best_fine_ratio;
+  return c.accepted ? c.constraint->relative : Pose::Identity();
+}
+
+TEST_F(LoopClosureTest, ColorNotRegisteredToDepthBiasesTheLoopAndTheRefinementLowersTheBias) {
+  const Pose truth = truthAt(0).inverse() * truthAt(574);
+  const double refine = LoopClosureParams::kDefaultRefinePhotometricWeight;
+  // Registered color: both sub-millimetre (0.06 / 0.09 mm when written).
+  color_shift_px = 0;
+  EXPECT_LT(translationDistance(loopPose(1.0), truth), 5e-4);
+  EXPECT_LT(translationDistance(loopPose(refine), truth), 5e-4);
+  // Color 3 pixels off depth in every keyframe (7-Scenes: a few pixels at
+  // edges): when written 2.49 mm / 0.098 deg full, 1.79 mm / 0.043 deg refined.
+  color_shift_px = 3;
+  const Pose full = loopPose(1.0), refined = loopPose(refine);
+  EXPECT_GT(translationDistance(full, truth), 1.5e-3);  // the bias this test is about is there
+  EXPECT_LT(translationDistance(refined, truth), 0.85 * translationDistance(full, truth));
+  EXPECT_LT(rotationAngle(refined, truth), 0.6 * rotationAngle(full, truth));
 }
 
 TEST_F(LoopClosureTest, CandidatesAreEarlierKeyframesInTheSphereWithoutTheExcludedPredecessors) {

@@ -140,6 +140,7 @@ TEST(TrackerParams, DefaultConfigGivesTheNamedDefaults) {
   EXPECT_DOUBLE_EQ(p.lost.max_depth_sigma, d.lost.max_depth_sigma);
   EXPECT_DOUBLE_EQ(p.lost.residual_entropy_ratio, d.lost.residual_entropy_ratio);
   EXPECT_EQ(p.lost.max_lost_frames, d.lost.max_lost_frames);
+  EXPECT_DOUBLE_EQ(p.loop.refine_photometric_weight, d.loop.refine_photometric_weight);
 }
 
 TEST(TrackerParams, OutOfRangeValueIsAnErrorNamingTheKey) {
@@ -150,6 +151,7 @@ TEST(TrackerParams, OutOfRangeValueIsAnErrorNamingTheKey) {
     EXPECT_NE(std::string(e.what()).find("tracker.coarsest_level"), std::string::npos) << e.what();
   }
   EXPECT_THROW(trackerParamsFromConfig(Config::load("", {"tracker.keyframe_criterion=sometimes"})), Error);
+  EXPECT_THROW(trackerParamsFromConfig(Config::load("", {"tracker.loop_refine_photometric_weight=1.5"})), Error);
 }
 
 // Keyframe selection on the room's loop with Kinect-like noise: 150 frames

@@ -148,30 +148,47 @@ double DenseAligner::estimateScale(int n, Scale& scale) {
     if (settled) break;
   }
   // Mean negative log-likelihood of the residuals under the t-distribution.
-  const double det = scale.s11 * scale.s22 - scale.s12 * scale.s12;
-  const float a = static_cast<float>(scale.s22 / det / params_.t_dof),
-              b2 = static_cast<float>(-2.0 * scale.s12 / det / params_.t_dof),
-              c = static_cast<float>(scale.s11 / det / params_.t_dof);
+  // With photometric_weight w < 1 it is the objective that accumulate()
+  // minimises, so that a step is judged by its own objective: det S =
+  // s22 * s11|2 (depth, then intensity given depth, the rows of U) with the
+  // intensity factor tempered by w^2 like its whitened residual. Else a step
+  // that trades intensity fit for depth fit raises s11 and looks worse.
+  const double pw2 = params_.photometric_weight * params_.photometric_weight;
+  const double conditional = scale.s11 - scale.s12 * scale.s12 / scale.s22;
+  const double log_det = std::log(scale.s22) + pw2 * std::log(conditional);
+  const Whitening u = whitening(scale);
+  const float inv_nu = static_cast<float>(1.0 / params_.t_dof);
   float* q = weight_.data();
 #pragma omp simd
-  for (int k = 0; k < n; ++k) q[k] = 1.f + a * ri[k] * ri[k] + b2 * ri[k] * rz[k] + c * rz[k] * rz[k];
+  for (int k = 0; k < n; ++k) {
+    const float e1 = u.u11 * ri[k] + u.u12 * rz[k], e2 = u.u22 * rz[k];
+    q[k] = 1.f + inv_nu * (e1 * e1 + e2 * e2);
+  }
   const double mean_log = Eigen::Map<Eigen::ArrayXf>(q, n).log().cast<double>().sum() * inv_n;
-  return 0.5 * std::log(det) + 0.5 * (params_.t_dof + 2.0) * mean_log;
+  return 0.5 * log_det + 0.5 * (params_.t_dof + 2.0) * mean_log;
+}
+
+DenseAligner::Whitening DenseAligner::whitening(const Scale& scale) const {
+  // S^-1 = U^T U with U upper triangular; the photometric row of U weighted.
+  const double det = scale.s11 * scale.s22 - scale.s12 * scale.s12;
+  const double a = scale.s22 / det, bb = -scale.s12 / det, c = scale.s11 / det;
+  const double pw = params_.photometric_weight;
+  Whitening u;
+  u.u11 = static_cast<float>(pw * std::sqrt(a));
+  u.u12 = static_cast<float>(pw * bb / std::sqrt(a));
+  u.u22 = params_.use_depth ? static_cast<float>(std::sqrt(std::max(c - bb * bb / a, 0.0))) : 0.f;
+  return u;
 }
 
 void DenseAligner::accumulate(const KeyframeReference::Level& ref, int n, const Scale& scale, Matrix6d& h,
                               Vector6d& b) {
-  // Whitening: S^-1 = U^T U with U upper triangular turns the 2x2-weighted
-  // joint residual into two scalar rows sqrt(w) (U J | U r) per pixel. A block
-  // of such rows is stored column by column (7 columns: 6 Jacobian entries and
-  // the residual), and the 28 dot products of column pairs give J^T W J and
-  // J^T W r: contiguous, vectorised reductions with no gathering. Float within
-  // a block, double across blocks.
-  const double det = scale.s11 * scale.s22 - scale.s12 * scale.s12;
-  const double a = scale.s22 / det, bb = -scale.s12 / det, c = scale.s11 / det;
-  const float u11 = static_cast<float>(std::sqrt(a));
-  const float u12 = static_cast<float>(bb / std::sqrt(a));
-  const float u22 = params_.use_depth ? static_cast<float>(std::sqrt(std::max(c - bb * bb / a, 0.0))) : 0.f;
+  // whitening() turns the 2x2-weighted joint residual into two scalar rows
+  // sqrt(w) (U J | U r) per pixel. A block of such rows is stored column by
+  // column (7 columns: 6 Jacobian entries and the residual), and the 28 dot
+  // products of column pairs give J^T W J and J^T W r: contiguous, vectorised
+  // reductions with no gathering. Float within a block, double across blocks.
+  const Whitening u = whitening(scale);
+  const float u11 = u.u11, u12 = u.u12, u22 = u.u22;
   const float nu = static_cast<float>(params_.t_dof);
   const float* J = ref.jacobians.data();
   constexpr int kRows = 2 * kBlockPixels;

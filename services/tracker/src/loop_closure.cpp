@@ -37,6 +37,23 @@ Pose bothDirections(const AlignResult& forward, const AlignResult& backward) {
 
 LoopClosureDetector::LoopClosureDetector(const TrackerParams& params) : params_(params), aligner_(params.aligner) {
   params_.validate();
+  // Without the geometric term there is nothing to refine towards.
+  if (params_.loop.refine_photometric_weight < 1.0 && params_.aligner.use_depth) {
+    AlignerParams refining = params_.aligner;
+    refining.photometric_weight = params_.loop.refine_photometric_weight;
+    refiner_.emplace(refining);
+  }
+}
+
+std::pair<AlignResult, AlignResult> LoopClosureDetector::refine(const Keyframe& reference, const Keyframe& current,
+                                                                const AlignResult& fine, const AlignResult& back) {
+  if (!refiner_) return {fine, back};
+  const double limit = params_.loop.max_cross_check_m;
+  auto refined = [&](const KeyframeReference& from, const RgbdPyramid& to, const AlignResult& full) {
+    const AlignResult r = refiner_->align(from, to, full.pose);
+    return r.valid && translationDistance(r.pose, full.pose) <= limit ? r : full;
+  };
+  return {refined(reference.reference, current.pyramid, fine), refined(current.reference, reference.pyramid, back)};
 }
 
 void LoopClosureDetector::addKeyframe(std::shared_ptr<const Keyframe> keyframe,
@@ -208,10 +225,11 @@ CandidateCheck LoopClosureDetector::check(int64_t candidate_id, int64_t keyframe
       continue;
     }
     best_log_det = fine_log_det;
+    const auto [forward, backward] = refine(reference, current, fine, back);
     LoopConstraint c;
     c.from_id = candidate_id;
     c.to_id = keyframe_id;
-    c.relative = lp.both_directions ? bothDirections(fine, back) : fine.pose;
+    c.relative = lp.both_directions ? bothDirections(forward, backward) : forward.pose;
     c.information = fine.information;
     c.coarse_ratio = coarse_ratio;
     c.fine_ratio = fine_ratio;

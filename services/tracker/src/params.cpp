@@ -32,6 +32,10 @@ void AlignerParams::validate() const {
   require(std::isfinite(max_depth) && max_depth > min_depth, "max_depth", max_depth, "greater than min_depth");
   require(std::isfinite(max_depth_step) && max_depth_step > 0, "max_depth_step", max_depth_step, "positive");
   require(min_valid_pixels >= 6, "min_valid_pixels", min_valid_pixels, "at least 6 (one per degree of freedom)");
+  require(std::isfinite(photometric_weight) && photometric_weight >= 0 && photometric_weight <= 1 &&
+              (use_depth || photometric_weight > 0),
+          "loop_refine_photometric_weight (the aligner's photometric_weight)", photometric_weight,
+          "in [0, 1], and above 0 without use_depth");
 }
 
 void KeyframeParams::validate() const {
@@ -75,6 +79,8 @@ void LoopClosureParams::validate() const {
   require(min_pixel_ratio >= 0 && min_pixel_ratio < 1, "loop_min_pixel_ratio", min_pixel_ratio, "in [0, 1)");
   require(std::isfinite(max_cross_check_m) && max_cross_check_m > 0, "loop_max_cross_check", max_cross_check_m,
           "positive (metres)");
+  require(std::isfinite(refine_photometric_weight) && refine_photometric_weight >= 0 && refine_photometric_weight <= 1,
+          "loop_refine_photometric_weight", refine_photometric_weight, "in [0, 1] (1: no refinement)");
   require(max_candidates >= 0, "loop_max_candidates", max_candidates, "0 (all) or positive");
   require(queue_capacity >= 1, "loop_queue_capacity", queue_capacity, "at least 1");
 }
@@ -121,6 +127,7 @@ TrackerParams trackerParamsFromConfig(const Config& c) {
   p.loop.min_pixel_ratio = c.getDouble("tracker.loop_min_pixel_ratio");
   p.loop.max_cross_check_m = c.getDouble("tracker.loop_max_cross_check");
   p.loop.both_directions = c.getBool("tracker.loop_both_directions");
+  p.loop.refine_photometric_weight = c.getDouble("tracker.loop_refine_photometric_weight");
   p.loop.max_candidates = c.getInt("tracker.loop_max_candidates");
   p.loop.queue_capacity = c.getInt("tracker.loop_queue_capacity");
   p.validate();

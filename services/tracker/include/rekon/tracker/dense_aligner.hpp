@@ -57,6 +57,11 @@ class DenseAligner {
     double s11 = 0, s12 = 0, s22 = 0;  // 2x2 scale matrix of (intensity, depth) residuals
   };
   int warp(const KeyframeReference::Level& ref, const PyramidLevel& cur, const Eigen::Matrix<float, 3, 4>& t_ck);
+  // Rows of U with U^T U = S^-1, the photometric row x photometric_weight.
+  struct Whitening {
+    float u11, u12, u22;
+  };
+  Whitening whitening(const Scale& scale) const;
   double estimateScale(int n, Scale& scale);
   void accumulate(const KeyframeReference::Level& ref, int n, const Scale& scale, Matrix6d& h, Vector6d& b);
 

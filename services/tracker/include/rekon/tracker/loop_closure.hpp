@@ -119,8 +119,15 @@ class LoopClosureDetector {
   std::optional<double> incomingLogDet(Entry& e, bool coarse);
   bool passes(double log_det, double reference, double threshold) const;
 
+  // The accepted pair's forward (`fine`) and backward alignments refined by
+  // refiner_ (LoopClosureParams::refine_photometric_weight); each falls back
+  // to its full result when its refinement fails or strays.
+  std::pair<AlignResult, AlignResult> refine(const Keyframe& reference, const Keyframe& current,
+                                             const AlignResult& fine, const AlignResult& back);
+
   TrackerParams params_;
   DenseAligner aligner_;
+  std::optional<DenseAligner> refiner_;  // absent when refinement is off
   std::map<int64_t, Entry> entries_;
   double fine_sum_ = 0.0, coarse_sum_ = 0.0;
   int64_t fine_count_ = 0, coarse_count_ = 0;
