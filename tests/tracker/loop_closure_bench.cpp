@@ -11,7 +11,6 @@
 // ground-truth poses instead (what perfect loop poses would achieve).
 #include <algorithm>
 #include <cstdlib>
-#include <chrono>
 #include <cstdio>
 #include <iostream>
 #include <map>
@@ -23,10 +22,9 @@
 #include "rekon/common/dataset.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/eval/trajectory_eval.hpp"
+#include "in_process_slam.hpp"
 #include "rekon/optimiser/params.hpp"
 #include "rekon/optimiser/pose_graph.hpp"
-#include "rekon/tracker/loop_closure.hpp"
-#include "rekon/tracker/tracker.hpp"
 
 namespace {
 
@@ -61,152 +59,98 @@ int main(int argc, char** argv) {
     const auto config = rekon::Config::load("", sets);
     const auto params = rekon::tracker::trackerParamsFromConfig(config);
     const auto graph_params = rekon::optimiser::optimiserParamsFromConfig(config);
-    rekon::optimiser::PoseGraph graph(graph_params.graph);
-    auto addEdge = [&](rekon::optimiser::EdgeKind kind, int64_t from, int64_t to, const rekon::Pose& relative,
-                       const rekon::tracker::Matrix6d& information) {
-      rekon::optimiser::Constraint c;
-      c.kind = kind;
-      c.from_id = from;
-      c.to_id = to;
-      c.relative = relative;
-      c.information = graph_params.information_scale * information;
-      graph.addConstraint(c);
-    };
-    struct FrameInKeyframe {
-      double timestamp;
-      int64_t keyframe_id;
-      rekon::Pose pose_in_keyframe;
-    };
-    std::vector<FrameInKeyframe> frames;
-    rekon::Trajectory odometry_trajectory;
     rekon::DatasetOptions options;
     options.max_frames = argc > 2 ? std::stoi(argv[2]) : 0;
     const rekon::TumDataset dataset(argv[1], options);
     if (!dataset.hasGroundTruth()) throw rekon::Error(std::string(argv[1]) + " has no groundtruth.txt");
     const rekon::Trajectory gt = dataset.groundTruth();
-    rekon::tracker::Tracker tracker(params);
-    rekon::tracker::LoopClosureDetector detector(params);
-    rekon::tracker::LoopClosureStats stats;
+    const auto slam = rekon::tracker::test::runInProcess(dataset, params);
+
     std::map<int64_t, rekon::Pose> kf_truth;
-    std::vector<std::pair<int64_t, rekon::Pose>> keyframe_poses;
-    std::vector<rekon::tracker::OdometryConstraint> odometry_edges;
-    std::vector<rekon::tracker::LoopConstraint> loop_edges;
-    std::vector<double> odometry_chi2, loop_chi2;
+    for (const auto& k : slam.keyframes) {
+      const int g = rekon::nearestInTime(gt, k.timestamp, 0.02);
+      if (g >= 0) kf_truth[k.id] = gt[static_cast<size_t>(g)].pose;
+    }
+    auto truthOf = [&](int64_t from, int64_t to) -> std::optional<rekon::Pose> {
+      if (!kf_truth.count(from) || !kf_truth.count(to)) return std::nullopt;
+      return rekon::Pose(kf_truth[from].inverse() * kf_truth[to]);
+    };
     auto chi2AtTruth = [&](int64_t from, int64_t to, const rekon::Pose& relative, const rekon::tracker::Matrix6d& info) {
-      const rekon::optimiser::Vector6d r =
-          rekon::optimiser::relativePoseResidual(kf_truth[from], kf_truth[to], relative);
+      const rekon::optimiser::Vector6d r = rekon::optimiser::relativePoseResidual(kf_truth[from], kf_truth[to], relative);
       return graph_params.information_scale * r.dot(info * r);
     };
     ErrorStats loops, odometry;
-    double check_ms = 0.0;
+    std::vector<double> odometry_chi2, loop_chi2;
+    for (const auto& o : slam.odometry_edges) {
+      const auto truth = truthOf(o.from_id, o.to_id);
+      if (!truth) continue;
+      odometry.add(o.relative, *truth);
+      odometry_chi2.push_back(chi2AtTruth(o.from_id, o.to_id, o.relative, o.information));
+    }
     int far_loops = 0;
-    for (size_t i = 0; i < dataset.size(); ++i) {
-      rekon::RgbdFrame f = dataset.load(i);
-      f.id = static_cast<int64_t>(i);
-      const auto r = tracker.track(f, dataset.intrinsics());
-      frames.push_back({r.timestamp, r.keyframe_id, r.pose_in_keyframe});
-      odometry_trajectory.push_back({r.timestamp, r.pose_world});
-      if (!r.new_keyframe) continue;
-      graph.addKeyframe(r.keyframe_id, r.keyframe_pose_world);
-      keyframe_poses.emplace_back(r.keyframe_id, r.keyframe_pose_world);
-      if (r.odometry) odometry_edges.push_back(*r.odometry);
-      if (r.odometry)
-        addEdge(rekon::optimiser::EdgeKind::Odometry, r.odometry->from_id, r.odometry->to_id, r.odometry->relative,
-                r.odometry->information);
-      const int g = rekon::nearestInTime(gt, r.timestamp, 0.02);
-      if (g < 0) continue;
-      kf_truth[r.keyframe_id] = gt[static_cast<size_t>(g)].pose;
-      if (r.odometry && kf_truth.count(r.odometry->from_id)) {
-        odometry.add(r.odometry->relative, kf_truth[r.odometry->from_id].inverse() * kf_truth[r.keyframe_id]);
-        odometry_chi2.push_back(chi2AtTruth(r.odometry->from_id, r.keyframe_id, r.odometry->relative, r.odometry->information));
+    for (const auto& c : slam.loop_edges) {
+      const auto truth = truthOf(c.from_id, c.to_id);
+      if (!truth) continue;
+      loops.add(c.relative, *truth);
+      loop_chi2.push_back(chi2AtTruth(c.from_id, c.to_id, c.relative, c.information));
+      const double error = rekon::translationDistance(c.relative, *truth);
+      if (getenv("DUMP"))
+        std::printf("DUMP %.4f %.3f %.3f %.3f %.2f %d %ld %.4f %.4f %.4f\n", error, c.coarse_ratio, c.fine_ratio,
+                    truth->translation().norm(), rekon::rotationAngle(*truth, rekon::Pose::Identity()) * 57.3,
+                    c.valid_pixels, static_cast<long>(c.to_id - c.from_id), c.cross_check_m, c.intensity_sigma,
+                    c.depth_sigma);
+      if (error > 0.08) {
+        ++far_loops;
+        std::printf("loop %ld -> %ld off by %.3f m %.2f deg (ratios %.3f %.3f, %d px)\n", static_cast<long>(c.from_id),
+                    static_cast<long>(c.to_id), error,
+                    rekon::rotationAngle(c.relative, *truth) * 180.0 / std::numbers::pi, c.coarse_ratio, c.fine_ratio,
+                    c.valid_pixels);
       }
-      const auto t0 = std::chrono::steady_clock::now();
-      detector.addKeyframe(tracker.currentKeyframe(), r.odometry);
-      for (const auto& c : detector.detect(r.keyframe_id, stats)) {
-        if (getenv("ORACLE") && kf_truth.count(c.from_id)) addEdge(rekon::optimiser::EdgeKind::Loop, c.from_id, c.to_id, kf_truth[c.from_id].inverse() * kf_truth[c.to_id], c.information); else
-        addEdge(rekon::optimiser::EdgeKind::Loop, c.from_id, c.to_id, c.relative, c.information);
-        loop_edges.push_back(c);
-        if (!kf_truth.count(c.from_id)) continue;
-        loop_chi2.push_back(chi2AtTruth(c.from_id, c.to_id, c.relative, c.information));
-        const rekon::Pose truth = kf_truth[c.from_id].inverse() * kf_truth[c.to_id];
-        loops.add(c.relative, truth);
-        if (getenv("DUMP")) std::printf("DUMP %.4f %.3f %.3f %.3f %.2f %d %ld %.4f %.4f %.4f\n", rekon::translationDistance(c.relative, truth), c.coarse_ratio, c.fine_ratio, truth.translation().norm(), rekon::rotationAngle(truth, rekon::Pose::Identity())*57.3, c.valid_pixels, static_cast<long>(c.to_id - c.from_id), c.cross_check_m, c.intensity_sigma, c.depth_sigma);
-        if (rekon::translationDistance(c.relative, truth) > 0.08) {
-          ++far_loops;
-          std::printf("loop %ld -> %ld off by %.3f m %.2f deg (ratios %.3f %.3f, %d px)\n", static_cast<long>(c.from_id),
-                      static_cast<long>(c.to_id), rekon::translationDistance(c.relative, truth),
-                      rekon::rotationAngle(c.relative, truth) * 180.0 / std::numbers::pi, c.coarse_ratio, c.fine_ratio,
-                      c.valid_pixels);
-        }
-      }
-      check_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     }
-    const auto report = graph.optimise(true);
-    rekon::Trajectory optimised;
-    for (const auto& f : frames) {
-      if (const auto kf = graph.pose(f.keyframe_id)) optimised.push_back({f.timestamp, *kf * f.pose_in_keyframe});
-    }
-    std::printf("graph: %zu keyframes, %zu loop edges kept, %zu removed, %.1f ms\n", graph.numKeyframes(),
-                graph.numLoopEdges(), graph.loopEdgesRemoved(), report.ms);
-    const double ate_odometry = rekon::eval::evaluateTrajectory(gt, odometry_trajectory).ate_rmse_m;
-    const double ate_loops = rekon::eval::evaluateTrajectory(gt, optimised).ate_rmse_m;
+    rekon::tracker::test::LoopPose loop_pose;
+    if (getenv("ORACLE"))
+      loop_pose = [&](const rekon::tracker::LoopConstraint& c) -> std::optional<rekon::Pose> {
+        const auto truth = truthOf(c.from_id, c.to_id);
+        return truth ? truth : std::optional<rekon::Pose>(c.relative);
+      };
+    const auto result = rekon::tracker::test::optimise(slam, graph_params, loop_pose);
+    std::printf("graph: %zu keyframes, %zu loop edges kept, %zu removed, %.1f ms\n", slam.keyframes.size(),
+                result.loop_edges_kept, result.loop_edges_removed, result.ms);
+    const double ate_odometry = rekon::eval::evaluateTrajectory(gt, slam.odometry).ate_rmse_m;
+    const double ate_loops = rekon::eval::evaluateTrajectory(gt, result.trajectory).ate_rmse_m;
     std::printf("ate_odometry_m=%.4f ate_with_loops_m=%.4f ratio=%.3f\n", ate_odometry, ate_loops,
                 ate_loops / ate_odometry);
     odometry.print("odometry constraints");
     loops.print("loop constraints");
+    const auto& stats = slam.stats;
     std::printf("keyframes=%ld candidates=%ld accepted=%ld rejected=%ld off_by_more_than_8cm=%d check_ms_per_keyframe=%.1f\n",
                 static_cast<long>(stats.keyframes_checked), static_cast<long>(stats.candidates),
                 static_cast<long>(stats.accepted), static_cast<long>(stats.rejected), far_loops,
-                check_ms / static_cast<double>(std::max<int64_t>(stats.keyframes_checked, 1)));
+                slam.check_ms / static_cast<double>(std::max<int64_t>(stats.keyframes_checked, 1)));
     std::printf("chi2 at the ground truth (information x %.0e): odometry median %.1f p90 %.1f, loops median %.1f p90 %.1f "
                 "(6 dof: 5.35 median if calibrated)\n",
                 graph_params.information_scale, ErrorStats::quantile(odometry_chi2, 0.5),
                 ErrorStats::quantile(odometry_chi2, 0.9), ErrorStats::quantile(loop_chi2, 0.5),
                 ErrorStats::quantile(loop_chi2, 0.9));
     if (getenv("SWEEP")) {
-      // The same keyframes and constraints, optimised again: loop edges kept
-      // when their cross check is within `max_cross`, their information x `weight`.
-      struct Filter {
-        double min_fine_ratio, max_cross, max_depth_sigma;
-        int min_gap;
-      };
-      auto ateWith = [&](const Filter& f, size_t* kept) {
-        rekon::optimiser::PoseGraph g(graph_params.graph);
-        for (const auto& [id, pose] : keyframe_poses) g.addKeyframe(id, pose);
-        auto add = [&](rekon::optimiser::EdgeKind kind, int64_t from, int64_t to, const rekon::Pose& rel,
-                       const rekon::tracker::Matrix6d& info) {
-          rekon::optimiser::Constraint c;
-          c.kind = kind;
-          c.from_id = from;
-          c.to_id = to;
-          c.relative = rel;
-          c.information = graph_params.information_scale * info;
-          g.addConstraint(c);
-        };
-        for (const auto& o : odometry_edges)
-          add(rekon::optimiser::EdgeKind::Odometry, o.from_id, o.to_id, o.relative, o.information);
-        for (const auto& l : loop_edges) {
-          if (l.cross_check_m <= f.max_cross && l.depth_sigma <= f.max_depth_sigma && l.fine_ratio >= f.min_fine_ratio &&
-              l.to_id - l.from_id >= f.min_gap)
-            add(rekon::optimiser::EdgeKind::Loop, l.from_id, l.to_id, l.relative, l.information);
-        }
-        g.optimise(true);
-        *kept = g.numLoopEdges();
-        rekon::Trajectory t;
-        for (const auto& fr : frames) {
-          if (const auto kf = g.pose(fr.keyframe_id)) t.push_back({fr.timestamp, *kf * fr.pose_in_keyframe});
-        }
-        return rekon::eval::evaluateTrajectory(gt, t).ate_rmse_m;
-      };
+      // The same keyframes and constraints, optimised again with the loop
+      // edges filtered.
       for (const double ratio : {0.0, 0.85, 0.9, 0.95}) {
         for (const int gap : {1, 5, 10, 20, 30}) {
           for (const double cross : {0.05, 0.02}) {
             for (const double depth_sigma : {1e9, 0.05}) {
-              size_t kept = 0;
-              const double ate = ateWith({ratio, cross, depth_sigma, gap}, &kept);
+              const auto filtered = rekon::tracker::test::optimise(
+                  slam, graph_params, [&](const rekon::tracker::LoopConstraint& l) -> std::optional<rekon::Pose> {
+                    if (l.cross_check_m <= cross && l.depth_sigma <= depth_sigma && l.fine_ratio >= ratio &&
+                        l.to_id - l.from_id >= gap)
+                      return l.relative;
+                    return std::nullopt;
+                  });
+              const double ate = rekon::eval::evaluateTrajectory(gt, filtered.trajectory).ate_rmse_m;
               std::printf("SWEEP min_fine_ratio %.2f min_gap %d max_cross %.2f max_depth_sigma %.2f: %zu loops kept, "
                           "ATE %.4f m (ratio %.3f)\n",
-                          ratio, gap, cross, std::min(depth_sigma, 9.99), kept, ate, ate / ate_odometry);
+                          ratio, gap, cross, std::min(depth_sigma, 9.99), filtered.loop_edges_kept, ate,
+                          ate / ate_odometry);
             }
           }
         }

@@ -1,0 +1,60 @@
+#include "in_process_slam.hpp"
+
+#include <chrono>
+
+#include "rekon/optimiser/pose_graph.hpp"
+#include "rekon/tracker/tracker.hpp"
+
+namespace rekon::tracker::test {
+
+InProcessSlam runInProcess(const TumDataset& dataset, const TrackerParams& params) {
+  InProcessSlam out;
+  Tracker tracker(params);
+  LoopClosureDetector detector(params);
+  for (size_t i = 0; i < dataset.size(); ++i) {
+    RgbdFrame f = dataset.load(i);
+    f.id = static_cast<int64_t>(i);
+    const TrackResult r = tracker.track(f, dataset.intrinsics());
+    out.frames.push_back({r.timestamp, r.keyframe_id, r.pose_in_keyframe});
+    out.odometry.push_back({r.timestamp, r.pose_world});
+    if (!r.new_keyframe) continue;
+    out.keyframes.push_back({r.keyframe_id, r.timestamp, r.keyframe_pose_world});
+    if (r.odometry) out.odometry_edges.push_back(*r.odometry);
+    const auto t0 = std::chrono::steady_clock::now();
+    detector.addKeyframe(tracker.currentKeyframe(), r.odometry);
+    for (const LoopConstraint& c : detector.detect(r.keyframe_id, out.stats)) out.loop_edges.push_back(c);
+    out.check_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  }
+  return out;
+}
+
+Optimised optimise(const InProcessSlam& slam, const optimiser::OptimiserServiceParams& params,
+                   const LoopPose& loop_pose) {
+  optimiser::PoseGraph graph(params.graph);
+  for (const KeyframeAt& k : slam.keyframes) graph.addKeyframe(k.id, k.pose_world);
+  auto add = [&](optimiser::EdgeKind kind, int64_t from, int64_t to, const Pose& relative, const Matrix6d& info) {
+    optimiser::Constraint c;
+    c.kind = kind;
+    c.from_id = from;
+    c.to_id = to;
+    c.relative = relative;
+    c.information = params.information_scale * info;
+    graph.addConstraint(c);
+  };
+  for (const OdometryConstraint& o : slam.odometry_edges)
+    add(optimiser::EdgeKind::Odometry, o.from_id, o.to_id, o.relative, o.information);
+  for (const LoopConstraint& l : slam.loop_edges) {
+    const std::optional<Pose> relative = loop_pose ? loop_pose(l) : std::optional<Pose>(l.relative);
+    if (relative) add(optimiser::EdgeKind::Loop, l.from_id, l.to_id, *relative, l.information);
+  }
+  Optimised out;
+  out.ms = graph.optimise(true).ms;
+  out.loop_edges_kept = graph.numLoopEdges();
+  out.loop_edges_removed = graph.loopEdgesRemoved();
+  for (const FrameInKeyframe& f : slam.frames) {
+    if (const auto kf = graph.pose(f.keyframe_id)) out.trajectory.push_back({f.timestamp, *kf * f.pose_in_keyframe});
+  }
+  return out;
+}
+
+}  // namespace rekon::tracker::test

@@ -1,0 +1,60 @@
+#pragma once
+// The tracker, its loop-closure detector (every new keyframe checked at once,
+// on the calling thread) and rekon_optimiser's PoseGraph in one process over
+// a dataset: what rekon run's tracker and optimiser compute, without the
+// timing of their threads, so the result is the same every run. Used by
+// loop_closure_bench and the real-data loop-closure test.
+#include <cstdint>
+#include <functional>
+#include <optional>
+#include <vector>
+
+#include "rekon/common/dataset.hpp"
+#include "rekon/common/pose.hpp"
+#include "rekon/optimiser/params.hpp"
+#include "rekon/tracker/loop_closure.hpp"
+#include "rekon/tracker/params.hpp"
+
+namespace rekon::tracker::test {
+
+struct FrameInKeyframe {
+  double timestamp = 0.0;
+  int64_t keyframe_id = -1;
+  Pose pose_in_keyframe = Pose::Identity();
+};
+
+struct KeyframeAt {
+  int64_t id = -1;
+  double timestamp = 0.0;
+  Pose pose_world = Pose::Identity();  // the tracker's
+};
+
+struct InProcessSlam {
+  Trajectory odometry;  // the tracker's pose of every frame
+  std::vector<FrameInKeyframe> frames;
+  std::vector<KeyframeAt> keyframes;
+  std::vector<OdometryConstraint> odometry_edges;
+  std::vector<LoopConstraint> loop_edges;
+  LoopClosureStats stats;
+  double check_ms = 0.0;  // wall time of all loop checks
+};
+
+// Tracks every frame of `dataset` and checks every new keyframe for loops.
+InProcessSlam runInProcess(const TumDataset& dataset, const TrackerParams& params);
+
+struct Optimised {
+  Trajectory trajectory;  // every frame: its keyframe's optimised pose x its pose in the keyframe
+  size_t loop_edges_kept = 0, loop_edges_removed = 0;
+  double ms = 0.0;
+};
+
+// The pose of a loop edge in the graph, or none to leave the edge out.
+using LoopPose = std::function<std::optional<Pose>(const LoopConstraint&)>;
+
+// The keyframe graph of `slam` (information x params.information_scale),
+// optimised as rekon-optimiser's final optimisation. `loop_pose` (default:
+// each loop's own relative pose) filters or replaces the loop edges.
+Optimised optimise(const InProcessSlam& slam, const optimiser::OptimiserServiceParams& params,
+                   const LoopPose& loop_pose = {});
+
+}  // namespace rekon::tracker::test
