@@ -15,7 +15,7 @@ InProcessSlam runInProcess(const TumDataset& dataset, const TrackerParams& param
     RgbdFrame f = dataset.load(i);
     f.id = static_cast<int64_t>(i);
     const TrackResult r = tracker.track(f, dataset.intrinsics());
-    out.frames.push_back({r.timestamp, r.keyframe_id, r.pose_in_keyframe});
+    out.frames.push_back({f.id, r.timestamp, r.keyframe_id, r.pose_in_keyframe});
     out.odometry.push_back({r.timestamp, r.pose_world});
     if (!r.new_keyframe) continue;
     out.keyframes.push_back({r.keyframe_id, r.timestamp, r.keyframe_pose_world});
@@ -51,9 +51,7 @@ Optimised optimise(const InProcessSlam& slam, const optimiser::OptimiserServiceP
   out.ms = graph.optimise(true).ms;
   out.loop_edges_kept = graph.numLoopEdges();
   out.loop_edges_removed = graph.loopEdgesRemoved();
-  for (const FrameInKeyframe& f : slam.frames) {
-    if (const auto kf = graph.pose(f.keyframe_id)) out.trajectory.push_back({f.timestamp, *kf * f.pose_in_keyframe});
-  }
+  out.trajectory = optimiser::frameTrajectory(graph, slam.frames, nullptr);
   return out;
 }
 

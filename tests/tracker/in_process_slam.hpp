@@ -11,17 +11,12 @@
 
 #include "rekon/common/dataset.hpp"
 #include "rekon/common/pose.hpp"
+#include "rekon/optimiser/graph_messages.hpp"
 #include "rekon/optimiser/params.hpp"
 #include "rekon/tracker/loop_closure.hpp"
 #include "rekon/tracker/params.hpp"
 
 namespace rekon::tracker::test {
-
-struct FrameInKeyframe {
-  double timestamp = 0.0;
-  int64_t keyframe_id = -1;
-  Pose pose_in_keyframe = Pose::Identity();
-};
 
 struct KeyframeAt {
   int64_t id = -1;
@@ -31,7 +26,7 @@ struct KeyframeAt {
 
 struct InProcessSlam {
   Trajectory odometry;  // the tracker's pose of every frame
-  std::vector<FrameInKeyframe> frames;
+  std::vector<optimiser::TrackedFrame> frames;  // what the tracker publishes of each frame
   std::vector<KeyframeAt> keyframes;
   std::vector<OdometryConstraint> odometry_edges;
   std::vector<LoopConstraint> loop_edges;
@@ -43,7 +38,7 @@ struct InProcessSlam {
 InProcessSlam runInProcess(const TumDataset& dataset, const TrackerParams& params);
 
 struct Optimised {
-  Trajectory trajectory;  // every frame: its keyframe's optimised pose x its pose in the keyframe
+  Trajectory trajectory;  // every frame, as rekon-optimiser writes trajectory.txt (frameTrajectory)
   size_t loop_edges_kept = 0, loop_edges_removed = 0;
   double ms = 0.0;
 };
