@@ -61,13 +61,42 @@ class VolumeBackend {
 
 std::unique_ptr<VolumeBackend> makeCpuBackend(int threads);
 #ifdef REKON_VOLUME_WITH_CUDA
+// Every CUDA call of it is checked: a failure throws rekon::Error naming the
+// call's purpose, file and line (kernel faults are synchronised after each launch).
 std::unique_ptr<VolumeBackend> makeCudaBackend();
-int cudaDeviceCount();  // 0 when the driver reports none or fails
+// Logs (spdlog) a CUDA failure that cannot be thrown: freeing GPU memory in a destructor.
+void logCudaCleanupFailure(const std::string& line);
 #endif
 
-// "cpu", "cuda" or "auto" (CUDA when a device is present, else CPU; logged).
+// What the CUDA driver says about this machine.
+struct CudaProbe {
+  int devices = 0;
+  // True when a driver is installed but failed (too old for the runtime,
+  // not initialisable, ...): not merely "no device".
+  bool driver_error = false;
+  std::string detail;  // why no device is usable, one line; empty when devices > 0
+};
+// Asks the driver (cudaGetDeviceCount, cudaDriverGetVersion). Without the CUDA
+// backend built: 0 devices, "rekon was built without CUDA".
+CudaProbe probeCudaDevices();
+
+// Runs both backends in lockstep on two small synthetic frames (one with
+// color only, one with color and per-pixel weights, holes, a NaN and a pixel
+// beyond max_depth): integrate A, integrate B, grow the pool, de-integrate B,
+// de-integrate A. After each step it compares the band blocks each backend
+// finds, the update reports, the empty-block flags and every voxel (SDF sum,
+// weight, r, g, b) exactly. Returns "" when they agree, else one line naming
+// the first difference. Exceptions of either backend propagate.
+std::string compareBackendsOnSyntheticFrames(VolumeBackend& reference, VolumeBackend& candidate);
+
+// "cpu", "cuda" or "auto". auto: CUDA only when a device is present and the
+// CUDA backend passes compareBackendsOnSyntheticFrames against the CPU backend
+// (once per process); otherwise the CPU backend, with one warning line saying
+// why when a driver error, a mismatch or a CUDA error was the reason. cuda:
+// the same conditions throw rekon::Error instead.
 std::unique_ptr<VolumeBackend> makeBackend(const std::string& choice, int cpu_threads);
-// Backends usable in this process: always "cpu", plus "cuda" with a device.
+// Backends usable in this process: always "cpu", plus "cuda" with a device
+// (listed even if its self-check fails, so that tests of it fail loudly).
 std::vector<std::string> availableBackends();
 
 }  // namespace rekon::volume
