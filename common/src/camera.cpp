@@ -2,8 +2,12 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <cerrno>
 #include <cmath>
+#include <cstdlib>
 #include <fstream>
+#include <sstream>
+#include <vector>
 
 #include "rekon/common/error.hpp"
 
@@ -36,33 +40,77 @@ Intrinsics Intrinsics::atLevel(int level) const {
   return k;
 }
 
-Intrinsics loadIntrinsics(const std::string& yaml_path) {
+namespace {
+
+constexpr const char* kKeys[] = {"width", "height", "fx", "fy", "cx", "cy", "depth_scale"};
+constexpr const char* kForms =
+    "camera.yaml needs the keys width height fx fy cx cy depth_scale, or those seven numbers on one line "
+    "(e.g. 640 480 585 585 320 240 1000)";
+
+// The seven values in kKeys order, from whichever form the file has.
+std::vector<std::string> cameraValues(const YAML::Node& node, const std::string& source) {
+  std::vector<std::string> values;
+  if (node.IsMap()) {
+    for (const char* key : kKeys) {
+      const YAML::Node v = node[key];
+      if (!v) throw Error(source + ": missing key '" + key + "'; " + kForms);
+      if (!v.IsScalar()) throw Error(source + ": '" + key + "' is not a number; " + kForms);
+      values.push_back(v.Scalar());
+    }
+    return values;
+  }
+  if (node.IsScalar()) {
+    std::istringstream in(node.Scalar());
+    for (std::string word; in >> word;) values.push_back(word);
+    if (values.size() == 7) return values;
+    throw Error(source + ": one line of " + std::to_string(values.size()) + " values; " + kForms);
+  }
+  throw Error(source + ": neither a mapping nor one line of numbers; " + kForms);
+}
+
+double number(const std::string& text, const char* key, const std::string& source) {
+  char* end = nullptr;
+  errno = 0;
+  const double v = std::strtod(text.c_str(), &end);
+  if (text.empty() || end != text.c_str() + text.size() || errno == ERANGE)
+    throw Error(source + ": " + key + " = '" + text + "' is not a number; " + kForms);
+  return v;
+}
+
+int integer(const std::string& text, const char* key, const std::string& source) {
+  const double v = number(text, key, source);
+  if (v != std::floor(v) || std::abs(v) > 1e9) throw Error(source + ": " + key + " = '" + text + "' is not a whole number of pixels");
+  return static_cast<int>(v);
+}
+
+}  // namespace
+
+Intrinsics parseIntrinsics(const std::string& text, const std::string& source) {
   YAML::Node node;
   try {
-    node = YAML::LoadFile(yaml_path);
-  } catch (const YAML::BadFile&) {
-    throw Error(yaml_path + ": cannot read camera file; give the dataset a camera.yaml with width height fx fy cx cy depth_scale");
+    node = YAML::Load(text);
   } catch (const YAML::Exception& e) {
-    throw Error(yaml_path + ": not valid YAML (" + e.msg + "); fix the camera file");
+    throw Error(source + ": not valid YAML (" + e.msg + "); " + kForms);
   }
+  const std::vector<std::string> v = cameraValues(node, source);
   Intrinsics k;
-  const char* keys[] = {"width", "height", "fx", "fy", "cx", "cy", "depth_scale"};
-  for (const char* key : keys) {
-    if (!node[key]) throw Error(yaml_path + ": missing key '" + key + "'; camera.yaml needs width height fx fy cx cy depth_scale");
-  }
-  try {
-    k.width = node["width"].as<int>();
-    k.height = node["height"].as<int>();
-    k.fx = node["fx"].as<double>();
-    k.fy = node["fy"].as<double>();
-    k.cx = node["cx"].as<double>();
-    k.cy = node["cy"].as<double>();
-    k.depth_scale = node["depth_scale"].as<double>();
-  } catch (const YAML::Exception& e) {
-    throw Error(yaml_path + ": a camera value is not a number (" + e.msg + ")");
-  }
-  k.validate(yaml_path);
+  k.width = integer(v[0], kKeys[0], source);
+  k.height = integer(v[1], kKeys[1], source);
+  k.fx = number(v[2], kKeys[2], source);
+  k.fy = number(v[3], kKeys[3], source);
+  k.cx = number(v[4], kKeys[4], source);
+  k.cy = number(v[5], kKeys[5], source);
+  k.depth_scale = number(v[6], kKeys[6], source);
+  k.validate(source);
   return k;
+}
+
+Intrinsics loadIntrinsics(const std::string& yaml_path) {
+  std::ifstream in(yaml_path, std::ios::binary);
+  if (!in) throw Error(yaml_path + ": cannot read camera file; give the dataset a camera.yaml (" + kForms + ")");
+  std::stringstream text;
+  text << in.rdbuf();
+  return parseIntrinsics(text.str(), yaml_path);
 }
 
 void saveIntrinsics(const Intrinsics& k, const std::string& yaml_path) {

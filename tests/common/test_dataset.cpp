@@ -3,7 +3,10 @@
 #include <filesystem>
 #include <fstream>
 #include <opencv2/imgcodecs.hpp>
+#include <utility>
+#include <vector>
 
+#include "rekon/common/camera.hpp"
 #include "rekon/common/dataset.hpp"
 #include "rekon/common/error.hpp"
 #include "test_support.hpp"
@@ -97,4 +100,58 @@ TEST(TumDataset, SevenScenesLoopReadsWithItsCameraYaml) {
   EXPECT_DOUBLE_EQ(ds.intrinsics().depth_scale, 1000.0);
   const auto f = ds.load(0);
   EXPECT_EQ(f.depth.cols, 640);
+}
+
+// camera.yaml: the keyed form and the one-line form README.md documents give
+// the same intrinsics; anything else is a rekon::Error naming the file and the
+// forms (a one-line file used to throw YAML::BadSubscript: std::terminate).
+TEST(CameraYaml, KeyedAndOneLineFormsAgree) {
+  const rekon::Intrinsics keyed = rekon::parseIntrinsics(
+      "width: 640\nheight: 480\nfx: 585\nfy: 585.5\ncx: 320\ncy: 240\ndepth_scale: 1000\n", "keyed.yaml");
+  const rekon::Intrinsics line = rekon::parseIntrinsics("640 480 585 585.5 320 240 1000\n", "line.yaml");
+  for (const rekon::Intrinsics& k : {keyed, line}) {
+    EXPECT_EQ(k.width, 640);
+    EXPECT_EQ(k.height, 480);
+    EXPECT_EQ(k.fx, 585.0);
+    EXPECT_EQ(k.fy, 585.5);
+    EXPECT_EQ(k.cx, 320.0);
+    EXPECT_EQ(k.cy, 240.0);
+    EXPECT_EQ(k.depth_scale, 1000.0);
+  }
+}
+
+TEST(CameraYaml, EveryOtherFormIsOneErrorNamingTheFileAndTheForms) {
+  const std::vector<std::pair<std::string, std::string>> bad = {
+      {"", "neither a mapping"},
+      {"640 480 585 585 320 240\n", "6 values"},
+      {"640 480 585 585 320 240 1000 7\n", "8 values"},
+      {"[640, 480, 585, 585, 320, 240, 1000]\n", "neither a mapping"},
+      {"640 480 five 585 320 240 1000\n", "fx = 'five'"},
+      {"640.5 480 585 585 320 240 1000\n", "whole number"},
+      {"width: 640\nheight: 480\nfx: 585\nfy: 585\ncx: 320\ncy: 240\n", "missing key 'depth_scale'"},
+      {"width: [640]\nheight: 480\nfx: 585\nfy: 585\ncx: 320\ncy: 240\ndepth_scale: 1\n", "'width' is not a number"},
+      {"width: [640\n", "not valid YAML"},
+      {"640 480 nan 585 320 240 1000\n", "fx"},
+      {"1e300 480 585 585 320 240 1000\n", "width"},
+  };
+  for (const auto& [text, why] : bad) {
+    try {
+      rekon::parseIntrinsics(text, "cam.yaml");
+      ADD_FAILURE() << "accepted: " << text;
+    } catch (const rekon::Error& e) {
+      const std::string what = e.what();
+      EXPECT_EQ(what.rfind("cam.yaml: ", 0), 0u) << what;
+      EXPECT_NE(what.find(why), std::string::npos) << "'" << why << "' in: " << what;
+      EXPECT_EQ(what.find('\n'), std::string::npos) << what;
+    }
+  }
+}
+
+TEST(CameraYaml, OneLineFileLoadsThroughTheDataset) {
+  rekon::test::TempDir dir;
+  makeDataset(dir.path(), 2);
+  std::ofstream(dir / "camera.yaml", std::ios::trunc) << "8 6 5 5 3.5 2.5 1000\n";
+  rekon::TumDataset ds(dir.path());
+  EXPECT_EQ(ds.intrinsics().width, 8);
+  EXPECT_EQ(ds.intrinsics().depth_scale, 1000.0);
 }

@@ -20,7 +20,11 @@ struct Intrinsics {
   Intrinsics atLevel(int level) const;
 };
 
-// Reads `width height fx fy cx cy depth_scale` from a camera.yaml.
+// A camera.yaml holds `width height fx fy cx cy depth_scale` in one of two
+// forms: a mapping with those seven keys, or the seven numbers on one line
+// (`640 480 585 585 320 240 1000`). Anything else is a rekon::Error naming
+// `source` and both forms.
+Intrinsics parseIntrinsics(const std::string& text, const std::string& source);
 Intrinsics loadIntrinsics(const std::string& yaml_path);
 void saveIntrinsics(const Intrinsics& k, const std::string& yaml_path);
 
