@@ -1,6 +1,7 @@
 #include "rekon/common/cli.hpp"
 
 #include <cmath>
+#include <filesystem>
 #include <iostream>
 #include <sstream>
 
@@ -128,6 +129,13 @@ std::string ArgParser::usage() const {
   }
   out << "  --help\n      show this help\n";
   return out.str();
+}
+
+void createOutputFolder(const std::string& dir) {
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (ec) throw Error("cannot create output folder '" + dir + "' (" + ec.message() + "); choose a writable --out");
+  if (!std::filesystem::is_directory(dir)) throw Error("output '" + dir + "' is not a folder; choose another --out");
 }
 
 }  // namespace rekon

@@ -12,6 +12,7 @@
 #include <mutex>
 #include <thread>
 
+#include "rekon/common/cli.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/common/logging.hpp"
 #include "rekon/common/memory.hpp"
@@ -79,8 +80,8 @@ void ServiceContext::start() {
   threads_->bus_thread = std::thread([this] {
     try {
       bus_->spin(threads_->threads_stop);
-    } catch (const Error& e) {
-      spdlog::error("{}", e.what());
+    } catch (...) {  // a handler's exception of any type: one line, and the service stops cleanly
+      spdlog::error("{}", currentExceptionLine());
       requestStop();
     }
   });
@@ -200,7 +201,7 @@ int runService(int argc, char** argv, const std::string& name, const std::string
     Config config = Config::load(args.get("config"), args.all("set"));
     setupLogging(name, config.getString("log.level"));
     const std::string out = args.get("out");
-    if (!out.empty()) std::filesystem::create_directories(out);
+    if (!out.empty()) createOutputFolder(out);
     keepFreedMemory();
     signal(SIGINT, onSignal);
     signal(SIGTERM, onSignal);
@@ -212,14 +213,16 @@ int runService(int argc, char** argv, const std::string& name, const std::string
     ctx->stopThreads();
     ctx->writeStats();
     return 0;
-  } catch (const Error& e) {
-    if (spdlog::default_logger()) spdlog::error("{}", e.what());
-    else std::cerr << "rekon-" << name << ": error: " << e.what() << "\n";
+  } catch (...) {
+    const std::string line = currentExceptionLine();
+    if (spdlog::default_logger()) spdlog::error("{}", line);
+    else std::cerr << "rekon-" << name << ": error: " << line << "\n";
     if (ctx) {
       ctx->stopThreads();
       try {
         ctx->writeStats();  // whatever was measured before the error is kept
-      } catch (const Error&) {
+      } catch (...) {
+        spdlog::error("{}", currentExceptionLine());
       }
     }
     return 1;

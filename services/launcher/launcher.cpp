@@ -89,7 +89,7 @@ struct RunOptions {
 int launch(const RunOptions& opt) {
   Config config = Config::load(opt.config_file, opt.sets);
   setupLogging("run", config.getString("log.level"));
-  fs::create_directories(opt.out);
+  createOutputFolder(opt.out);
   const std::string out = fs::canonical(opt.out).string();
   const std::string bin = executableDir();
 

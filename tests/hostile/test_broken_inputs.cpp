@@ -77,5 +77,29 @@ TEST(BrokenInput, UnknownConfigKeyIsNamed) {
   expectOneLineError(player("--dataset " + (dir / "d") + " --config " + (dir / "typo.yaml")), {"tracker.finest_levle"});
 }
 
+TEST(BrokenInput, CameraYamlAsAListNamesTheFileAndTheForms) {
+  test::TempDir dir;
+  makeDataset(dir / "d");
+  std::ofstream(dir / "d/camera.yaml", std::ios::trunc) << "- 160\n- 120\n";
+  expectOneLineError(player("--dataset " + (dir / "d")), {"camera.yaml", "seven numbers on one line"});
+}
+
+TEST(BrokenInput, OneLineCameraYamlPlays) {
+  test::TempDir dir;
+  makeDataset(dir / "d");
+  std::ofstream(dir / "d/camera.yaml", std::ios::trunc) << "160 120 120 120 79.5 59.5 5000\n";
+  const Outcome o = player("--dataset " + (dir / "d"));
+  EXPECT_EQ(o.status, 0) << o.output;
+  EXPECT_EQ(test::crashLines(o.output), "");
+}
+
+// create_directories threw std::filesystem_error past the rekon::Error handler: std::terminate.
+TEST(BrokenInput, UnwritableOutputFolderIsOneLine) {
+  test::TempDir dir;
+  makeDataset(dir / "d");
+  std::ofstream(dir / "file") << "in the way\n";
+  expectOneLineError(player("--dataset " + (dir / "d") + " --out " + (dir / "file/out")), {"file/out", "--out"});
+}
+
 }  // namespace
 }  // namespace rekon::hostile

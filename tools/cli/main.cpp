@@ -23,8 +23,8 @@ int main(int argc, char** argv) {
     argv[1] = program.data();
     try {
       return c.main(argc - 1, argv + 1);
-    } catch (const rekon::Error& e) {
-      std::cerr << "rekon " << c.name << ": error: " << e.what() << "\n";
+    } catch (...) {  // any exception: one line and a non-zero exit, never std::terminate
+      std::cerr << "rekon " << c.name << ": error: " << rekon::currentExceptionLine() << "\n";
       return 1;
     }
   }

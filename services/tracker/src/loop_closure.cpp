@@ -11,6 +11,8 @@
 #include <limits>
 #include <numbers>
 
+#include "rekon/common/error.hpp"
+
 namespace rekon::tracker {
 namespace {
 
@@ -353,11 +355,16 @@ void LoopClosureWorker::run() {
       busy_ = true;
     }
     const auto t0 = std::chrono::steady_clock::now();
-    detector_.addKeyframe(job.keyframe, job.incoming);
     LoopClosureStats local;
-    std::vector<LoopConstraint> accepted;
-    if (job.check) accepted = detector_.detect(job.keyframe->id, local);
-    for (const LoopConstraint& c : accepted) on_accept_(c);
+    try {  // an exception must not end the tracker (std::terminate): this keyframe's loops are lost, one line says why
+      detector_.addKeyframe(job.keyframe, job.incoming);
+      std::vector<LoopConstraint> accepted;
+      if (job.check) accepted = detector_.detect(job.keyframe->id, local);
+      for (const LoopConstraint& c : accepted) on_accept_(c);
+    } catch (...) {
+      spdlog::error("loop closure check of keyframe {} failed, no loop edges from it: {}", job.keyframe->id,
+                    currentExceptionLine());
+    }
     const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     {
       std::lock_guard<std::mutex> lock(mutex_);

@@ -5,10 +5,11 @@
 #include <cstdio>
 #include <cstdlib>
 
+#include "rekon/common/error.hpp"
 #include "rekon/eval/surface_eval.hpp"
 #include "rekon/synth/synth.hpp"
 
-int main(int argc, char** argv) {
+int main(int argc, char** argv) try {
   const double spacing = argc > 1 ? std::atof(argv[1]) : 0.01;
   const auto scene = rekon::synth::Scene::make("room");
   const rekon::Mesh ref = scene->groundTruthMesh();
@@ -19,4 +20,7 @@ int main(int argc, char** argv) {
   const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   std::printf("mesh_vertices=%zu reference_triangles=%zu reference_samples=%zu corr_m=%.5f compl_m=%.5f seconds=%.2f\n",
               mesh.vertices.size(), ref.triangles.size(), e.reference_samples, e.corr_m, e.compl_m, s);
+} catch (...) {
+  std::fprintf(stderr, "rekon_eval_benchmark: %s\n", rekon::currentExceptionLine().c_str());
+  return 1;
 }

@@ -7,9 +7,10 @@
 #include <string>
 
 #include "../src/png_writer.hpp"
+#include "rekon/common/error.hpp"
 #include "rekon/synth/synth.hpp"
 
-int main(int argc, char** argv) {
+int main(int argc, char** argv) try {
   const std::string scene_name = argc > 1 ? argv[1] : "room";
   const int frames = argc > 2 ? std::atoi(argv[2]) : 30;
   const auto scene = rekon::synth::Scene::make(scene_name);
@@ -50,4 +51,7 @@ int main(int argc, char** argv) {
   std::printf("%s, %d frames, one thread: render_none_ms=%.1f render_kinect_ms=%.1f png_ms=%.1f png_kb=%.0f mesh_s=%.2f mesh_vertices=%zu\n",
               scene_name.c_str(), frames, 1e3 * t_none / frames, 1e3 * t_kinect / frames, 1e3 * t_png / frames,
               bytes / 1024.0 / frames, t_mesh, mesh.vertices.size());
+} catch (...) {
+  std::fprintf(stderr, "rekon_synth_benchmark: %s\n", rekon::currentExceptionLine().c_str());
+  return 1;
 }

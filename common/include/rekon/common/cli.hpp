@@ -43,4 +43,8 @@ class ArgParser {
   std::map<std::string, std::vector<std::string>> values_;
 };
 
+// Creates an output folder (--out) and its parents; a rekon::Error naming the
+// folder and the reason (permission, a file in the way) when it cannot.
+void createOutputFolder(const std::string& dir);
+
 }  // namespace rekon

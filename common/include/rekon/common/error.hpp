@@ -11,4 +11,10 @@ class Error : public std::runtime_error {
   explicit Error(const std::string& what_and_fix) : std::runtime_error(what_and_fix) {}
 };
 
+// The exception being handled, as one line: a rekon::Error's own text; any
+// other (YAML, OpenCV, filesystem, std::out_of_range, ...) its type and its
+// text with line breaks folded. Call it only inside a catch block; every
+// binary's top level and every thread body ends with `catch (...)` and this.
+std::string currentExceptionLine();
+
 }  // namespace rekon

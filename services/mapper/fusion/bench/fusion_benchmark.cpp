@@ -77,7 +77,7 @@ int main(int argc, char** argv) try {
   spdlog::info("finish  {:.1f} ms wall, {:.1f} ms CPU per KF keyframe", finish_wall / keyframes, finish_cpu / keyframes);
   spdlog::info("total   {:.2f} ms wall, {:.2f} ms CPU per frame", (add_wall + finish_wall) / n, (add_cpu + finish_cpu) / n);
   return 0;
-} catch (const std::exception& e) {
-  spdlog::error("{}", e.what());
+} catch (...) {
+  spdlog::error("{}", rekon::currentExceptionLine());
   return 1;
 }

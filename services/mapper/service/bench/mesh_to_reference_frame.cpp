@@ -25,8 +25,8 @@ int main(int argc, char** argv) {
     for (auto& v : mesh.vertices) v = t * v;
     rekon::writePly(mesh, argv[4]);
     spdlog::info("moved {} vertices into the reference frame: {}", mesh.vertices.size(), argv[4]);
-  } catch (const rekon::Error& e) {
-    spdlog::error("{}", e.what());
+  } catch (...) {
+    spdlog::error("{}", rekon::currentExceptionLine());
     return 1;
   }
   return 0;

@@ -36,7 +36,7 @@ void printList(const KeyframeStore& store) {
 // depth as 16-bit PNG at the camera's depth_scale, weights as 16-bit PNG in
 // 1/1000 units (saturated), color as PNG; poses as TUM trajectories.
 void exportTo(const KeyframeStore& store, const std::string& dir) {
-  std::filesystem::create_directories(dir);
+  createOutputFolder(dir);
   const Intrinsics k = store.intrinsics();
   const auto infos = store.list();
   Trajectory integrated;

@@ -55,7 +55,7 @@ int main(int argc, char** argv) try {
               args.get("scene").c_str(), frames, params.streaming_radius, k.width, k.height, stream_ms / frames,
               integrate_ms / frames, static_cast<long long>(s.blocks), static_cast<long long>(s.peak_active_blocks));
   return 0;
-} catch (const std::exception& e) {
-  std::fprintf(stderr, "rekon_volume_streaming_benchmark: %s\n", e.what());
+} catch (...) {
+  std::fprintf(stderr, "rekon_volume_streaming_benchmark: %s\n", rekon::currentExceptionLine().c_str());
   return 1;
 }

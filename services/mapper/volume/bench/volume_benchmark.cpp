@@ -178,7 +178,7 @@ int main(int argc, char** argv) try {
   std::printf("open3d_reference_ms_per_frame=26.9 (measured on this machine, data/README.md) speedup_vs_open3d_reference=%.2f\n",
               26.9 / integrate_ms);
   return 0;
-} catch (const std::exception& e) {
-  std::fprintf(stderr, "rekon_volume_benchmark: %s\n", e.what());
+} catch (...) {
+  std::fprintf(stderr, "rekon_volume_benchmark: %s\n", rekon::currentExceptionLine().c_str());
   return 1;
 }
