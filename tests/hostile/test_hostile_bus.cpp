@@ -8,7 +8,6 @@
 // count each undecodable message once, and end normally.
 #include <gtest/gtest.h>
 #include <signal.h>
-#include <spawn.h>
 #include <sys/wait.h>
 
 #include <chrono>
@@ -34,7 +33,6 @@
 #include "rekon_msgs/tracked_frame_t.hpp"
 #include "test_support.hpp"
 
-extern char** environ;
 
 namespace rekon {
 namespace {
@@ -47,38 +45,9 @@ constexpr int kFirstValid = 13, kFrames = 12;
 constexpr double kNan = std::numeric_limits<double>::quiet_NaN();
 constexpr double kInf = std::numeric_limits<double>::infinity();
 
-pid_t spawn(const std::string& command) {
-  const char* argv[] = {"/bin/sh", "-c", command.c_str(), nullptr};
-  pid_t pid = -1;
-  if (posix_spawn(&pid, "/bin/sh", nullptr, nullptr, const_cast<char**>(argv), environ) != 0) return -1;
-  return pid;
-}
-
-// Exit status of `pid`, or -1 after `seconds` (the child is then killed).
-int waitFor(pid_t pid, double seconds) {
-  const auto end = Clock::now() + std::chrono::duration<double>(seconds);
-  while (Clock::now() < end) {
-    int status = 0;
-    if (waitpid(pid, &status, WNOHANG) == pid) return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
-    std::this_thread::sleep_for(std::chrono::milliseconds(20));
-  }
-  // SIGTERM first: `timeout` passes it on to the service it runs.
-  kill(pid, SIGTERM);
-  for (int i = 0; i < 250; ++i) {
-    if (waitpid(pid, nullptr, WNOHANG) == pid) return -1;
-    std::this_thread::sleep_for(std::chrono::milliseconds(20));
-  }
-  kill(pid, SIGKILL);
-  waitpid(pid, nullptr, 0);
-  return -1;
-}
-
-std::string readFile(const std::string& path) {
-  std::ifstream in(path);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
+using test::readText;
+using test::spawnShell;
+using test::waitForExit;
 
 int countOf(const std::string& text, const std::string& needle) {
   int n = 0;
@@ -130,19 +99,19 @@ TEST(HostileBus, ServicesDropEveryHostileMessageAndThenMapAValidSequence) {
     std::map<std::string, pid_t>* pids;
     ~KillOnExit() {
       for (const auto& [name, pid] : *pids) {
-        if (pid > 0 && waitpid(pid, nullptr, WNOHANG) == 0) waitFor(pid, 0);
+        if (pid > 0 && waitpid(pid, nullptr, WNOHANG) == 0) waitForExit(pid, 0);
       }
     }
   } kill_on_exit{&services};
   for (const char* s : {"tracker", "optimiser", "mapper"}) {
-    services[s] = spawn("exec timeout -k 5 200 " + test::binDir() + "/rekon-" + s + " --out " + (dir / "out") + " > " +
+    services[s] = spawnShell("exec timeout -k 5 200 " + test::binDir() + "/rekon-" + s + " --out " + (dir / "out") + " > " +
                         (dir / (std::string(s) + ".log")) + " 2>&1");
     ASSERT_GT(services[s], 0);
   }
   // "running" is announced after a service has subscribed to its inputs.
   const auto deadline = Clock::now() + std::chrono::seconds(60);
   while (running.size() < 3 && Clock::now() < deadline) bus.handle(20);
-  ASSERT_EQ(running.size(), 3u) << readFile(dir / "tracker.log") << readFile(dir / "mapper.log");
+  ASSERT_EQ(running.size(), 3u) << readText(dir / "tracker.log") << readText(dir / "mapper.log");
 
   // Paced, so no socket buffer overflows on a loaded machine and every count below is exact.
   const auto publishRaw = [&](const char* channel_name, const std::string& bytes) {
@@ -256,16 +225,16 @@ TEST(HostileBus, ServicesDropEveryHostileMessageAndThenMapAValidSequence) {
   publishRaw(channel::kGraphUpdates, encode(graph));
 
   // 4. A valid sequence: every frame of it, and nothing else, must come through.
-  const int player_status = waitFor(
+  const int player_status = waitForExit(
       // Paced by time, not acknowledgements: the player would wait for acks of
   // frames before first_frame that it never sent (rate max). A tenth of the
   // recorded rate leaves each service 0.3 s per frame on a loaded machine.
-      spawn("exec " + test::binDir() + "/rekon-player --dataset " + (dir / "room") + " --rate 0.1 --set player.first_frame=" +
+      spawnShell("exec " + test::binDir() + "/rekon-player --dataset " + (dir / "room") + " --rate 0.1 --set player.first_frame=" +
             std::to_string(kFirstValid) + " > " + (dir / "player.log") + " 2>&1"),
       120);
-  EXPECT_EQ(player_status, 0) << readFile(dir / "player.log");
+  EXPECT_EQ(player_status, 0) << readText(dir / "player.log");
   for (const auto& [name, pid] : services) {
-    EXPECT_EQ(waitFor(pid, 150), 0) << "rekon-" << name << ":\n" << readFile(dir / (name + ".log"));
+    EXPECT_EQ(waitForExit(pid, 150), 0) << "rekon-" << name << ":\n" << readText(dir / (name + ".log"));
   }
 
   // Undecodable messages are counted by every service subscribed to the channel:
@@ -274,14 +243,14 @@ TEST(HostileBus, ServicesDropEveryHostileMessageAndThenMapAValidSequence) {
   const int per_channel = static_cast<int>(undecodable.size());
   const std::map<std::string, int> malformed = {{"tracker", 2 * per_channel}, {"optimiser", 3 * per_channel}, {"mapper", 4 * per_channel}};
   for (const auto& [name, expected] : malformed) {
-    const std::string stats = readFile(dir / ("out/" + name + "_stats.json"));
+    const std::string stats = readText(dir / ("out/" + name + "_stats.json"));
     EXPECT_NE(stats.find("\"malformed_messages\": " + std::to_string(expected)), std::string::npos) << name << ": " << stats;
-    const std::string log = readFile(dir / (name + ".log"));
+    const std::string log = readText(dir / (name + ".log"));
     EXPECT_EQ(test::crashLines(log), "") << name;
   }
   // Each bad frame is one warning in each frame reader, and none became a frame.
   for (const char* reader : {"tracker", "mapper"}) {
-    const std::string log = readFile(dir / (std::string(reader) + ".log"));
+    const std::string log = readText(dir / (std::string(reader) + ".log"));
     EXPECT_EQ(countOf(log, "dropped:"), static_cast<int>(bad_frames.size())) << reader << ":\n" << log;
   }
   EXPECT_EQ(readTumTrajectory(dir / "out/odometry.txt").size(), static_cast<size_t>(kFrames));

@@ -3,6 +3,8 @@
 // temporary folder, and running a built binary.
 #include <gtest/gtest.h>
 
+#include <sys/types.h>
+
 #include <string>
 
 namespace rekon::test {
@@ -32,6 +34,14 @@ std::string binDir();
 std::string sourceDir();
 // Runs a shell command, returns its exit status; stdout+stderr go to `output`.
 int runCommand(const std::string& command, std::string* output = nullptr);
+
+// Starts `/bin/sh -c command` in the background; its pid, or -1.
+pid_t spawnShell(const std::string& command);
+// Exit status of `pid` (128 + signal when killed by one), or -1 when it has
+// not ended after `seconds`: it is then sent SIGTERM, and SIGKILL 5 s later.
+int waitForExit(pid_t pid, double seconds);
+// The whole text of a file ("" when it cannot be read).
+std::string readText(const std::string& path);
 
 // Multi-process tests whose own process talks on the bus: runs the current
 // test again inside tests/support/in_netns.sh and reports its result; returns

@@ -61,14 +61,27 @@ struct Shared {
   std::map<int64_t, std::pair<RgbdFrame, Intrinsics>> images;  // copied, waiting for their tracked frame
   std::map<int64_t, Tracked> tracked;                         // waiting for their images
   std::deque<int64_t> deferred_acks;
-  size_t queued_frames = 0;  // images waiting + frames in the queue
+  size_t frames_in_queue = 0;  // joined frames queued or being fused
   bool busy = false, stop_worker = false;
   int64_t end_frame = -2;  // -2: no end of stream yet
   int64_t last_resolved = -1;  // newest frame joined or given up on
   bool optimiser_done = false, tracker_done = false;
   int64_t dropped_frames = 0, dropped_updates = 0, coalesced_updates = 0;
+  // Copies of a frame already here (the player sends its newest frame again
+  // while acknowledgements stall): neither stored nor counted as dropped.
+  int64_t frames_received_again = 0;
   bool baseline_queued = false;
   std::string worker_error;
+  MapperCounters progress;  // the worker's copy after each piece of work, for the progress log
+
+  // Frames held in memory: images waiting for their tracked frame, and joined
+  // frames not yet fused. Counted from the containers, so no message order can
+  // make it drift (a counter of its own leaked one per re-sent frame and
+  // deferred every acknowledgement for good: the stall near frame 8 700).
+  size_t queuedFrames() const { return images.size() + frames_in_queue; }
+  // A frame whose images came before, or that was joined or given up on.
+  bool seen(int64_t id) const { return id <= last_resolved || images.count(id) > 0; }
+  bool ackDeferred(int64_t id) const { return std::find(deferred_acks.begin(), deferred_acks.end(), id) != deferred_acks.end(); }
 };
 
 bool contains(const std::vector<std::string>& list, const std::string& s) {
@@ -111,6 +124,7 @@ void runMapperService(ServiceContext& ctx) {
   const MapperParams params = MapperParams::fromConfig(ctx.config());
   const size_t max_queued = static_cast<size_t>(std::max(1, ctx.config().getInt("mapper.max_queued_frames")));
   const bool write_uncorrected = ctx.config().getBool("mapper.write_uncorrected_mesh");
+  const auto progress_every = std::chrono::duration<double>(ctx.config().getDouble("mapper.progress_interval_s"));
   const bool wait_for_optimiser =
       ctx.config().getBool("mapper.wait_for_optimiser") && contains(ctx.config().getStringList("run.services"), "optimiser");
   Bus& bus = ctx.bus();
@@ -153,6 +167,7 @@ void runMapperService(ServiceContext& ctx) {
     auto tr = s.tracked.find(id);
     if (img == s.images.end() || tr == s.tracked.end()) return;
     s.queue.push_back(FrameWork{std::move(img->second.first), img->second.second, tr->second});
+    ++s.frames_in_queue;
     s.images.erase(img);
     s.tracked.erase(tr);
     s.last_resolved = std::max(s.last_resolved, id);
@@ -161,6 +176,20 @@ void runMapperService(ServiceContext& ctx) {
 
   StopThreadsOnExit stop_threads(ctx);  // before the state above dies: the bus handlers use it
   bus.subscribe<rekon_msgs::frame_t>(channel::kFrames, [&](const rekon_msgs::frame_t& msg) {
+    std::optional<bool> again_ack;  // set for a frame sent again: whether to acknowledge it now
+    {
+      std::lock_guard<std::mutex> lock(s.mutex);
+      if (s.seen(msg.frame_id)) {
+        // Sent again: the first copy is (or was) in the work. Acknowledged
+        // again unless its acknowledgement is still held back.
+        ++s.frames_received_again;
+        again_ack = !s.ackDeferred(msg.frame_id);
+      }
+    }
+    if (again_ack) {
+      if (*again_ack) ack(msg.frame_id);
+      return;
+    }
     Intrinsics k;
     std::optional<RgbdFrame> frame = receiver.receive(msg, &k);  // a copy out of the ring: safe to acknowledge
     bool ack_now = true;
@@ -174,9 +203,8 @@ void runMapperService(ServiceContext& ctx) {
           ++s.dropped_frames;
         }
         s.images[msg.frame_id] = {std::move(*frame), k};
-        ++s.queued_frames;
         join(msg.frame_id);
-        if (s.queued_frames > max_queued) {
+        if (s.queuedFrames() > max_queued) {
           s.deferred_acks.push_back(msg.frame_id);
           ack_now = false;
         }
@@ -200,7 +228,6 @@ void runMapperService(ServiceContext& ctx) {
       spdlog::warn("frame {}: no tracked frame came for it; dropped", s.images.begin()->first);
       s.last_resolved = std::max(s.last_resolved, s.images.begin()->first);
       s.images.erase(s.images.begin());
-      --s.queued_frames;
       ++s.dropped_frames;
     }
     s.tracked[msg.frame_id] = {msg.keyframe_id, *pose, msg.state == rekon_msgs::tracked_frame_t::STATE_LOST};
@@ -297,9 +324,10 @@ void runMapperService(ServiceContext& ctx) {
       }
       lock.lock();
       s.busy = false;
-      if (std::holds_alternative<FrameWork>(w)) --s.queued_frames;
+      s.progress = mapper.counters();
+      if (std::holds_alternative<FrameWork>(w)) --s.frames_in_queue;
       std::vector<int64_t> release;
-      while (!s.deferred_acks.empty() && s.queued_frames <= max_queued) {
+      while (!s.deferred_acks.empty() && s.queuedFrames() <= max_queued) {
         release.push_back(s.deferred_acks.front());
         s.deferred_acks.pop_front();
       }
@@ -328,10 +356,11 @@ void runMapperService(ServiceContext& ctx) {
         s.work_ready.notify_one();
       }
     }
-    if (std::chrono::steady_clock::now() - last_progress > std::chrono::seconds(5)) {
+    if (std::chrono::steady_clock::now() - last_progress > progress_every) {
       last_progress = std::chrono::steady_clock::now();
-      std::lock_guard<std::mutex> lock(s.mutex);
-      spdlog::info("mapper: {} KF keyframes so far, {} frames queued", mapper.counters().kf_keyframes, s.queue.size());
+      std::lock_guard<std::mutex> lock(s.mutex);  // the worker's copy: the mapper's own counters are its alone
+      spdlog::info("mapper: {} frames fused into {} KF keyframes, {} re-integrations, {} frames queued", s.progress.frames,
+                   s.progress.kf_keyframes, s.progress.reintegrations, s.queuedFrames());
     }
     std::this_thread::sleep_for(std::chrono::milliseconds(10));
   }
@@ -346,7 +375,10 @@ void runMapperService(ServiceContext& ctx) {
   worker.join();
   ctx.stopThreads();  // no handler runs after this
   if (!s.worker_error.empty()) throw Error(s.worker_error);
-  if (!s.images.empty()) spdlog::warn("{} frames never got a tracked frame; dropped", s.images.size());
+  if (!s.images.empty()) {
+    spdlog::warn("{} frames never got a tracked frame; dropped", s.images.size());
+    s.dropped_frames += static_cast<int64_t>(s.images.size());
+  }
 
   if (clean) {
     for (const ReintegrationRound& r : mapper.finish()) rounds.push_back({secondsSinceFirstFrame(), last_graph_version, r, true});
@@ -381,6 +413,7 @@ void runMapperService(ServiceContext& ctx) {
       .set("frames_fused", static_cast<long long>(c.frames))
       .set("frames_skipped", static_cast<long long>(c.skipped_frames))
       .set("frames_dropped", static_cast<long long>(s.dropped_frames))
+      .set("frames_received_again", static_cast<long long>(s.frames_received_again))
       .set("kf_keyframes", static_cast<long long>(c.kf_keyframes))
       .set("integrations", static_cast<long long>(c.integrations))
       .set("deintegrations", static_cast<long long>(c.deintegrations))
