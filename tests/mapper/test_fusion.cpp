@@ -1,7 +1,10 @@
 // Keyframe fusion (paper section 3): depth weights, eq. (1), color by weighted median, strategies.
 #include <gtest/gtest.h>
+
+#include <algorithm>
 #include <opencv2/imgproc.hpp>
 
+#include "rekon/common/error.hpp"
 #include "rekon/fusion/keyframe_fusion.hpp"
 
 using namespace rekon;
@@ -175,4 +178,50 @@ TEST(KeyframeStrategy, OverlapDropsWhenTheCameraTurnsAway) {
   big_turn.linear() = Eigen::AngleAxisd(30 * M_PI / 180, Eigen::Vector3d::UnitY()).toRotationMatrix();
   EXPECT_FALSE(fuser.startsNewKeyframe(0, small_turn));
   EXPECT_TRUE(fuser.startsNewKeyframe(0, big_turn));
+}
+
+// A still camera (the same frame at the same pose, the same DVO keyframe):
+// dvo, dist and overlap never start a new KF keyframe on their own, so the
+// cap closes one every max_frames_per_keyframe frames and the color input
+// held never exceeds the cap's worth (it grew by one frame each frame before).
+TEST(KeyframeStrategy, EveryStrategyClosesAKeyframeAtTheCapForAStillCamera) {
+  const Intrinsics k = smallCamera();
+  const RgbdFrame f = frameOf(planeDepth(k, {0, 0, 1}, 2.0), k, {0, 0, 200});
+  constexpr int kCap = 7, kFrames = 100;
+  for (const KeyframeStrategy s : {KeyframeStrategy::kDvo, KeyframeStrategy::kDist, KeyframeStrategy::kOverlap}) {
+    FusionParams p;
+    p.strategy = s;
+    p.max_frames_per_keyframe = kCap;
+    KeyframeFuser fuser(p, k);
+    int keyframes = 0;
+    size_t peak_bytes = 0, one_frame_bytes = 0;
+    for (int i = 0; i < kFrames; ++i) {
+      if (fuser.startsNewKeyframe(0, Pose::Identity())) {
+        if (fuser.active()) fuser.finish();
+        fuser.begin(keyframes++, 0, Pose::Identity(), Pose::Identity());
+      }
+      fuser.add(f, Pose::Identity());
+      if (i == 0) one_frame_bytes = fuser.heldInputBytes();
+      peak_bytes = std::max(peak_bytes, fuser.heldInputBytes());
+      ASSERT_LE(fuser.frames(), kCap) << toString(s);
+    }
+    EXPECT_EQ(keyframes, (kFrames + kCap - 1) / kCap) << toString(s);
+    EXPECT_GT(one_frame_bytes, 0u);
+    EXPECT_EQ(peak_bytes, kCap * one_frame_bytes) << toString(s);
+  }
+}
+
+TEST(KeyframeStrategy, ConstKappaAboveTheCapIsAnErrorNamingBothKeys) {
+  FusionParams p;
+  p.kappa = 60;
+  p.max_frames_per_keyframe = 50;
+  try {
+    p.validate();
+    ADD_FAILURE() << "kappa above the cap accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("mapper.kappa"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("max_frames_per_keyframe"), std::string::npos) << e.what();
+  }
+  p.strategy = KeyframeStrategy::kDvo;  // kappa is not used by the other strategies
+  EXPECT_NO_THROW(p.validate());
 }

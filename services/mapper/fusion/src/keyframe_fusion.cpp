@@ -33,6 +33,10 @@ void FusionParams::validate() const {
     if (!ok) throw Error("mapper." + what);
   };
   require(kappa >= 1, "kappa must be at least 1 (frames per KF keyframe)");
+  require(max_frames_per_keyframe >= 1, "max_frames_per_keyframe must be at least 1");
+  require(strategy != KeyframeStrategy::kConst || kappa <= max_frames_per_keyframe,
+          "kappa (" + std::to_string(kappa) + ") exceeds mapper.max_frames_per_keyframe (" +
+              std::to_string(max_frames_per_keyframe) + "); raise the cap or lower kappa");
   require(dist_translation > 0 && dist_rotation_deg > 0, "dist_translation and dist_rotation_deg must be positive");
   require(min_overlap > 0 && min_overlap < 1, "min_overlap must lie in (0, 1)");
   require(min_depth > 0 && max_depth > min_depth, "min_depth must be positive and below max_depth");
@@ -45,6 +49,7 @@ FusionParams fusionParamsFromConfig(const Config& c) {
   FusionParams p;
   p.strategy = parseStrategy(c.getString("mapper.strategy"));
   p.kappa = c.getInt("mapper.kappa");
+  p.max_frames_per_keyframe = c.getInt("mapper.max_frames_per_keyframe");
   p.dist_translation = c.getDouble("mapper.dist_translation");
   p.dist_rotation_deg = c.getDouble("mapper.dist_rotation_deg");
   p.min_overlap = c.getDouble("mapper.min_overlap");
@@ -210,7 +215,7 @@ KeyframeFuser::KeyframeFuser(const FusionParams& params, const Intrinsics& k) : 
 }
 
 bool KeyframeFuser::startsNewKeyframe(int64_t dvo_keyframe_id, const Pose& camera_to_world) const {
-  if (!open_) return true;
+  if (!open_ || frames_ >= params_.max_frames_per_keyframe) return true;
   switch (params_.strategy) {
     case KeyframeStrategy::kConst: return frames_ >= params_.kappa;
     case KeyframeStrategy::kDvo: return dvo_keyframe_id != dvo_keyframe_id_;
@@ -221,6 +226,12 @@ bool KeyframeFuser::startsNewKeyframe(int64_t dvo_keyframe_id, const Pose& camer
       return overlapRatio(kf_.depth, k_, camera_to_world.inverse() * kf_world_) < params_.min_overlap;
   }
   return true;
+}
+
+size_t KeyframeFuser::heldInputBytes() const {
+  size_t bytes = 0;
+  for (const ColorInput& in : inputs_) bytes += in.sharp.total() * in.sharp.elemSize() + in.depth_weight.total() * in.depth_weight.elemSize();
+  return bytes;
 }
 
 void KeyframeFuser::begin(int64_t kf_id, int64_t anchor_keyframe_id, const Pose& pose_in_anchor,
