@@ -1,5 +1,6 @@
 #include <spdlog/spdlog.h>
 
+#include <atomic>
 #include <chrono>
 #include <exception>
 
@@ -44,7 +45,11 @@ const CudaVerdict& cudaVerdict() {
 }  // namespace
 
 #ifdef REKON_VOLUME_WITH_CUDA
-void logCudaCleanupFailure(const std::string& line) { spdlog::warn("{}", line); }
+void logCudaCleanupFailure(const std::string& line) {
+  // After a fault every later free fails the same way: the first one says it.
+  static std::atomic<bool> logged{false};
+  if (!logged.exchange(true)) spdlog::warn("{} (further failures to free GPU memory are not logged)", line);
+}
 #else
 CudaProbe probeCudaDevices() {
   CudaProbe probe;
