@@ -5,7 +5,9 @@
 #include <cstdint>
 
 #include "rekon/common/bus.hpp"
+#include "rekon/common/error.hpp"
 #include "rekon/common/frame_transport.hpp"
+#include "rekon/common/graph_update.hpp"
 #include "rekon/common/messages.hpp"
 #include "rekon_msgs/constraint_t.hpp"
 #include "rekon_msgs/done_t.hpp"
@@ -15,6 +17,9 @@
 #include "rekon_msgs/graph_update_t.hpp"
 #include "rekon_msgs/heartbeat_t.hpp"
 #include "rekon_msgs/keyframe_t.hpp"
+#include "rekon_msgs/replay_end_t.hpp"
+#include "rekon_msgs/replay_request_t.hpp"
+#include "rekon_msgs/resume_point_t.hpp"
 #include "rekon_msgs/service_stats_t.hpp"
 #include "rekon_msgs/shutdown_t.hpp"
 #include "rekon_msgs/tracked_frame_t.hpp"
@@ -37,7 +42,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   }();
   (void)quiet;
   if (size < 1) return 0;
-  const uint8_t kind = data[0] % 11;
+  const uint8_t kind = data[0] % 14;
   ++data;
   --size;
   switch (kind) {
@@ -51,7 +56,16 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
       }
       break;
     }
-    case 1: { rekon_msgs::graph_update_t m; if (decode(data, size, &m)) for (const auto& p : m.poses) rekon::fromMsg(p); break; }
+    case 1: {
+      rekon_msgs::graph_update_t m;
+      if (decode(data, size, &m)) {
+        try {
+          rekon::graphPoses(m);
+        } catch (const rekon::Error&) {
+        }
+      }
+      break;
+    }
     case 2: { rekon_msgs::constraint_t m; if (decode(data, size, &m)) rekon::matrix6FromArray(m.information); break; }
     case 3: { rekon_msgs::tracked_frame_t m; if (decode(data, size, &m)) rekon::fromMsg(m.pose_in_keyframe); break; }
     case 4: { rekon_msgs::keyframe_t m; decode(data, size, &m); break; }
@@ -60,7 +74,10 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     case 7: { rekon_msgs::end_of_stream_t m; decode(data, size, &m); break; }
     case 8: { rekon_msgs::service_stats_t m; decode(data, size, &m); break; }
     case 9: { rekon_msgs::shutdown_t m; decode(data, size, &m); break; }
-    default: { rekon_msgs::done_t m; decode(data, size, &m); break; }
+    case 10: { rekon_msgs::done_t m; decode(data, size, &m); break; }
+    case 11: { rekon_msgs::resume_point_t m; decode(data, size, &m); break; }
+    case 12: { rekon_msgs::replay_request_t m; decode(data, size, &m); break; }
+    default: { rekon_msgs::replay_end_t m; decode(data, size, &m); break; }
   }
   return 0;
 }

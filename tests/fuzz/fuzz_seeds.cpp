@@ -21,6 +21,9 @@
 #include "rekon_msgs/graph_update_t.hpp"
 #include "rekon_msgs/heartbeat_t.hpp"
 #include "rekon_msgs/keyframe_t.hpp"
+#include "rekon_msgs/replay_end_t.hpp"
+#include "rekon_msgs/replay_request_t.hpp"
+#include "rekon_msgs/resume_point_t.hpp"
 #include "rekon_msgs/service_stats_t.hpp"
 #include "rekon_msgs/shutdown_t.hpp"
 #include "rekon_msgs/tracked_frame_t.hpp"
@@ -142,6 +145,22 @@ int main(int argc, char** argv) {
   done.service = "tracker";
   done.last_frame_id = 59;
   writeMessage(messages, "seed_done", 10, done);
+  rekon_msgs::resume_point_t resume{};
+  resume.service = "mapper";
+  resume.pid = 4242;
+  resume.first_missing_frame = 40;
+  writeMessage(messages, "seed_resume_point", 11, resume);
+  rekon_msgs::replay_request_t request{};
+  request.service = "optimiser";
+  request.pid = 4243;
+  request.request_id = 1;
+  writeMessage(messages, "seed_replay_request", 12, request);
+  rekon_msgs::replay_end_t replay_end{};
+  replay_end.service = "optimiser";
+  replay_end.request_id = 1;
+  replay_end.keyframes = 3;
+  replay_end.graph_version = -1;
+  writeMessage(messages, "seed_replay_end", 13, replay_end);
   std::cout << "seeds in " << root.string() << "\n";
   return 0;
 }

@@ -8,7 +8,7 @@
 #include "rekon/common/error.hpp"
 #include "rekon/common/messages.hpp"
 #include "rekon/optimiser/graph_messages.hpp"
-#include "rekon/optimiser/graph_update_filter.hpp"
+#include "rekon/common/graph_update.hpp"
 #include "rekon/optimiser/params.hpp"
 #include "rekon/optimiser/synthetic_graph.hpp"
 

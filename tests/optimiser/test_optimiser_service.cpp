@@ -20,7 +20,7 @@
 
 #include "rekon/common/bus.hpp"
 #include "rekon/common/messages.hpp"
-#include "rekon/optimiser/graph_update_filter.hpp"
+#include "rekon/common/graph_update.hpp"
 #include "rekon/optimiser/synthetic_graph.hpp"
 #include "rekon_msgs/constraint_t.hpp"
 #include "rekon_msgs/done_t.hpp"

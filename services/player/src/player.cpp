@@ -8,16 +8,17 @@
 #include <condition_variable>
 #include <map>
 #include <mutex>
+#include <optional>
 #include <set>
 #include <thread>
 
 #include "rekon/common/dataset.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/common/frame_transport.hpp"
-#include "rekon/store/keyframe_store.hpp"
 #include "rekon_msgs/end_of_stream_t.hpp"
 #include "rekon_msgs/frame_ack_t.hpp"
 #include "rekon_msgs/heartbeat_t.hpp"
+#include "rekon_msgs/resume_point_t.hpp"
 
 namespace rekon {
 namespace {
@@ -30,6 +31,9 @@ double secondsSince(Clock::time_point t) { return std::chrono::duration<double>(
 // the frame or its acknowledgements were lost (lcm.drop_fraction, a full
 // socket buffer), and an acknowledgement of the newest covers every older one.
 constexpr double kResendAfterS = 1.0;
+// A restarted consumer that keeps state sends its resume point as it starts
+// and once a second after; one not heard within this long keeps none.
+constexpr double kResumePointWaitS = 3.0;
 
 // What the player hears from its consumers: who is alive where (and under
 // which pid: a new one is a restart), and how far each has acknowledged.
@@ -47,6 +51,11 @@ class ConsumerWatch {
       auto& pid = pids_[hb.service];
       if (pid != 0 && pid != hb.pid) restarted_.insert(hb.service);
       pid = hb.pid;
+      changed_.notify_all();
+    });
+    bus.subscribe<rekon_msgs::resume_point_t>(channel::kResumePoint, [this](const rekon_msgs::resume_point_t& r) {
+      std::lock_guard<std::mutex> lock(mutex_);
+      resume_points_[{r.service, r.pid}] = r.first_missing_frame;
       changed_.notify_all();
     });
     bus.subscribe<rekon_msgs::frame_ack_t>(channel::kFrameAck, [this](const rekon_msgs::frame_ack_t& ack) {
@@ -124,6 +133,19 @@ class ConsumerWatch {
     std::lock_guard<std::mutex> lock(mutex_);
     acked_[name] = frame_id;
   }
+  // The resume point the current instance of `service` announced: waits up
+  // to `timeout_s` for it; nullopt when it keeps no state (none came).
+  std::optional<int64_t> resumePoint(const std::string& service, double timeout_s, const ServiceContext& ctx) {
+    std::unique_lock<std::mutex> lock(mutex_);
+    const auto deadline = Clock::now() + std::chrono::duration<double>(timeout_s);
+    while (!ctx.stopRequested()) {
+      auto it = resume_points_.find({service, pids_[service]});
+      if (it != resume_points_.end()) return it->second;
+      if (Clock::now() > deadline) break;
+      changed_.wait_for(lock, std::chrono::milliseconds(50));
+    }
+    return std::nullopt;
+  }
   std::set<std::string> takeRestarts() {
     std::lock_guard<std::mutex> lock(mutex_);
     std::set<std::string> r;
@@ -147,6 +169,7 @@ class ConsumerWatch {
   std::map<std::string, int> pids_;
   std::map<std::string, int64_t> acked_;
   std::set<std::string> restarted_;
+  std::map<std::pair<std::string, int>, int64_t> resume_points_;  // (service, pid) -> first missing frame
   Clock::time_point last_ack_ = Clock::now();
 };
 
@@ -162,22 +185,6 @@ std::string thisHost() {
   char buf[256] = {0};
   gethostname(buf, sizeof(buf) - 1);
   return buf;
-}
-
-// The first frame a restarted mapper lacks: the one after the newest frame
-// in its keyframe store (the KF keyframe it was fusing, the frames it had
-// queued and those in flight died with it), or `first` without a store.
-int64_t mapperResumeFrame(const PlayerParams& params, int64_t first) {
-  if (!params.mapper_store) return first;
-  try {
-    const auto store = store::KeyframeStore::openExisting(params.store_segment);
-    int64_t last = first - 1;
-    for (const auto& k : store->list()) last = std::max(last, k.last_frame_id);
-    return last + 1;
-  } catch (const Error& e) {
-    spdlog::warn("restarted mapper: {}; sending every frame again", e.what());
-    return first;
-  }
 }
 
 }  // namespace
@@ -204,8 +211,6 @@ PlayerParams PlayerParams::fromConfig(const Config& config, const std::string& d
   p.slots = config.getInt("transport.slots");
   p.max_width = config.getInt("transport.max_width");
   p.max_height = config.getInt("transport.max_height");
-  p.mapper_store = config.getBool("mapper.use_store");
-  p.store_segment = config.getString("mapper.store_segment");
   if (p.transport_mode != "auto") parseTransportMode(p.transport_mode);
   return p;
 }
@@ -287,18 +292,20 @@ void runPlayer(ServiceContext& ctx, const PlayerParams& params) {
       }
     }
   };
-  // A restarted consumer: the mapper rewinds to the first frame its store
-  // lacks; any other starts from the next new frame (a tracker could not
+  // A restarted consumer: one that announces a resume point (the mapper,
+  // after the frames in its keyframe store) gets every frame from it again;
+  // any other continues from the next new frame (a tracker could not
   // continue its odometry from old frames anyway).
   auto handleRestarts = [&](int64_t next) {
     for (const auto& service : watch.takeRestarts()) {
       if (std::find(params.wait_for.begin(), params.wait_for.end(), service) == params.wait_for.end()) continue;
-      if (service != "mapper" || newest_sent < 0) {
+      const std::optional<int64_t> point = newest_sent < 0 ? std::nullopt : watch.resumePoint(service, kResumePointWaitS, ctx);
+      if (!point) {
         spdlog::warn("rekon-{} restarted: it continues from frame {}", service, next);
         watch.setAcked(service, next - 1);
         continue;
       }
-      const int64_t resume = std::min(mapperResumeFrame(params, first), next);
+      const int64_t resume = std::clamp(*point < 0 ? first : *point, first, next);
       // The others first read everything sent: the ring's slots are about to be reused out of order.
       std::vector<std::string> others;
       for (const auto& s : params.wait_for)
@@ -307,8 +314,7 @@ void runPlayer(ServiceContext& ctx, const PlayerParams& params) {
       while (!ctx.stopRequested() && secondsSince(since) < params.wait_timeout_s &&
              watch.waitForAck(others, newest_sent, kResendAfterS, ctx) == ConsumerWatch::Wait::kStalled) {
       }
-      spdlog::warn("rekon-mapper restarted: sending frames {}..{} again (the last frame in its keyframe store is {})", resume,
-                   next - 1, resume - 1);
+      spdlog::warn("rekon-{} restarted: sending frames {}..{} again (its resume point)", service, resume, next - 1);
       watch.setAcked(service, resume - 1);
       watch.progressed();
       ++rewinds;

@@ -16,10 +16,11 @@
 #include <vector>
 
 #include "rekon/common/cpu_time.hpp"
+#include "rekon/common/error.hpp"
 #include "rekon/common/frame_transport.hpp"
+#include "rekon/common/graph_update.hpp"
 #include "rekon/common/messages.hpp"
 #include "rekon/common/pose.hpp"
-#include "rekon/common/error.hpp"
 #include "rekon/tracker/loop_closure.hpp"
 #include "rekon/tracker/tracker.hpp"
 #include "rekon_msgs/constraint_t.hpp"
@@ -243,16 +244,11 @@ void runTrackerService(ServiceContext& ctx) {
       history.graph_version = std::max(history.graph_version, m.version);
     }
     std::unordered_map<int64_t, Pose> poses;
-    const size_t n = std::min<size_t>({static_cast<size_t>(std::max(m.num_keyframes, 0)), m.keyframe_ids.size(),
-                                       m.poses.size()});
-    for (size_t i = 0; i < n; ++i) {
-      const std::optional<Pose> p = fromMsg(m.poses[i]);
-      if (!p) {
-        spdlog::error("graph update {} holds an invalid pose for keyframe {}; update ignored", m.version,
-                      m.keyframe_ids[i]);
-        return;
-      }
-      poses.emplace(m.keyframe_ids[i], *p);
+    try {
+      for (const auto& [id, pose] : graphPoses(m)) poses.emplace(id, pose);
+    } catch (const Error& e) {
+      spdlog::error("{}", e.what());
+      return;
     }
     loops.updateGraph(m.version, std::move(poses));  // older versions are ignored there
   });

@@ -36,6 +36,7 @@ inline constexpr const char* kDone = "DONE";
 // mapper) never see it twice.
 inline constexpr const char* kReplayRequest = "REPLAY_REQUEST";
 inline constexpr const char* kReplayEnd = "REPLAY_END";
+inline constexpr const char* kResumePoint = "RESUME_POINT";
 inline constexpr const char* kKeyframesResent = "KEYFRAMES_RESENT";
 inline constexpr const char* kConstraintsResent = "CONSTRAINTS_RESENT";
 inline constexpr const char* kTrackedFramesResent = "TRACKED_FRAMES_RESENT";

@@ -4,6 +4,7 @@
 
 #include <time.h>
 
+#include <algorithm>
 #include <chrono>
 
 #include "rekon/common/cpu_time.hpp"
@@ -65,6 +66,12 @@ Mapper::Mapper(const MapperParams& params) : params_(params) {
 }
 
 Mapper::~Mapper() = default;
+
+int64_t Mapper::firstMissingFrame() const {
+  int64_t newest = -1;
+  for (const KeyframeRecord& rec : keyframes_) newest = std::max(newest, rec.kf.last_frame_id);
+  return newest < 0 ? -1 : newest + 1;
+}
 
 void Mapper::restoreFromStore() {
   const Intrinsics k = store_->intrinsics();

@@ -1,6 +1,7 @@
 #include "rekon/mapper/mapper_service.hpp"
 
 #include <spdlog/spdlog.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <chrono>
@@ -15,15 +16,16 @@
 
 #include "rekon/common/error.hpp"
 #include "rekon/common/frame_transport.hpp"
+#include "rekon/common/graph_update.hpp"
 #include "rekon/common/messages.hpp"
 #include "rekon/mapper/mapper.hpp"
-#include "rekon/optimiser/graph_update_filter.hpp"
 #include "rekon_msgs/done_t.hpp"
 #include "rekon_msgs/end_of_stream_t.hpp"
 #include "rekon_msgs/frame_ack_t.hpp"
 #include "rekon_msgs/frame_t.hpp"
 #include "rekon_msgs/graph_update_t.hpp"
 #include "rekon_msgs/keyframe_t.hpp"
+#include "rekon_msgs/resume_point_t.hpp"
 #include "rekon_msgs/tracked_frame_t.hpp"
 
 namespace rekon::mapper {
@@ -130,7 +132,7 @@ void runMapperService(ServiceContext& ctx) {
   Bus& bus = ctx.bus();
   Mapper mapper(params);
   Shared s;
-  optimiser::GraphUpdateFilter filter;  // each update carries every pose: only the newest matters
+  GraphUpdateFilter filter;  // each update carries every pose: only the newest matters
   FrameReceiver receiver;
   // Written by the worker only (read after it joined).
   std::vector<FrameTiming> frame_timing;
@@ -246,16 +248,13 @@ void runMapperService(ServiceContext& ctx) {
   bus.subscribe<rekon_msgs::graph_update_t>(channel::kGraphUpdates, [&](const rekon_msgs::graph_update_t& msg) {
     if (!filter.accept(msg.version)) return;
     GraphWork g{msg.version, {}};
-    const size_t n = std::min({static_cast<size_t>(std::max(0, msg.num_keyframes)), msg.keyframe_ids.size(), msg.poses.size()});
-    for (size_t i = 0; i < n; ++i) {
-      const auto pose = fromMsg(msg.poses[i]);
-      if (!pose) {
-        spdlog::error("graph update {}: invalid pose of keyframe {}; update dropped", msg.version, msg.keyframe_ids[i]);
-        std::lock_guard<std::mutex> lock(s.mutex);
-        ++s.dropped_updates;
-        return;
-      }
-      g.poses.emplace_back(msg.keyframe_ids[i], *pose);
+    try {
+      g.poses = graphPoses(msg);
+    } catch (const Error& e) {
+      spdlog::error("{}", e.what());
+      std::lock_guard<std::mutex> lock(s.mutex);
+      ++s.dropped_updates;
+      return;
     }
     std::lock_guard<std::mutex> lock(s.mutex);
     // Every update carries all poses: a newer one replaces one still waiting.
@@ -340,6 +339,16 @@ void runMapperService(ServiceContext& ctx) {
     }
   });
 
+  // Where the frame source resumes for this instance: after the frames of
+  // the keyframes it restored from its store (a restart), or from the first.
+  rekon_msgs::resume_point_t resume_point{};
+  resume_point.service = ctx.name();
+  resume_point.pid = static_cast<int32_t>(getpid());
+  resume_point.first_missing_frame = mapper.firstMissingFrame();
+  bus.publish(channel::kResumePoint, resume_point);
+  auto last_resume_point = std::chrono::steady_clock::now();
+  if (resume_point.first_missing_frame >= 0)
+    spdlog::info("mapper: resuming after frame {} (the newest in the keyframe store)", resume_point.first_missing_frame - 1);
   ctx.setState("running");
   spdlog::info("mapper: KF strategy {} (kappa {}), re-integration {} (m = {}), streaming radius {} m, {}",
                fusion::toString(params.fusion.strategy), params.fusion.kappa, toString(params.mode), params.m,
@@ -355,6 +364,10 @@ void runMapperService(ServiceContext& ctx) {
         s.queue.push_back(BaselineWork{});  // after every frame's work
         s.work_ready.notify_one();
       }
+    }
+    if (std::chrono::steady_clock::now() - last_resume_point > std::chrono::seconds(1)) {
+      last_resume_point = std::chrono::steady_clock::now();
+      bus.publish(channel::kResumePoint, resume_point);  // again: a frame source that missed it still finds it
     }
     if (std::chrono::steady_clock::now() - last_progress > progress_every) {
       last_progress = std::chrono::steady_clock::now();

@@ -22,10 +22,6 @@ struct PlayerParams {
   int slots = 8;
   int max_width = 640;
   int max_height = 480;
-  // Where a restarted mapper resumes from (mapper.use_store, mapper.store_segment):
-  // the player sends again every frame after the last one in the keyframe store.
-  bool mapper_store = false;
-  std::string store_segment;
 
   static PlayerParams fromConfig(const Config& config, const std::string& dataset);
 };
@@ -33,8 +29,9 @@ struct PlayerParams {
 // Plays the whole dataset; returns when done or when ctx.stopRequested().
 // Throws rekon::Error when a consumer stays silent beyond wait_timeout_s.
 // A consumer restarted meanwhile (a new pid in its heartbeat) gets again what
-// it missed: the mapper every frame after the last one its keyframe store
-// holds. After the end of stream the player stays until its consumers are
+// it missed: every frame from the resume point it announces on the bus (the
+// mapper: after the last frame its keyframe store holds), so it works across
+// hosts. After the end of stream the player stays until its consumers are
 // done, so that one restarted late is served too.
 void runPlayer(ServiceContext& ctx, const PlayerParams& params);
 

@@ -116,6 +116,11 @@ class Mapper {
 
   const volume::TsdfVolume& volume() const { return *volume_; }
   const std::vector<KeyframeRecord>& keyframes() const { return keyframes_; }
+  // The frame after the newest one in a KF keyframe held (restored from the
+  // store or fused since), or -1 when none is held: where a restarted
+  // mapper's frames must resume (the KF keyframe being fused, the queued
+  // frames and those in flight died with the old instance).
+  int64_t firstMissingFrame() const;
   const MapperCounters& counters() const { return counters_; }
   Mesh extractMesh() const { return volume_->extractMesh(); }
   // The paper's baseline: every KF keyframe integrated once at its first
