@@ -5,6 +5,7 @@
 #include <lcm/eventlog.h>
 
 #include <algorithm>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -151,15 +152,20 @@ TEST(MultiProcess, RunWritesStatsAndLeavesNoSharedMemory) {
   EXPECT_EQ(segments, 2) << "the frame ring's and the keyframe store's names should be in config.yaml";
 }
 
-double valueAfter(const std::string& text, const std::string& key) {
-  const auto p = text.find(key + "=");
-  return p == std::string::npos ? -1.0 : std::stod(text.substr(p + key.size() + 1));
+std::string readBytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
 }
 
 // Issue 9 part 5: a recorded run replays into fresh services with the same
-// result (log_replay.sh). The pipeline is deterministic for the same input
-// frames in the same order (measured: trajectories and meshes bit-identical
-// on the room); the bounds leave room for a loaded machine's timing.
+// result (log_replay.sh). For the same frames in the same order the pipeline
+// is deterministic: on the 60-frame room (no loop closure) the replayed
+// trajectory and meshes were byte-identical to the live ones in 4 runs of
+// this test (and on 120 frames by hand), so identity is what is checked.
+// There no keyframe moves (0 re-integrations; mesh.ply is mesh_uncorrected.ply):
+// with loop closures, graph-update timing makes runs differ (README, Faults).
 TEST(MultiProcess, LoggedRunReplaysIntoFreshServicesWithTheSameTrajectoryAndMesh) {
   rekon::test::TempDir dir;
   const std::string data = dir / "room";
@@ -172,23 +178,24 @@ TEST(MultiProcess, LoggedRunReplaysIntoFreshServicesWithTheSameTrajectoryAndMesh
   ASSERT_EQ(rc, 0) << out;
   ASSERT_GT(fs::file_size(dir / "run.lcmlog"), 10u << 20) << "the log should hold 60 inline frames";
 
-  // Sensor channels into fresh tracker, optimiser, mapper: the live trajectory and mesh.
-  std::string traj;
-  runCommand(rekonBin() + " eval traj " + (dir / "live/trajectory.txt") + " " + (dir / "sensor/trajectory.txt"), &traj);
-  const double ate = valueAfter(traj, "ate_rmse_m");
-  EXPECT_GE(ate, 0.0) << traj;
-  EXPECT_LT(ate, 0.001) << traj;
-  const auto poses = readLines(dir / "sensor/trajectory.txt");
+  const auto poses = readLines(dir / "live/trajectory.txt");
   EXPECT_EQ(std::count_if(poses.begin(), poses.end(), [](const std::string& l) { return !l.empty() && l[0] != '#'; }), 60);
-  // CORR of a mesh against itself is 0.07 mm (the evaluator's sampling), so 0.5 mm means "the same surface".
-  for (const std::string run : {"sensor", "graph"}) {
-    std::string surface;
-    runCommand(rekonBin() + " eval surface " + (dir / (run + "/mesh.ply")) + " " + (dir / "live/mesh.ply"), &surface);
-    const double corr = valueAfter(surface, "corr_m");
-    EXPECT_GE(corr, 0.0) << run << ": " << surface;
-    EXPECT_LT(corr, 0.0005) << run << ": " << surface;
-    const double compl_m = valueAfter(surface, "compl_m");
-    EXPECT_LT(compl_m, 0.0005) << run << ": " << surface;
+  // sensor/: the sensor channels into fresh tracker, optimiser, mapper. graph/: the pose and graph
+  // channels into a mapper resuming from a keyframe store.
+  for (const std::string file : {"sensor/trajectory.txt", "sensor/mesh.ply", "sensor/mesh_uncorrected.ply", "graph/mesh.ply",
+                                 "graph/mesh_uncorrected.ply"}) {
+    const std::string live_file = dir / ("live/" + file.substr(file.find('/') + 1)), replayed_file = dir / file;
+    const std::string live = readBytes(live_file), replayed = readBytes(replayed_file);
+    EXPECT_FALSE(live.empty()) << live_file;
+    if (live == replayed) continue;
+    // How far apart, to tell a reordering from a different result.
+    std::string how;
+    if (file.ends_with(".txt"))
+      runCommand(rekonBin() + " eval traj " + live_file + " " + replayed_file, &how);
+    else
+      runCommand(rekonBin() + " eval surface " + replayed_file + " " + live_file, &how);
+    ADD_FAILURE() << file << " differs from the live run's (" << replayed.size() << " vs " << live.size()
+                  << " bytes):\n" << how;
   }
   // The resumed mapper rebuilt the volume from the store: it fused no frame itself.
   std::ifstream graph_log(dir / "graph/mapper.log");
