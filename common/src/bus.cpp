@@ -3,6 +3,7 @@
 #include <lcm/lcm.h>
 #include <spdlog/spdlog.h>
 
+#include <mutex>
 #include <random>
 #include <vector>
 
@@ -20,16 +21,57 @@ BusOptions BusOptions::fromConfig(const Config& config) {
   return o;
 }
 
-struct Bus::Impl {
+struct Bus::DropHook {
+  std::mutex mutex;  // MemoryBus handlers may run while another thread publishes
+  double fraction;
+  std::mt19937_64 rng;
+  std::uniform_real_distribution<double> uniform{0.0, 1.0};
+};
+
+Bus::Bus(const BusOptions& options) : prefix_(options.prefix) {
+  if (options.drop_fraction > 0) {
+    drop_ = std::make_unique<DropHook>();
+    drop_->fraction = options.drop_fraction;
+    drop_->rng.seed(options.drop_seed);
+  }
+}
+
+Bus::~Bus() = default;
+
+bool Bus::dropReceived() {
+  if (!drop_) return false;
+  std::lock_guard<std::mutex> lock(drop_->mutex);
+  if (drop_->uniform(drop_->rng) >= drop_->fraction) return false;
+  ++dropped_;
+  return true;
+}
+
+void Bus::spin(const std::atomic<bool>& stop) {
+  while (!stop.load()) handle(100);
+}
+
+void Bus::reportMalformed(const std::string& name, const std::string& why) {
+  const uint64_t n = ++malformed_;
+  // The first few are logged each; a flood is summarised instead of drowning the log.
+  if (n <= 10 || n % 1000 == 0) {
+    spdlog::error("dropped a malformed message on {}: {} ({} malformed so far)", channel(name), why, n);
+  }
+}
+
+std::unique_ptr<Bus> makeBus(const BusOptions& options) {
+  if (options.url.rfind("memory://", 0) == 0) return std::make_unique<MemoryBus>(options);
+  return std::make_unique<LcmBus>(options);
+}
+
+// ---- LcmBus
+
+struct LcmBus::Impl {
   struct Subscription {
-    Bus* bus;
+    LcmBus* bus;
     std::function<void(const void*, int)> handler;
   };
   lcm_t* lcm = nullptr;
   std::vector<std::unique_ptr<Subscription>> subscriptions;
-  double drop_fraction = 0;
-  std::mt19937_64 rng;
-  std::uniform_real_distribution<double> uniform{0.0, 1.0};
 };
 
 namespace {
@@ -47,35 +89,29 @@ std::string withReceiveBuffer(const std::string& url) {
 
 }  // namespace
 
-Bus::Bus(const BusOptions& options) : impl_(std::make_unique<Impl>()), prefix_(options.prefix) {
+LcmBus::LcmBus(const BusOptions& options) : Bus(options), impl_(std::make_unique<Impl>()) {
   impl_->lcm = lcm_create(withReceiveBuffer(options.url).c_str());
   if (!impl_->lcm) {
     throw Error("LCM could not start on " + options.url +
                 "; check that a multicast route exists (ip route add 224.0.0.0/4 dev lo) and lcm.url is valid");
   }
-  impl_->drop_fraction = options.drop_fraction;
-  impl_->rng.seed(options.drop_seed);
 }
 
-Bus::~Bus() {
+LcmBus::~LcmBus() {
   if (impl_->lcm) lcm_destroy(impl_->lcm);
 }
 
-void Bus::publishRaw(const std::string& name, const void* data, int size) {
+void LcmBus::publishRaw(const std::string& name, const void* data, int size) {
   if (lcm_publish(impl_->lcm, channel(name).c_str(), data, static_cast<unsigned>(size)) != 0) {
     spdlog::warn("LCM publish on {} failed ({} bytes); the message is lost", channel(name), size);
   }
 }
 
-void Bus::subscribeRaw(const std::string& name, std::function<void(const void*, int)> handler) {
+void LcmBus::subscribeRaw(const std::string& name, std::function<void(const void*, int)> handler) {
   auto sub = std::make_unique<Impl::Subscription>(Impl::Subscription{this, std::move(handler)});
   auto trampoline = [](const lcm_recv_buf_t* rbuf, const char*, void* user) {
     auto* s = static_cast<Impl::Subscription*>(user);
-    Impl& impl = *s->bus->impl_;
-    if (impl.drop_fraction > 0 && impl.uniform(impl.rng) < impl.drop_fraction) {
-      ++s->bus->dropped_;
-      return;
-    }
+    if (s->bus->dropReceived()) return;
     s->handler(rbuf->data, static_cast<int>(rbuf->data_size));
   };
   // LCM channel names are regular expressions; ours are plain words.
@@ -85,22 +121,10 @@ void Bus::subscribeRaw(const std::string& name, std::function<void(const void*, 
   impl_->subscriptions.push_back(std::move(sub));
 }
 
-bool Bus::handle(int timeout_ms) {
+bool LcmBus::handle(int timeout_ms) {
   const int r = lcm_handle_timeout(impl_->lcm, timeout_ms);
   if (r < 0) throw Error("LCM receive failed; the bus is down (check the network namespace and multicast route)");
   return r > 0;
-}
-
-void Bus::spin(const std::atomic<bool>& stop) {
-  while (!stop.load()) handle(100);
-}
-
-void Bus::reportMalformed(const std::string& name, const std::string& why) {
-  const uint64_t n = ++malformed_;
-  // The first few are logged each; a flood is summarised instead of drowning the log.
-  if (n <= 10 || n % 1000 == 0) {
-    spdlog::error("dropped a malformed message on {}: {} ({} malformed so far)", channel(name), why, n);
-  }
 }
 
 }  // namespace rekon

@@ -55,7 +55,7 @@ struct ServiceContext::Threads {
 
 ServiceContext::ServiceContext(std::string name, Config config, std::string out_dir, const ArgParser& args)
     : name_(std::move(name)), config_(std::move(config)), out_dir_(std::move(out_dir)), args_(args),
-      bus_(std::make_unique<Bus>(BusOptions::fromConfig(config_))), threads_(std::make_unique<Threads>()) {
+      bus_(makeBus(BusOptions::fromConfig(config_))), threads_(std::make_unique<Threads>()) {
   bus_->subscribe<rekon_msgs::shutdown_t>(channel::kShutdown, [this](const rekon_msgs::shutdown_t& m) {
     spdlog::info("shutdown requested ({})", m.reason);
     requestStop();
@@ -188,6 +188,26 @@ void PeerWatch::waitUntilFinished(const std::vector<std::string>& names, double 
   while (!ctx.stopRequested() && !finished(names, silence_s)) std::this_thread::sleep_for(std::chrono::milliseconds(50));
 }
 
+int runInContext(ServiceContext& ctx, const std::function<void(ServiceContext&)>& body) {
+  try {
+    ctx.start();
+    body(ctx);
+    ctx.setState("finished");
+    ctx.stopThreads();
+    ctx.writeStats();
+    return 0;
+  } catch (...) {
+    spdlog::error("{}", currentExceptionLine());
+    ctx.stopThreads();
+    try {
+      ctx.writeStats();  // whatever was measured before the error is kept
+    } catch (...) {
+      spdlog::error("{}", currentExceptionLine());
+    }
+    return 1;
+  }
+}
+
 int runService(int argc, char** argv, const std::string& name, const std::string& summary,
                const std::function<void(ArgParser&)>& add_options, const std::function<void(ServiceContext&)>& body) {
   ArgParser args("rekon-" + name, summary);
@@ -207,26 +227,13 @@ int runService(int argc, char** argv, const std::string& name, const std::string
     signal(SIGTERM, onSignal);
     signal(SIGPIPE, SIG_IGN);
     ctx = std::make_unique<ServiceContext>(name, std::move(config), out, args);
-    ctx->start();
-    body(*ctx);
-    ctx->setState("finished");
-    ctx->stopThreads();
-    ctx->writeStats();
-    return 0;
-  } catch (...) {
+  } catch (...) {  // before the service runs: nothing measured yet
     const std::string line = currentExceptionLine();
     if (spdlog::default_logger()) spdlog::error("{}", line);
     else std::cerr << "rekon-" << name << ": error: " << line << "\n";
-    if (ctx) {
-      ctx->stopThreads();
-      try {
-        ctx->writeStats();  // whatever was measured before the error is kept
-      } catch (...) {
-        spdlog::error("{}", currentExceptionLine());
-      }
-    }
     return 1;
   }
+  return runInContext(*ctx, body);
 }
 
 }  // namespace rekon

@@ -88,7 +88,7 @@ TEST(HostileBus, ServicesDropEveryHostileMessageAndThenMapAValidSequence) {
   sequence.frames = kFirstValid + kFrames;
   synth::writeSequence(sequence, dir / "room");
 
-  Bus bus(BusOptions{});
+  LcmBus bus(BusOptions{});
   std::set<std::string> running;
   bus.subscribe<rekon_msgs::heartbeat_t>(channel::kHeartbeat, [&](const rekon_msgs::heartbeat_t& m) {
     if (m.state == "running") running.insert(m.service);

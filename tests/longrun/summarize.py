@@ -24,6 +24,8 @@ except OSError:
 # Mapper progress: (unix time, frames fused, blocks, active blocks).
 progress = []
 pattern = re.compile(r"^\[((?:[\d-]+ )?[\d:.]+)\].*mapper: (\d+) KF keyframes so far.*?(?:frames (\d+) blocks (\d+) active (\d+).*)?$")
+# Since 2026-12-01: "mapper: F frames fused into K KF keyframes, ..." (no block counts).
+fused_pattern = re.compile(r"^\[((?:[\d-]+ )?[\d:.]+)\].*mapper: (\d+) frames fused into (\d+) KF keyframes")
 # Log lines carry the time of day only: the date is the run's (from the first memory sample).
 with open(os.path.join(run, "memory.csv")) as f:
     next(f)
@@ -31,10 +33,15 @@ with open(os.path.join(run, "memory.csv")) as f:
 run_date = datetime.datetime.fromtimestamp(first_sample).strftime("%Y-%m-%d")
 for line in open(os.path.join(run, "mapper.log"), errors="replace"):
     m = pattern.match(line.strip())
-    if not m:
+    fused = None if m else fused_pattern.match(line.strip())
+    if not m and not fused:
         continue
-    stamp = m.group(1) if " " in m.group(1) else run_date + " " + m.group(1)
+    stamp_text = (m or fused).group(1)
+    stamp = stamp_text if " " in stamp_text else run_date + " " + stamp_text
     t = datetime.datetime.strptime(stamp, "%Y-%m-%d %H:%M:%S.%f").timestamp()
+    if fused:
+        progress.append((t, int(fused.group(2)), None, None))
+        continue
     frames = int(m.group(3)) if m.group(3) else int(m.group(2)) * kappa
     blocks = int(m.group(4)) if m.group(4) else None
     active = int(m.group(5)) if m.group(5) else None

@@ -91,7 +91,7 @@ bool spinUntil(Bus& bus, Pred done, std::chrono::seconds timeout) {
 TEST(OptimiserService, ClosesTheLoopAndWritesEveryTrackedFrame) {
   if (!insideNetns()) return;
   test::TempDir dir;
-  Bus bus(BusOptions{});
+  LcmBus bus(BusOptions{});
 
   std::atomic<bool> running{false};
   std::mutex mutex;

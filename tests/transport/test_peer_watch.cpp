@@ -16,6 +16,7 @@ namespace {
 
 using rekon::Bus;
 using rekon::BusOptions;
+using rekon::LcmBus;
 using rekon::PeerWatch;
 namespace channel = rekon::channel;
 
@@ -40,7 +41,7 @@ rekon_msgs::heartbeat_t heartbeat(const std::string& service, int pid, const std
 // then asked the tracker for no replay and lost the trajectory).
 TEST(PeerWatch, ADoneAloneIsNoPeerUntilItsHeartbeatComes) {
   if (!rekon::test::insideNetns()) return;
-  Bus sender(BusOptions{}), watched(BusOptions{});
+  LcmBus sender(BusOptions{}), watched(BusOptions{});
   PeerWatch peers(watched);
   int dones = 0, heartbeats = 0;
   watched.subscribe<rekon_msgs::done_t>(channel::kDone, [&](const rekon_msgs::done_t&) { ++dones; });
@@ -74,7 +75,7 @@ TEST(PeerWatch, ADoneAloneIsNoPeerUntilItsHeartbeatComes) {
 // A new pid is a restart: counted, and announced to onNewInstance.
 TEST(PeerWatch, ANewPidIsANewInstance) {
   if (!rekon::test::insideNetns()) return;
-  Bus sender(BusOptions{}), watched(BusOptions{});
+  LcmBus sender(BusOptions{}), watched(BusOptions{});
   PeerWatch peers(watched);
   int heartbeats = 0, restarts = 0, last_instance = 0;
   watched.subscribe<rekon_msgs::heartbeat_t>(channel::kHeartbeat, [&](const rekon_msgs::heartbeat_t&) { ++heartbeats; });

@@ -1,8 +1,13 @@
 #pragma once
-// The LCM message bus every rekon service talks over. Channel names carry a
-// configurable prefix; messages are decoded here, once, with a one-line error
-// for a wrong fingerprint, a truncated buffer, an absurd array length or an
-// unknown schema version (the message is dropped, the service goes on).
+// The message bus every rekon service talks over: an interface (publish,
+// subscribe, dispatch) with two implementations, chosen by the URL: LcmBus
+// (LCM over UDP multicast, the real thing) and MemoryBus ("memory://NAME":
+// every bus of that name in this process hears every message, as on
+// multicast, with no socket: service logic is unit-tested in-process).
+// Channel names carry a configurable prefix; messages are decoded here, once,
+// with a one-line error for a wrong fingerprint, a truncated buffer, an absurd
+// array length or an unknown schema version (the message is dropped, the
+// service goes on).
 #include <atomic>
 #include <cstdint>
 #include <functional>
@@ -43,7 +48,7 @@ inline constexpr const char* kTrackedFramesResent = "TRACKED_FRAMES_RESENT";
 }  // namespace channel
 
 struct BusOptions {
-  std::string url = "udpm://239.255.76.67:7667?ttl=0";
+  std::string url = "udpm://239.255.76.67:7667?ttl=0";  // or memory://NAME (in-process)
   std::string prefix = "REKON_";
   double drop_fraction = 0.0;  // test hook: drop this fraction of received messages
   uint64_t drop_seed = 1;
@@ -80,9 +85,7 @@ bool decodeMessage(const void* data, int size, Msg* out, std::string* why) {
 
 class Bus {
  public:
-  // Throws rekon::Error when LCM cannot start (e.g. no multicast route).
-  explicit Bus(const BusOptions& options);
-  ~Bus();
+  virtual ~Bus();
   Bus(const Bus&) = delete;
   Bus& operator=(const Bus&) = delete;
 
@@ -95,7 +98,7 @@ class Bus {
     msg.encode(buf.data(), 0, static_cast<int>(buf.size()));
     publishRaw(name, buf.data(), static_cast<int>(buf.size()));
   }
-  void publishRaw(const std::string& name, const void* data, int size);
+  virtual void publishRaw(const std::string& name, const void* data, int size) = 0;
 
   // Handlers run on the thread that calls handle()/spin().
   template <class Msg>
@@ -107,23 +110,66 @@ class Bus {
       else reportMalformed(name, why);
     });
   }
-  void subscribeRaw(const std::string& name, std::function<void(const void*, int)> handler);
+  virtual void subscribeRaw(const std::string& name, std::function<void(const void*, int)> handler) = 0;
 
   // Dispatches at most one message; false when none came within timeout_ms.
-  bool handle(int timeout_ms);
+  virtual bool handle(int timeout_ms) = 0;
   // Dispatches messages until `stop` becomes true.
   void spin(const std::atomic<bool>& stop);
 
   uint64_t malformedCount() const { return malformed_; }
   uint64_t droppedCount() const { return dropped_; }
 
+ protected:
+  explicit Bus(const BusOptions& options);
+  // The lcm.drop_fraction test hook: true when this received message is to be dropped (and counted).
+  bool dropReceived();
+
  private:
   void reportMalformed(const std::string& name, const std::string& why);
-  struct Impl;
-  std::unique_ptr<Impl> impl_;
+  struct DropHook;
   std::string prefix_;
+  std::unique_ptr<DropHook> drop_;  // null unless lcm.drop_fraction > 0
   std::atomic<uint64_t> malformed_{0};
   std::atomic<uint64_t> dropped_{0};
 };
+
+// LCM over UDP multicast (udpm://...): services on this host or others.
+class LcmBus final : public Bus {
+ public:
+  // Throws rekon::Error when LCM cannot start (e.g. no multicast route).
+  explicit LcmBus(const BusOptions& options);
+  ~LcmBus() override;
+  void publishRaw(const std::string& name, const void* data, int size) override;
+  void subscribeRaw(const std::string& name, std::function<void(const void*, int)> handler) override;
+  bool handle(int timeout_ms) override;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+// In-process (memory://NAME): every MemoryBus of the same NAME alive in this
+// process receives every message any of them publishes (itself included, as
+// LCM multicast does), in publication order, when it calls handle(). Safe to
+// publish from any thread; each bus's handlers run on its handle() thread.
+class MemoryBus final : public Bus {
+ public:
+  explicit MemoryBus(const BusOptions& options);
+  ~MemoryBus() override;
+  void publishRaw(const std::string& name, const void* data, int size) override;
+  void subscribeRaw(const std::string& name, std::function<void(const void*, int)> handler) override;
+  bool handle(int timeout_ms) override;
+
+  struct Hub;
+  struct Endpoint;
+
+ private:
+  std::shared_ptr<Hub> hub_;
+  std::shared_ptr<Endpoint> endpoint_;
+};
+
+// The bus options.url asks for: MemoryBus for memory://NAME, LcmBus otherwise.
+std::unique_ptr<Bus> makeBus(const BusOptions& options);
 
 }  // namespace rekon

@@ -112,10 +112,17 @@ class PeerWatch {
   std::vector<std::function<void(const std::string&, int)>> callbacks_;
 };
 
+// Runs `body` in `ctx`: starts its threads, then on return marks it
+// finished, stops the threads and writes the stats. Returns the exit code: 0,
+// or 1 after logging any exception as one line (stats written all the same).
+// runService calls it; a test runs a service's logic in-process with it (over
+// a memory:// bus).
+int runInContext(ServiceContext& ctx, const std::function<void(ServiceContext&)>& body);
+
 // Runs a service: parses the common options plus those `add_options` adds,
 // sets everything up, calls `body` (which returns when the service's work is
 // done or ctx.stopRequested()), then writes stats. Returns the exit code:
-// 0, or 1 after logging a rekon::Error as one line.
+// 0, or 1 after logging any exception as one line.
 int runService(int argc, char** argv, const std::string& name, const std::string& summary,
                const std::function<void(ArgParser&)>& add_options, const std::function<void(ServiceContext&)>& body);
 
