@@ -1,4 +1,4 @@
-// rekon bench keyframes / reintegration (services/mapper/bench) on a few
+// rekon bench keyframes / reintegration (tools/bench/mapper) on a few
 // frames of the synthetic tabletop: the outputs' shape, and the numbers that
 // do not depend on the machine's speed (surface errors, counts). Times are
 // not checked: speed is for the benchmarks themselves.

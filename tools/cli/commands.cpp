@@ -28,7 +28,7 @@ const std::vector<Command>& commands() {
       {"keyframes", "list or export the KF keyframes in the mapper's shared-memory keyframe store", store::keyframesMain},
       {"listen", "receive frames from the bus as a consumer and log their hashes", &listenMain},
       {"report", "self-contained report.html of a run folder: mesh views, trajectory, timing, stats", &report::reportCommand},
-      {"bench", "the paper's Figures 5 and 7 on rekon's mapper: bench keyframes | bench reintegration", &mapper_bench::benchMain},
+      {"bench", "the paper's Figures 5 and 7 on rekon's mapper: bench keyframes | bench reintegration", &mapper_bench::benchCommand},
   };
   return table;
 }

@@ -7,7 +7,7 @@
 
 namespace rekon::mapper_bench {
 
-int benchMain(int argc, char** argv) {
+int benchCommand(int argc, char** argv) {
   const std::string usage =
       "usage: rekon bench keyframes --dataset DIR --out DIR [...]      (paper Figure 5)\n"
       "       rekon bench reintegration --dataset DIR --out DIR [...]  (paper Figure 7)\n"
@@ -19,8 +19,8 @@ int benchMain(int argc, char** argv) {
   const std::string what = argv[1];
   std::string program = std::string(argv[0]) + " " + what;
   argv[1] = program.data();  // the subcommand sees "rekon bench NAME" as its program
-  if (what == "keyframes") return benchKeyframesMain(argc - 1, argv + 1);
-  if (what == "reintegration") return benchReintegrationMain(argc - 1, argv + 1);
+  if (what == "keyframes") return benchKeyframesCommand(argc - 1, argv + 1);
+  if (what == "reintegration") return benchReintegrationCommand(argc - 1, argv + 1);
   throw Error("rekon bench: unknown subcommand '" + what + "'; use keyframes or reintegration");
 }
 

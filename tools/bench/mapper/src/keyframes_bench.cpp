@@ -136,7 +136,7 @@ std::string number(double v) {
 
 }  // namespace
 
-int benchKeyframesMain(int argc, char** argv) {
+int benchKeyframesCommand(int argc, char** argv) {
   ArgParser args(argv[0],
                  "The paper's Figure 5: for each KF keyframe strategy and parameter, the average keyframe size "
                  "kappa-bar and CORR / COMPL (mm) of the fused surface against the reference (every raw frame "

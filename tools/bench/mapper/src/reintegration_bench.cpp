@@ -164,7 +164,7 @@ const RunResult& find(const std::vector<RunResult>& runs, int kappa, mapper::Rei
 
 }  // namespace
 
-int benchReintegrationMain(int argc, char** argv) {
+int benchReintegrationCommand(int argc, char** argv) {
   ArgParser args(argv[0],
                  "The paper's Figure 7: average amortised (re-)integration time per frame against kappa "
                  "(KF_CONST, m = m-total / kappa keyframes per graph update) for consecutive (eq. 3) and "

@@ -1,14 +1,14 @@
 #pragma once
 // `rekon bench keyframes | reintegration`: the paper's Figures 5 and 7
-// measured on rekon's own mapper (services/mapper/bench/README.md).
+// measured on rekon's own mapper (tools/bench/mapper/README.md).
 
 namespace rekon::mapper_bench {
 
 // `rekon bench SUBCOMMAND ...`: dispatches to the two below.
-int benchMain(int argc, char** argv);
+int benchCommand(int argc, char** argv);
 // Figure 5: keyframe strategies, average keyframe size against CORR / COMPL.
-int benchKeyframesMain(int argc, char** argv);
+int benchKeyframesCommand(int argc, char** argv);
 // Figure 7: amortised (re-)integration time per frame against kappa.
-int benchReintegrationMain(int argc, char** argv);
+int benchReintegrationCommand(int argc, char** argv);
 
 }  // namespace rekon::mapper_bench
