@@ -1,14 +1,8 @@
-#include "rekon/tracker/se3.hpp"
+#include "rekon/common/se3.hpp"
 
 #include <cmath>
 
-namespace rekon::tracker {
-
-Eigen::Matrix3d skew(const Eigen::Vector3d& v) {
-  Eigen::Matrix3d s;
-  s << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
-  return s;
-}
+namespace rekon {
 
 Pose expSe3(const Vector6d& xi) {
   const Eigen::Vector3d v = xi.head<3>();
@@ -61,4 +55,4 @@ Matrix6d adjoint(const Pose& pose) {
   return a;
 }
 
-}  // namespace rekon::tracker
+}  // namespace rekon

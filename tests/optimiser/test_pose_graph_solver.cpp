@@ -9,6 +9,7 @@
 #include <random>
 
 #include "block_cholesky.hpp"
+#include "rekon/common/se3.hpp"
 #include "rekon/optimiser/pose_graph.hpp"
 #include "rekon/optimiser/synthetic_graph.hpp"
 #include "relative_pose_cost.hpp"
@@ -201,7 +202,7 @@ SyntheticGraph multiLapGraph() {
   spec.seed = 9;
   SyntheticGraph g = makeSyntheticGraph(spec);
   for (size_t k = g.constraints.size() - 10; k < g.constraints.size(); ++k)
-    g.constraints[k].relative = perturbed(g.constraints[k].relative, (Vector6d() << 0.3, 0, 0, 0, 0.2, 0).finished());
+    g.constraints[k].relative = g.constraints[k].relative * expSe3((Vector6d() << 0.3, 0, 0, 0, 0.2, 0).finished());
   return g;
 }
 

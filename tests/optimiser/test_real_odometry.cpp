@@ -10,6 +10,7 @@
 
 #include "rekon/common/config.hpp"
 #include "rekon/common/dataset.hpp"
+#include "rekon/common/se3.hpp"
 #include "rekon/eval/trajectory_eval.hpp"
 #include "rekon/optimiser/graph_messages.hpp"
 #include "rekon/optimiser/params.hpp"
@@ -76,7 +77,7 @@ TEST(PoseGraphOnRealOdometry, GroundTruthLoopsCutTheAteBelow70PercentAndWrongOne
       loop.kind = EdgeKind::Loop;
       loop.from_id = id;
       loop.to_id = odo.to_id;
-      loop.relative = orthonormalised(perturbed(from_truth.inverse() * to_truth, xi));
+      loop.relative = orthonormalised(from_truth.inverse() * to_truth * expSe3(xi));
       loop.information = odo.information;
       if ((correct_loops + wrong_loops) % 10 == 5) {
         loop.relative.translation() += Eigen::Vector3d(kWrongOffsetM, 0.0, 0.0);

@@ -75,8 +75,8 @@ int main(int argc, char** argv) {
       if (!kf_truth.count(from) || !kf_truth.count(to)) return std::nullopt;
       return rekon::Pose(kf_truth[from].inverse() * kf_truth[to]);
     };
-    auto chi2AtTruth = [&](int64_t from, int64_t to, const rekon::Pose& relative, const rekon::tracker::Matrix6d& info) {
-      const rekon::optimiser::Vector6d r = rekon::optimiser::relativePoseResidual(kf_truth[from], kf_truth[to], relative);
+    auto chi2AtTruth = [&](int64_t from, int64_t to, const rekon::Pose& relative, const rekon::Matrix6d& info) {
+      const rekon::Vector6d r = rekon::optimiser::relativePoseResidual(kf_truth[from], kf_truth[to], relative);
       return graph_params.information_scale * r.dot(info * r);
     };
     ErrorStats loops, odometry;

@@ -7,6 +7,8 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include "rekon/common/se3.hpp"
+
 namespace rekon::optimiser::detail {
 
 // E = Z^-1 * A^-1 * B with Z = (q_z, t_z); out = (t_E, 2 * sign(w_E) * vec(q_E)).
@@ -32,12 +34,6 @@ void relativeError(const T* qa_ptr, const T* ta_ptr, const T* qb_ptr, const T* t
   out[5] = two * q_e.z();
 }
 
-inline Eigen::Matrix3d skew(const Eigen::Vector3d& v) {
-  Eigen::Matrix3d s;
-  s << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
-  return s;
-}
-
 // One edge: the measurement Z, precomputed.
 struct RelativeMeasurement {
   Eigen::Quaterniond q_z_inverse;
@@ -56,8 +52,7 @@ struct RelativeMeasurement {
 //   de_r/dphi_b = M R_b^T = -de_r/dphi_a,   de_r/dt = 0.
 // (Autodiff through the quaternion products on 14-wide Jets costs 4x more.)
 inline void relativeErrorAndJacobians(const double* pose_a, const double* pose_b, const RelativeMeasurement& z,
-                                      Eigen::Matrix<double, 6, 1>& e, Eigen::Matrix<double, 6, 6>* ja,
-                                      Eigen::Matrix<double, 6, 6>* jb) {
+                                      Vector6d& e, Matrix6d* ja, Matrix6d* jb) {
   using Mat3 = Eigen::Matrix3d;
   const Eigen::Map<const Eigen::Quaterniond> qa(pose_a + 3), qb(pose_b + 3);
   const Eigen::Map<const Eigen::Vector3d> ta(pose_a), tb(pose_b);
@@ -102,16 +97,16 @@ inline Eigen::Matrix<double, 4, 3> quaternionPlusJacobian(const Eigen::Quaternio
 // gives back exactly J_tangent after that product.
 class RelativePoseCost final : public ceres::SizedCostFunction<6, 7, 7> {
  public:
-  RelativePoseCost(const RelativeMeasurement& z, const Eigen::Matrix<double, 6, 6>& sqrt_information)
+  RelativePoseCost(const RelativeMeasurement& z, const Matrix6d& sqrt_information)
       : z_(z), u_(sqrt_information) {}
 
   bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override {
-    Eigen::Matrix<double, 6, 1> e;
-    Eigen::Matrix<double, 6, 6> ja, jb;
+    Vector6d e;
+    Matrix6d ja, jb;
     const bool want = jacobians != nullptr;
     relativeErrorAndJacobians(parameters[0], parameters[1], z_, e, want && jacobians[0] ? &ja : nullptr,
                               want && jacobians[1] ? &jb : nullptr);
-    Eigen::Map<Eigen::Matrix<double, 6, 1>> r(residuals);
+    Eigen::Map<Vector6d> r(residuals);
     r.noalias() = u_ * e;
     if (!want) return true;
     if (jacobians[0] != nullptr) writeAmbient(ja, parameters[0], jacobians[0]);
@@ -120,15 +115,15 @@ class RelativePoseCost final : public ceres::SizedCostFunction<6, 7, 7> {
   }
 
  private:
-  void writeAmbient(const Eigen::Matrix<double, 6, 6>& tangent, const double* pose, double* out) const {
-    const Eigen::Matrix<double, 6, 6> whitened = u_ * tangent;
+  void writeAmbient(const Matrix6d& tangent, const double* pose, double* out) const {
+    const Matrix6d whitened = u_ * tangent;
     Eigen::Map<Eigen::Matrix<double, 6, 7, Eigen::RowMajor>> j(out);
     j.leftCols<3>() = whitened.leftCols<3>();
     j.rightCols<4>() = 2.0 * whitened.rightCols<3>() * quaternionPlusJacobian(Eigen::Quaterniond(pose + 3)).transpose();
   }
 
   RelativeMeasurement z_;
-  Eigen::Matrix<double, 6, 6> u_;
+  Matrix6d u_;
 };
 
 }  // namespace rekon::optimiser::detail

@@ -5,6 +5,7 @@
 #include <random>
 
 #include "rekon/common/error.hpp"
+#include "rekon/common/se3.hpp"
 
 namespace rekon::optimiser {
 
@@ -13,14 +14,6 @@ Matrix6d isotropicInformation(double sigma_translation_m, double sigma_rotation_
   info.diagonal().head<3>().setConstant(1.0 / (sigma_translation_m * sigma_translation_m));
   info.diagonal().tail<3>().setConstant(1.0 / (sigma_rotation_rad * sigma_rotation_rad));
   return info;
-}
-
-Pose perturbed(const Pose& relative, const Vector6d& xi) {
-  Pose d = Pose::Identity();
-  const Eigen::Vector3d w = xi.tail<3>();
-  if (w.norm() > 0) d.linear() = Eigen::AngleAxisd(w.norm(), w.normalized()).toRotationMatrix();
-  d.translation() = xi.head<3>();
-  return relative * d;
 }
 
 SyntheticGraph makeSyntheticGraph(const SyntheticGraphSpec& spec) {
@@ -58,7 +51,7 @@ SyntheticGraph makeSyntheticGraph(const SyntheticGraphSpec& spec) {
     c.kind = EdgeKind::Odometry;
     c.from_id = i;
     c.to_id = i + 1;
-    c.relative = orthonormalised(perturbed(g.truth[i].inverse() * g.truth[i + 1], noise()));
+    c.relative = orthonormalised(g.truth[i].inverse() * g.truth[i + 1] * expSe3(noise()));
     c.information = info;
     g.constraints.push_back(c);
     g.initial.push_back(orthonormalised(g.initial.back() * c.relative));
@@ -75,7 +68,7 @@ SyntheticGraph makeSyntheticGraph(const SyntheticGraphSpec& spec) {
     c.kind = EdgeKind::Loop;
     c.from_id = i;
     c.to_id = j;
-    c.relative = orthonormalised(perturbed(g.truth[i].inverse() * g.truth[j], noise()));
+    c.relative = orthonormalised(g.truth[i].inverse() * g.truth[j] * expSe3(noise()));
     c.information = info;
     g.constraints.push_back(c);
     ++k;

@@ -18,6 +18,7 @@
 #include <vector>
 
 #include "rekon/common/pose.hpp"
+#include "rekon/common/se3.hpp"
 #include "rekon/optimiser/params.hpp"
 
 namespace ceres {
@@ -31,9 +32,6 @@ namespace detail {
 struct RelativeMeasurement;
 class BlockCholesky;
 }  // namespace detail
-
-using Vector6d = Eigen::Matrix<double, 6, 1>;
-using Matrix6d = Eigen::Matrix<double, 6, 6>;
 
 enum class EdgeKind { Odometry, Loop };
 

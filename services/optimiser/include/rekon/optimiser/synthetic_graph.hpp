@@ -30,8 +30,6 @@ struct SyntheticGraph {
 
 // Information diag(1/sigma_t^2 x3, 1/sigma_r^2 x3) in (v, w) order.
 Matrix6d isotropicInformation(double sigma_translation_m, double sigma_rotation_rad);
-// relative * exp(xi) to first order: rotation by the vector w, then translation v.
-Pose perturbed(const Pose& relative, const Vector6d& xi);
 
 SyntheticGraph makeSyntheticGraph(const SyntheticGraphSpec& spec);
 

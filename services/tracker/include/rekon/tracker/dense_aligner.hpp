@@ -7,10 +7,10 @@
 #include <vector>
 
 #include "rekon/common/pose.hpp"
+#include "rekon/common/se3.hpp"
 #include "rekon/tracker/keyframe_reference.hpp"
 #include "rekon/tracker/params.hpp"
 #include "rekon/tracker/rgbd_pyramid.hpp"
-#include "rekon/tracker/se3.hpp"
 
 namespace rekon::tracker {
 

@@ -11,11 +11,11 @@
 #include "rekon/common/camera.hpp"
 #include "rekon/common/pose.hpp"
 #include "rekon/common/rgbd_frame.hpp"
+#include "rekon/common/se3.hpp"
 #include "rekon/tracker/dense_aligner.hpp"
 #include "rekon/tracker/keyframe_reference.hpp"
 #include "rekon/tracker/params.hpp"
 #include "rekon/tracker/rgbd_pyramid.hpp"
-#include "rekon/tracker/se3.hpp"
 
 namespace rekon::tracker {
 
