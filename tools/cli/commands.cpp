@@ -4,9 +4,7 @@
 
 #include "rekon/render/render.hpp"
 
-#include "rekon/volume/fuse_command.hpp"
 #include "rekon/mapper_bench/bench_command.hpp"
-#include "rekon/store/keyframe_store.hpp"
 #include "rekon/tracker/odometry_command.hpp"
 #include "launcher.hpp"
 #include "listen.hpp"
@@ -20,12 +18,12 @@ const std::vector<Command>& commands() {
   static const std::vector<Command> table = {
       {"eval", "trajectory (ATE, RPE) and surface (CORR, COMPL) errors against ground truth", &eval::evalCommand},
       {"render", "offscreen shaded image of a colored mesh (PLY to PNG)", &render::renderCommand},
-      {"fuse", "integrate a dataset at given poses into the TSDF volume and write its mesh", volume::fuseMain},
+      {"fuse", "integrate a dataset at given poses into the TSDF volume and write its mesh", &fuseCommand},
       {"odometry", "dense RGB-D odometry (DVO) in-process on a dataset; writes a TUM trajectory", tracker::odometryMain},
       {"synth", "write a synthetic RGB-D sequence with exact ground truth", &synth::synthCommand},
-      {"run", "run the whole pipeline on a dataset (every service as its own process)", &runMain},
-      {"demo", "run the whole pipeline on the built-in default scene", &demoMain},
-      {"keyframes", "list or export the KF keyframes in the mapper's shared-memory keyframe store", store::keyframesMain},
+      {"run", "run the whole pipeline on a dataset (every service as its own process)", &runCommand},
+      {"demo", "run the whole pipeline on the built-in default scene", &demoCommand},
+      {"keyframes", "list or export the KF keyframes in the mapper's shared-memory keyframe store", &keyframesCommand},
       {"listen", "receive frames from the bus as a consumer and log their hashes", &listenMain},
       {"report", "self-contained report.html of a run folder: mesh views, trajectory, timing, stats", &report::reportCommand},
       {"bench", "the paper's Figures 5 and 7 on rekon's mapper: bench keyframes | bench reintegration", &mapper_bench::benchCommand},

@@ -9,7 +9,10 @@
 #include <chrono>
 #include <filesystem>
 #include <fstream>
+#include <optional>
 #include <set>
+#include <string>
+#include <tuple>
 #include <thread>
 
 #include "process.hpp"
@@ -80,26 +83,20 @@ std::pair<std::set<std::string>, int> restartPolicy(const Config& config) {
   return {services, max_restarts};
 }
 
-struct RunOptions {
-  std::string dataset, out, config_file;
-  std::vector<std::string> sets;
-  bool report = false;
+// What a run is made of, decided before anything starts: the effective
+// config (written to config.yaml), this run's own shared-memory names, and
+// the children in start order (consumers first: the player waits for them).
+struct RunPlan {
+  Config config;
+  std::string out;
+  std::string frame_ring, keyframe_store;  // one of each per run, so runs side by side never meet
+  std::set<std::string> restartable;
+  int max_restarts = 0;
+  std::vector<ChildProcess> children;
 };
 
-int launch(const RunOptions& opt) {
-  Config config = Config::load(opt.config_file, opt.sets);
-  setupLogging("run", config.getString("log.level"));
-  createOutputFolder(opt.out);
-  const std::string out = fs::canonical(opt.out).string();
-  const std::string bin = executableDir();
-
-  // One frame ring and one keyframe store per run, so runs side by side never meet.
-  const std::string segment = config.getString("transport.segment") + "_" + std::to_string(getpid());
-  config.set("transport.segment", segment);
-  const std::string store_segment = config.getString("mapper.store_segment") + "_" + std::to_string(getpid());
-  config.set("mapper.store_segment", store_segment);
-  const auto [restartable, max_restarts] = restartPolicy(config);
-
+// The services of run.services that this build has, the player among them.
+std::vector<std::string> servicesToRun(const Config& config, const std::string& bin) {
   std::vector<std::string> services;
   for (const auto& s : config.getStringList("run.services")) {
     if (fs::exists(bin + "/rekon-" + s)) services.push_back(s);
@@ -108,142 +105,185 @@ int launch(const RunOptions& opt) {
   if (std::find(services.begin(), services.end(), "player") == services.end()) {
     throw Error("run.services has no player; rekon run needs a frame source");
   }
+  return services;
+}
+
+RunPlan planRun(const RunOptions& opt) {
+  RunPlan plan{Config::load(opt.config_file, opt.sets), "", "", "", {}, 0, {}};
+  Config& config = plan.config;
+  setupLogging("run", config.getString("log.level"));
+  createOutputFolder(opt.out);
+  plan.out = fs::canonical(opt.out).string();
+  const std::string bin = executableDir();
+  plan.frame_ring = config.getString("transport.segment") + "_" + std::to_string(getpid());
+  config.set("transport.segment", plan.frame_ring);
+  plan.keyframe_store = config.getString("mapper.store_segment") + "_" + std::to_string(getpid());
+  config.set("mapper.store_segment", plan.keyframe_store);
+  std::tie(plan.restartable, plan.max_restarts) = restartPolicy(config);
+
+  std::vector<std::string> services = servicesToRun(config, bin);
   // The player waits only for consumers that this run starts.
-  std::vector<std::string> wait_for;
+  std::string wait_for;
   for (const auto& s : config.getStringList("player.wait_for")) {
-    if (std::find(services.begin(), services.end(), s) != services.end()) wait_for.push_back(s);
+    if (std::find(services.begin(), services.end(), s) != services.end()) wait_for += (wait_for.empty() ? "" : ", ") + s;
   }
-  std::string list = "[";
-  for (size_t i = 0; i < wait_for.size(); ++i) list += (i ? ", " : "") + wait_for[i];
-  config.set("player.wait_for", list + "]");
-  const std::string config_path = out + "/config.yaml";
+  config.set("player.wait_for", "[" + wait_for + "]");
+  const std::string config_path = plan.out + "/config.yaml";
   config.save(config_path);
   // The report and the evaluation find the dataset (and its ground truth) from here.
-  std::ofstream(out + "/dataset.txt") << fs::canonical(opt.dataset).string() << "\n";
+  std::ofstream(plan.out + "/dataset.txt") << fs::canonical(opt.dataset).string() << "\n";
 
-  // Consumers first; the player waits for their heartbeats before it sends.
   std::stable_partition(services.begin(), services.end(), [](const std::string& s) { return s != "player"; });
-  std::vector<ChildProcess> children;
   for (const auto& s : services) {
-    std::vector<std::string> args = {"--config", config_path, "--out", out};
+    std::vector<std::string> args = {"--config", config_path, "--out", plan.out};
     if (s == "player") args.insert(args.end(), {"--dataset", opt.dataset});
-    children.emplace_back(s, bin + "/rekon-" + s, args, out + "/" + s + ".log");
+    plan.children.emplace_back(s, bin + "/rekon-" + s, args, plan.out + "/" + s + ".log");
+  }
+  return plan;
+}
+
+// Watches the children of a run until every one has ended: restarts those
+// that can recover, stops the run on any other death, on Ctrl-C or when the
+// services outlast run.shutdown_timeout_s after the player, samples RSS.
+class Supervisor {
+ public:
+  explicit Supervisor(RunPlan& plan)
+      : plan_(plan), shutdown_timeout_(plan.config.getDouble("run.shutdown_timeout_s")),
+        terminated_at_(plan.children.size()), killed_(plan.children.size(), false), rss_(plan.out + "/rss.csv") {
+    // Stopping goes downstream, one service at a time: each gets SIGTERM once
+    // the one before it has exited, so that the optimiser's last graph update
+    // still reaches the mapper and everything produced so far is written.
+    for (size_t i = 0; i < plan.children.size(); ++i) stop_order_.push_back(i);
+    std::stable_sort(stop_order_.begin(), stop_order_.end(), [&](size_t a, size_t b) {
+      return stopRank(plan.children[a].name()) < stopRank(plan.children[b].name());
+    });
+    rss_ << "seconds,service,rss_mb\n";
   }
 
-  signal(SIGINT, onInterrupt);
-  signal(SIGTERM, onInterrupt);
-  const auto start = Clock::now();
-  int exit_code = 0;
-  std::string failure;
-  try {
-    for (auto& c : children) {
-      fs::remove(c.logPath());
-      c.start();
-      spdlog::info("started rekon-{} (pid {}), log {}", c.name(), c.pid(), c.logPath());
+  void startAll() {
+    try {
+      for (auto& c : plan_.children) {
+        fs::remove(c.logPath());
+        c.start();
+        spdlog::info("started rekon-{} (pid {}), log {}", c.name(), c.pid(), c.logPath());
+      }
+    } catch (const Error& e) {
+      fail(e.what());
     }
-  } catch (const Error& e) {
-    failure = e.what();
   }
-  const double shutdown_timeout = config.getDouble("run.shutdown_timeout_s");
-  std::optional<Clock::time_point> player_done;
-  // Stopping goes downstream, one service at a time: each gets SIGTERM once
-  // the one before it has exited, so that the optimiser's last graph update
-  // still reaches the mapper and everything produced so far is written.
-  std::vector<size_t> stop_order(children.size());
-  for (size_t i = 0; i < children.size(); ++i) stop_order[i] = i;
-  std::stable_sort(stop_order.begin(), stop_order.end(),
-                   [&](size_t a, size_t b) { return stopRank(children[a].name()) < stopRank(children[b].name()); });
-  std::vector<std::optional<Clock::time_point>> terminated_at(children.size());
-  std::vector<bool> killed(children.size(), false);
-  bool stopping = false;
-  auto stopAll = [&] { stopping = true; };
-  if (!failure.empty()) stopAll();
 
-  std::ofstream rss(out + "/rss.csv");
-  rss << "seconds,service,rss_mb\n";
-  auto next_rss = Clock::now();
-  while (true) {
+  // One look at every child; false once none runs any more.
+  bool step() {
     bool any_running = false;
-    for (auto& c : children) {
-      const auto st = c.poll();
-      if (!st) {
-        any_running = true;
-        continue;
-      }
-      if (c.name() == "player" && *st == 0 && !player_done) {
-        player_done = Clock::now();
-        spdlog::info("the player has finished; waiting for the services to finish");
-      }
-      if (*st == 0 || stopping || g_interrupted.load()) continue;
-      const std::string how = "rekon-" + c.name() + " " + describeExit(*st);
-      if (restartable.count(c.name()) && c.restarts() < max_restarts) {
-        spdlog::warn("{}; restarting it ({} of at most {} restarts, run.max_restarts)", how, c.restarts() + 1, max_restarts);
-        std::vector<std::string> extra;
-        // The mapper continues from its keyframe store; the optimiser rebuilds from the tracker's replay.
-        if (c.name() == "mapper") extra = {"--set", "mapper.resume=true"};
-        try {
-          c.restart(extra);
-          spdlog::info("restarted rekon-{} (pid {})", c.name(), c.pid());
-          any_running = true;
-          continue;
-        } catch (const Error& e) {
-          spdlog::error("{}", e.what());
-        }
-      }
-      if (failure.empty()) {
-        failure = how + (restartable.count(c.name()) ? " (restarted " + std::to_string(c.restarts()) + " times already)" : "") +
-                  "; the run was stopped, outputs so far are in " + out + "; see " + c.logPath();
-        spdlog::error("{}", failure);
-        stopAll();
-      }
+    for (auto& c : plan_.children) {
+      if (const auto status = c.poll()) onEnded(c, *status, any_running);
+      else any_running = true;
     }
-    if (!any_running) break;
-    if (Clock::now() >= next_rss) {
-      next_rss += std::chrono::seconds(1);
-      const double t = std::chrono::duration<double>(Clock::now() - start).count();
-      for (const auto& c : children) {
-        if (const auto mb = c.rssMb()) rss << fmt::format("{:.1f},{},{:.1f}\n", t, c.name(), *mb);
-      }
-      rss.flush();
-    }
-    if (g_interrupted.load() && !stopping) {
+    if (!any_running) return false;
+    sampleRss();
+    if (g_interrupted.load() && !stopping_) {
       spdlog::warn("interrupted: stopping every service (outputs so far are kept)");
-      stopAll();
+      stopping_ = true;
     }
-    if (player_done && !stopping && Clock::now() > *player_done + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(shutdown_timeout))) {
-      failure = "services did not finish within run.shutdown_timeout_s = " + std::to_string(int(shutdown_timeout)) + " s after the end of the data";
-      spdlog::error("{}", failure);
-      stopAll();
+    if (player_done_ && !stopping_ && Clock::now() > *player_done_ + std::chrono::duration_cast<Clock::duration>(
+                                                                           std::chrono::duration<double>(shutdown_timeout_))) {
+      fail("services did not finish within run.shutdown_timeout_s = " + std::to_string(int(shutdown_timeout_)) +
+           " s after the end of the data");
     }
-    if (stopping) {
-      for (size_t i : stop_order) {
-        ChildProcess& c = children[i];
-        if (!c.running()) continue;
-        if (!terminated_at[i]) {
-          c.terminate();
-          terminated_at[i] = Clock::now();
-        } else if (!killed[i] && Clock::now() > *terminated_at[i] + std::chrono::seconds(kStopGraceS)) {
-          spdlog::error("rekon-{} did not stop within {} s of SIGTERM; killing it", c.name(), kStopGraceS);
-          c.kill();
-          killed[i] = true;
-        }
-        break;  // the next one once this one has exited
+    if (stopping_) stopNext();
+    return true;
+  }
+
+  const std::string& failure() const { return failure_; }
+
+ private:
+  void fail(const std::string& why) {
+    if (!failure_.empty()) return;
+    failure_ = why;
+    spdlog::error("{}", failure_);
+    stopping_ = true;
+  }
+
+  // A child that ended: the player's clean end starts the shutdown clock; a
+  // restartable service is restarted while it has restarts left; any other
+  // death stops the run.
+  void onEnded(ChildProcess& c, int status, bool& any_running) {
+    if (c.name() == "player" && status == 0 && !player_done_) {
+      player_done_ = Clock::now();
+      spdlog::info("the player has finished; waiting for the services to finish");
+    }
+    if (status == 0 || stopping_ || g_interrupted.load()) return;
+    const std::string how = "rekon-" + c.name() + " " + describeExit(status);
+    const bool restartable = plan_.restartable.count(c.name()) > 0;
+    if (restartable && c.restarts() < plan_.max_restarts) {
+      spdlog::warn("{}; restarting it ({} of at most {} restarts, run.max_restarts)", how, c.restarts() + 1,
+                   plan_.max_restarts);
+      // The mapper continues from its keyframe store; the optimiser rebuilds from the tracker's replay.
+      const std::vector<std::string> extra =
+          c.name() == "mapper" ? std::vector<std::string>{"--set", "mapper.resume=true"} : std::vector<std::string>{};
+      try {
+        c.restart(extra);
+        spdlog::info("restarted rekon-{} (pid {})", c.name(), c.pid());
+        any_running = true;
+        return;
+      } catch (const Error& e) {
+        spdlog::error("{}", e.what());
       }
     }
-    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    fail(how + (restartable ? " (restarted " + std::to_string(c.restarts()) + " times already)" : "") +
+         "; the run was stopped, outputs so far are in " + plan_.out + "; see " + c.logPath());
   }
-  const double wall = std::chrono::duration<double>(Clock::now() - start).count();
-  if (removeFrameRing(segment)) spdlog::info("removed the frame ring '{}' left by a stopped player", segment);
-  // With its spill files, when a mapper that died for good left it.
-  if (store::KeyframeStore::remove(store_segment)) spdlog::info("removed the keyframe store '{}' left by a stopped mapper", store_segment);
 
-  // stats.json: run-level figures plus each service's own stats file.
+  // Once a second: every running child's RSS into rss.csv.
+  void sampleRss() {
+    if (Clock::now() < next_rss_) return;
+    next_rss_ += std::chrono::seconds(1);
+    const double t = std::chrono::duration<double>(Clock::now() - start_).count();
+    for (const auto& c : plan_.children) {
+      if (const auto mb = c.rssMb()) rss_ << fmt::format("{:.1f},{},{:.1f}\n", t, c.name(), *mb);
+    }
+    rss_.flush();
+  }
+
+  // SIGTERM to the most upstream child still running (SIGKILL after kStopGraceS).
+  void stopNext() {
+    for (size_t i : stop_order_) {
+      ChildProcess& c = plan_.children[i];
+      if (!c.running()) continue;
+      if (!terminated_at_[i]) {
+        c.terminate();
+        terminated_at_[i] = Clock::now();
+      } else if (!killed_[i] && Clock::now() > *terminated_at_[i] + std::chrono::seconds(kStopGraceS)) {
+        spdlog::error("rekon-{} did not stop within {} s of SIGTERM; killing it", c.name(), kStopGraceS);
+        c.kill();
+        killed_[i] = true;
+      }
+      return;  // the next one once this one has exited
+    }
+  }
+
+  RunPlan& plan_;
+  const double shutdown_timeout_;
+  const Clock::time_point start_ = Clock::now();
+  std::vector<size_t> stop_order_;
+  std::vector<std::optional<Clock::time_point>> terminated_at_;
+  std::vector<bool> killed_;
+  std::optional<Clock::time_point> player_done_;
+  bool stopping_ = false;
+  std::string failure_;
+  std::ofstream rss_;
+  Clock::time_point next_rss_ = Clock::now();
+};
+
+// stats.json: run-level figures (frames, wall time, restarts, realtime
+// factor) plus each service's own stats file.
+void writeRunStats(const RunPlan& plan, double wall) {
   JsonObject stats;
   double sequence_seconds = 0;
   long long frames = 0;
   std::vector<std::pair<std::string, std::string>> per_service;
-  for (const auto& c : children) {
-    const std::string path = out + "/" + c.name() + "_stats.json";
+  for (const auto& c : plan.children) {
+    const std::string path = plan.out + "/" + c.name() + "_stats.json";
     if (!fs::exists(path)) continue;
     try {
       const YAML::Node node = YAML::LoadFile(path);
@@ -258,38 +298,56 @@ int launch(const RunOptions& opt) {
   }
   stats.set("frames", frames).set("wall_seconds", wall);
   JsonObject restarts;
-  for (const auto& c : children) {
+  for (const auto& c : plan.children) {
     if (c.restarts() > 0) restarts.set(c.name(), static_cast<long long>(c.restarts()));
   }
   stats.setRaw("restarts", restarts.str(0));
   if (sequence_seconds > 0) stats.set("realtime_factor", sequence_seconds / wall);
   for (const auto& [name, json] : per_service) stats.setRaw(name, json);
-  stats.save(out + "/stats.json");
+  stats.save(plan.out + "/stats.json");
+}
 
-  if (opt.report) {
-    try {
-      report::writeRunReport(out);
-    } catch (const Error& e) {
-      spdlog::error("report: {}", e.what());  // the run's own outputs stay as they are
-    }
-  }
+void logOutputs(const std::string& out) {
   spdlog::info("outputs in {}:", out);
   for (const char* f : {"trajectory.txt", "mesh.ply", "stats.json", "report.html", "config.yaml"}) {
     if (fs::exists(out + "/" + f)) spdlog::info("  {}/{}", out, f);
   }
   spdlog::info("  logs: {}/<service>.log", out);
-  if (!failure.empty()) {
-    spdlog::error("{}", failure);
-    exit_code = 1;
-  } else if (g_interrupted.load()) {
-    exit_code = 130;
-  }
-  return exit_code;
 }
 
 }  // namespace
 
-int runMain(int argc, char** argv) {
+int launch(const RunOptions& opt) {
+  RunPlan plan = planRun(opt);
+  signal(SIGINT, onInterrupt);
+  signal(SIGTERM, onInterrupt);
+  const auto start = Clock::now();
+  Supervisor supervisor(plan);
+  supervisor.startAll();
+  while (supervisor.step()) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  const double wall = std::chrono::duration<double>(Clock::now() - start).count();
+  if (removeFrameRing(plan.frame_ring)) spdlog::info("removed the frame ring '{}' left by a stopped player", plan.frame_ring);
+  // With its spill files, when a mapper that died for good left it.
+  if (store::KeyframeStore::remove(plan.keyframe_store))
+    spdlog::info("removed the keyframe store '{}' left by a stopped mapper", plan.keyframe_store);
+
+  writeRunStats(plan, wall);
+  if (opt.report) {
+    try {
+      report::writeRunReport(plan.out);
+    } catch (const Error& e) {
+      spdlog::error("report: {}", e.what());  // the run's own outputs stay as they are
+    }
+  }
+  logOutputs(plan.out);
+  if (!supervisor.failure().empty()) {
+    spdlog::error("{}", supervisor.failure());  // again as the last line
+    return 1;
+  }
+  return g_interrupted.load() ? 130 : 0;
+}
+
+int runCommand(int argc, char** argv) {
   ArgParser args("rekon run", "Runs the whole pipeline (every service as its own process) on a dataset.");
   args.option("dataset", "TUM RGB-D folder with camera.yaml (required)")
       .option("out", "output folder (required)")
@@ -302,7 +360,7 @@ int runMain(int argc, char** argv) {
   return launch({args.get("dataset"), args.get("out"), args.get("config"), args.all("set"), args.flagSet("report")});
 }
 
-int demoMain(int argc, char** argv) {
+int demoCommand(int argc, char** argv) {
   ArgParser args("rekon demo", "Runs the whole pipeline on the built-in default scene (synthetic room) and prints where the outputs are.");
   const fs::path root = fs::path(executableDir()).parent_path().parent_path();
   args.option("out", "output folder", (root / "out" / "demo").string())

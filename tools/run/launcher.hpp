@@ -1,10 +1,25 @@
 #pragma once
+// `rekon run`: every service as its own process from one config, watched,
+// restarted when it can recover, stopped cleanly downstream, outputs and
+// stats collected into --out.
+#include <string>
+#include <vector>
 
 namespace rekon {
 
+struct RunOptions {
+  std::string dataset, out, config_file;
+  std::vector<std::string> sets;
+  bool report = false;  // also write report.html
+};
+
+// Runs the pipeline to the end of the data (or Ctrl-C); returns the exit
+// code: 0, 1 after a failure (named in the last log line), 130 when interrupted.
+int launch(const RunOptions& options);
+
 // `rekon run --dataset DIR --out DIR [--config FILE] [--set key=value ...]`
-int runMain(int argc, char** argv);
+int runCommand(int argc, char** argv);
 // `rekon demo [--out DIR]`: the whole pipeline on the built-in default scene.
-int demoMain(int argc, char** argv);
+int demoCommand(int argc, char** argv);
 
 }  // namespace rekon
