@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 #include <sys/stat.h>
 
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <regex>
@@ -19,6 +20,9 @@ namespace {
 
 // 3 s of the synthetic room: 4 KF keyframes at kappa 20, small enough for a
 // loaded 2-core machine, long enough to kill a service with 2 of them stored.
+// The uninterrupted run, twice (two builds): ATE 0.226506 mm, CORR 1.668413 mm
+// both times. Each bound below is from the differences to it measured in
+// runs of this test on a loaded 2-core machine, with the margin said there.
 constexpr int kFrames = 90;
 constexpr int kKillAfterKeyframes = 2;
 
@@ -75,6 +79,7 @@ double corrOf(const std::string& run) {
              &out);
   const double corr = valueAfter(out, "corr_m");
   EXPECT_GE(corr, 0.0) << out;
+  std::printf("CORR %s: %.6f mm\n", run.c_str(), 1e3 * corr);
   return corr;
 }
 
@@ -84,6 +89,7 @@ double ateOf(const std::string& run) {
   runCommand(bin() + "/rekon eval traj " + baseline().data + "/groundtruth.txt " + run + "/trajectory.txt", &out);
   const double ate = valueAfter(out, "ate_rmse_m");
   EXPECT_GE(ate, 0.0) << out;
+  std::printf("ATE %s: %.6f mm\n", run.c_str(), 1e3 * ate);
   return ate;
 }
 
@@ -132,8 +138,10 @@ TEST(Faults, KilledMapperIsRestartedAndItsMeshMatchesAnUninterruptedRun) {
   // The restarted mapper rebuilt from its store and got every later frame again.
   EXPECT_NE(readFile(out + "/player.log").find("rekon-mapper restarted: sending frames"), std::string::npos)
       << readFile(out + "/player.log");
-  // Issue 9: CORR within 1 mm of the uninterrupted run's.
-  EXPECT_NEAR(corrOf(out), corrOf(baseline().run), 0.001) << readFile(out + "/mapper.log");
+  // CORR as the uninterrupted run's: measured the same to 1 nm in 4 runs (no loop closure: the
+  // restarted mapper integrates the same keyframes at the same poses). 0.02 mm (1 % of CORR) leaves
+  // room for another machine's timing; a keyframe lost or fused twice moves CORR by more.
+  EXPECT_NEAR(corrOf(out), corrOf(baseline().run), 0.00002) << readFile(out + "/mapper.log");
   EXPECT_EQ(leftoverSegments(out), std::vector<std::string>{});
 }
 
@@ -151,14 +159,21 @@ void expectOptimiserRebuilt(const std::string& sets) {
   const std::string logs = "optimiser.log:\n" + optimiser_log + "tracker.log:\n" + readFile(out + "/tracker.log");
   EXPECT_NE(optimiser_log.find("rebuilding from its replay"), std::string::npos) << logs;
   EXPECT_EQ(lineCount(out + "/trajectory.txt"), static_cast<size_t>(kFrames)) << logs;
-  // Issue 9: ATE within 5 mm of the uninterrupted run's.
-  EXPECT_NEAR(ateOf(out), ateOf(baseline().run), 0.005);
+  // ATE as the uninterrupted run's: measured the same to 1 nm in 5 runs of each of the two tests
+  // (the rebuilt graph has the same edges). 0.002 mm (1 % of ATE) leaves room for another
+  // machine's timing; a missing or doubled edge moves it by more.
+  EXPECT_NEAR(ateOf(out), ateOf(baseline().run), 0.000002);
   EXPECT_EQ(leftoverSegments(out), std::vector<std::string>{});
 }
 
 TEST(Faults, KilledOptimiserRebuildsItsGraphFromTheTrackerAndTheTrajectoryMatches) { expectOptimiserRebuilt(""); }
 
-TEST(Faults, OptimiserKilledMidStreamRebuildsAndTheTrajectoryMatches) { expectOptimiserRebuilt("--set player.rate=1"); }
+// At the recorded rate the player does not wait for acknowledgements: with the default 8 slots
+// a tracker 8 frames behind loses frames from the ring (seen at load 12 on 2 cores: 5 of 90
+// lost, 85 poses). 32 slots give it a second.
+TEST(Faults, OptimiserKilledMidStreamRebuildsAndTheTrajectoryMatches) {
+  expectOptimiserRebuilt("--set player.rate=1 --set transport.slots=32");
+}
 
 // A dead tracker or player cannot be replaced mid-stream: the run stops,
 // says which service died, exits non-zero, and keeps what was made so far.
@@ -192,8 +207,10 @@ TEST(Faults, MapperKilledMoreOftenThanMaxRestartsStopsTheRun) {
 }
 
 // lcm.drop_fraction drops received messages in every service: frames, acknowledgements,
-// keyframes, constraints, graph updates, done messages alike.
-void expectCompletesUnderLoss(double fraction) {
+// keyframes, constraints, graph updates, done messages alike. Lost frames are neither
+// tracked nor fused, and which are lost differs from run to run, so the result differs from
+// the uninterrupted run's by up to the bounds given.
+void expectCompletesUnderLoss(double fraction, double ate_bound_m, double corr_bound_m) {
   rekon::test::TempDir dir;
   const std::string out = dir / "run";
   std::string output;
@@ -203,14 +220,18 @@ void expectCompletesUnderLoss(double fraction) {
   ASSERT_EQ(rc, 0) << output;
   // A frame lost on its way to the tracker is not tracked; the rest are.
   EXPECT_GE(lineCount(out + "/trajectory.txt"), static_cast<size_t>(kFrames * (1.0 - 3 * fraction)));
-  EXPECT_NEAR(ateOf(out), ateOf(baseline().run), 0.005);
-  EXPECT_NEAR(corrOf(out), corrOf(baseline().run), 0.001);
+  EXPECT_NEAR(ateOf(out), ateOf(baseline().run), ate_bound_m);
+  EXPECT_NEAR(corrOf(out), corrOf(baseline().run), corr_bound_m);
   EXPECT_EQ(leftoverSegments(out), std::vector<std::string>{});
 }
 
-TEST(Faults, OnePercentMessageLossCompletesWithTheSameResult) { expectCompletesUnderLoss(0.01); }
+// Measured in 7 runs, against the uninterrupted run: ATE -0.018 to +0.0013 mm (6 of them within
+// 0.0013), CORR -0.0001 to +0.0155 mm. Bounds about 3x the largest: 0.05 mm each.
+TEST(Faults, OnePercentMessageLossCompletesWithTheSameResult) { expectCompletesUnderLoss(0.01, 0.00005, 0.00005); }
 
-TEST(Faults, FivePercentMessageLossCompletesWithTheSameResult) { expectCompletesUnderLoss(0.05); }
+// Measured in 7 runs: ATE -0.0133 to +0.0069 mm, CORR +0.042 to +0.182 mm (more frames lost, more
+// of the surface from fewer views). Bounds about 3x and 2x the largest: 0.05 mm and 0.4 mm.
+TEST(Faults, FivePercentMessageLossCompletesWithTheSameResult) { expectCompletesUnderLoss(0.05, 0.00005, 0.0004); }
 
 TEST(Faults, RestartPolicyNamingATrackerIsAnError) {
   rekon::test::TempDir dir;
