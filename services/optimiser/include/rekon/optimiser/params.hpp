@@ -65,7 +65,8 @@ struct OptimiserServiceParams {
   // edges) where calibrated ones would have 5.35 (6 dof). A uniform scale
   // would leave a plain least-squares optimum unchanged, but loop edges go
   // through the Cauchy loss and the outlier test, so it moves the optimum
-  // (7-Scenes ATE 0.0483 m at 1 vs 0.0445 m at 1e-5, services/optimiser/README.md):
+  // (7-Scenes, 2026-11-22: ATE 0.0483 m at 1e-5, 0.0445 m at 2e-4, which removed
+  // 48 loop edges; services/optimiser/README.md):
   // it makes the robust loss scale and the outlier chi2 mean what they say. 1e-5 rather than 5e-5
   // because the drift between keyframes is correlated: on the 7-Scenes loop
   // (86 keyframes, 142 loop edges from ground truth with 1 cm / 5 mrad noise)
