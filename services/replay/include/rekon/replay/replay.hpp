@@ -14,7 +14,6 @@
 #include <vector>
 
 #include "rekon/common/pose.hpp"
-#include "rekon/common/service.hpp"
 
 namespace rekon::replay {
 
@@ -86,8 +85,5 @@ class ReplayScript {
   bool update_due_ = false;
   int64_t version_ = 0;
 };
-
-// The rekon-replay service: --trajectory and --target options, frames from the bus.
-void runReplayService(ServiceContext& ctx);
 
 }  // namespace rekon::replay

@@ -1,5 +1,5 @@
 // rekon-replay: a frontend that replays given poses in place of the tracker and the optimiser.
-#include "rekon/replay/replay.hpp"
+#include "replay_service.hpp"
 
 int main(int argc, char** argv) {
   return rekon::runService(

@@ -1,3 +1,5 @@
+#include "replay_service.hpp"
+
 #include <spdlog/spdlog.h>
 
 #include <atomic>
