@@ -13,6 +13,7 @@
 #include <filesystem>
 #include <map>
 
+#include "commands.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/mapper/mapper.hpp"
 #include "rekon/replay/replay.hpp"
@@ -361,7 +362,7 @@ TEST(KeyframeStore, RekonKeyframesExportsEveryStoredKeyframe) {
   test::TempDir dir;
   std::string arg0 = "rekon keyframes", a1 = "--export", a2 = dir / "kf", a3 = "--segment", a4 = p.store.segment;
   char* argv[] = {arg0.data(), a1.data(), a2.data(), a3.data(), a4.data()};
-  EXPECT_EQ(store::keyframesMain(5, argv), 0);
+  EXPECT_EQ(keyframesCommand(5, argv), 0);
   EXPECT_EQ(readTumTrajectory(dir / "kf/integrated_poses.txt").size(), 2u);
   const RgbdFrame& first = scenario().frames[0];
   const cv::Mat depth = cv::imread(dir / "kf/kf_000000_depth.png", cv::IMREAD_UNCHANGED);

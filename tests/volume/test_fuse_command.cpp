@@ -4,10 +4,10 @@
 #include <filesystem>
 #include <regex>
 
+#include "commands.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/common/mesh.hpp"
 #include "rekon/synth/synth.hpp"
-#include "rekon/volume/fuse_command.hpp"
 #include "test_support.hpp"
 
 namespace {
@@ -16,7 +16,7 @@ int runFuse(std::vector<std::string> args) {
   args.insert(args.begin(), "rekon fuse");
   std::vector<char*> argv;
   for (auto& a : args) argv.push_back(a.data());
-  return rekon::volume::fuseMain(static_cast<int>(argv.size()), argv.data());
+  return rekon::fuseCommand(static_cast<int>(argv.size()), argv.data());
 }
 
 TEST(FuseCommand, WritesAMeshAndEndsWithTheSpeedLine) {

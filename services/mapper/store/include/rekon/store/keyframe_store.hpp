@@ -121,7 +121,4 @@ class KeyframeStore {
   std::unique_ptr<Impl> impl_;
 };
 
-// `rekon keyframes --list | --export DIR [--segment NAME]`.
-int keyframesMain(int argc, char** argv);
-
 }  // namespace rekon::store

@@ -5,14 +5,19 @@
 #include <filesystem>
 #include <fstream>
 
+#include "commands.hpp"
 #include "rekon/common/cli.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/common/image_io.hpp"
 #include "rekon/store/keyframe_store.hpp"
 
-namespace rekon::store {
-
+namespace rekon {
 namespace {
+
+using store::KeyframeInfo;
+using store::KeyframeStore;
+using store::StoreOptions;
+using store::StoreUsage;
 
 void printList(const KeyframeStore& store) {
   const auto infos = store.list();
@@ -64,7 +69,7 @@ void exportTo(const KeyframeStore& store, const std::string& dir) {
 
 }  // namespace
 
-int keyframesMain(int argc, char** argv) {
+int keyframesCommand(int argc, char** argv) {
   ArgParser args(argv[0], "Lists or exports the KF keyframes in the mapper's shared-memory keyframe store "
                           "(spilled ones included: read back from their spill files).");
   args.flag("list", "print one line per keyframe")
@@ -86,4 +91,4 @@ int keyframesMain(int argc, char** argv) {
   return 0;
 }
 
-}  // namespace rekon::store
+}  // namespace rekon

@@ -1,18 +1,26 @@
-#include "rekon/volume/fuse_command.hpp"
-
+// `rekon fuse` (commands.hpp).
 #include <spdlog/spdlog.h>
 
 #include <chrono>
 #include <cstdio>
 
+#include "commands.hpp"
 #include "rekon/common/cli.hpp"
 #include "rekon/common/dataset.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/volume/tsdf_volume.hpp"
 
-namespace rekon::volume {
+namespace rekon {
+namespace {
 
-int fuseMain(int argc, char** argv) {
+using volume::depthToMetres;
+using volume::TsdfVolume;
+using volume::VolumeParams;
+using volume::VolumeStats;
+
+}  // namespace
+
+int fuseCommand(int argc, char** argv) {
   ArgParser args(argv[0], "Integrate a dataset at given poses into the TSDF volume and write its mesh");
   args.option("dataset", "TUM-layout dataset folder")
       .option("poses", "TUM trajectory (camera to world) to integrate at, e.g. DATASET/groundtruth.txt")
@@ -80,4 +88,4 @@ int fuseMain(int argc, char** argv) {
   return 0;
 }
 
-}  // namespace rekon::volume
+}  // namespace rekon
