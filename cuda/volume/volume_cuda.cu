@@ -1,5 +1,5 @@
 // The CUDA backend of the TSDF volume: launches of the shared kernels in
-// services/mapper/volume/include/rekon/volume/volume_kernels.hpp over a voxel
+// services/mapper/include/rekon/mapper/volume/volume_kernels.hpp over a voxel
 // pool in GPU memory. The host keeps the block hash; it is mirrored to the
 // device for ray casting whenever it changed.
 //
@@ -12,7 +12,7 @@
 #include <string>
 
 #include "rekon/common/error.hpp"
-#include "rekon/volume/volume_backend.hpp"
+#include "rekon/mapper/volume/volume_backend.hpp"
 
 namespace rekon::volume {
 namespace {

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The results tables of services/mapper/service/README.md, measured again.
+# The results tables of services/mapper/README.md, measured again.
 #
 #   tests/longrun/mapper_results.sh OUT [room|7scenes|all] [BIN_DIR] [DATA_DIR]
 #

@@ -12,7 +12,7 @@
 #
 # No limit is raised: the stall near frame 8 700 of earlier runs (which
 # needed max_queued_frames 300) was the mapper counting every frame the player
-# sent again as one more queued frame (fixed; services/mapper/store/README.md).
+# sent again as one more queued frame (fixed; services/mapper/src/store/README.md).
 # OUT/corridor_<LAPS>laps is generated unless present (0.73 MB of PNGs a
 # frame at 640x480: 7.5 GB for 2 laps; checked against df first).
 set -euo pipefail

@@ -5,7 +5,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "rekon/common/error.hpp"
-#include "rekon/fusion/keyframe_fusion.hpp"
+#include "rekon/mapper/fusion/keyframe_fusion.hpp"
 
 using namespace rekon;
 using namespace rekon::fusion;

@@ -14,6 +14,7 @@
 #include <string>
 #include <thread>
 
+#include "mapper_service.hpp"
 #include "rekon/common/bus.hpp"
 #include "rekon/common/cli.hpp"
 #include "rekon/common/config.hpp"
@@ -22,7 +23,6 @@
 #include "rekon/common/messages.hpp"
 #include "rekon/common/pose.hpp"
 #include "rekon/common/service.hpp"
-#include "rekon/mapper/mapper_service.hpp"
 #include "rekon/synth/synth.hpp"
 #include "rekon_msgs/end_of_stream_t.hpp"
 #include "rekon_msgs/frame_ack_t.hpp"

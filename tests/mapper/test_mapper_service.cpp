@@ -10,8 +10,8 @@
 #include <sstream>
 
 #include "rekon/common/mesh.hpp"
+#include "rekon/mapper/store/keyframe_store.hpp"
 #include "rekon/report/run_files.hpp"
-#include "rekon/store/keyframe_store.hpp"
 #include "rekon/synth/synth.hpp"
 #include "test_support.hpp"
 

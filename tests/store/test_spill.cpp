@@ -12,7 +12,7 @@
 #include <opencv2/core.hpp>
 
 #include "rekon/common/error.hpp"
-#include "rekon/store/keyframe_store.hpp"
+#include "rekon/mapper/store/keyframe_store.hpp"
 #include "test_support.hpp"
 
 namespace fs = std::filesystem;

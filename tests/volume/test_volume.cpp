@@ -10,8 +10,8 @@
 
 #include "analytic_scene.hpp"
 #include "rekon/common/error.hpp"
-#include "rekon/volume/tsdf_volume.hpp"
-#include "rekon/volume/volume_config.hpp"
+#include "rekon/mapper/volume/tsdf_volume.hpp"
+#include "rekon/mapper/volume/volume_config.hpp"
 #include "test_support.hpp"
 
 namespace {

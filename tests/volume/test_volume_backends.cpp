@@ -7,7 +7,7 @@
 #include <algorithm>
 
 #include "rekon/common/error.hpp"
-#include "rekon/volume/volume_backend.hpp"
+#include "rekon/mapper/volume/volume_backend.hpp"
 
 namespace {
 

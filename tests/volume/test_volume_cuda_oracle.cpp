@@ -31,7 +31,7 @@
 
 #include "analytic_scene.hpp"
 #include "rekon/common/dataset.hpp"
-#include "rekon/volume/tsdf_volume.hpp"
+#include "rekon/mapper/volume/tsdf_volume.hpp"
 #include "test_support.hpp"
 
 namespace {

@@ -3,8 +3,8 @@
 #include <gtest/gtest.h>
 
 #include "rekon/eval/surface_eval.hpp"
+#include "rekon/mapper/volume/tsdf_volume.hpp"
 #include "rekon/synth/synth.hpp"
-#include "rekon/volume/tsdf_volume.hpp"
 #include "test_support.hpp"
 
 namespace {

@@ -8,7 +8,7 @@
 #include "rekon/common/cli.hpp"
 #include "rekon/common/dataset.hpp"
 #include "rekon/common/error.hpp"
-#include "rekon/volume/tsdf_volume.hpp"
+#include "rekon/mapper/volume/tsdf_volume.hpp"
 
 namespace rekon {
 namespace {

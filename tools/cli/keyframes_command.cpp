@@ -9,7 +9,7 @@
 #include "rekon/common/cli.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/common/image_io.hpp"
-#include "rekon/store/keyframe_store.hpp"
+#include "rekon/mapper/store/keyframe_store.hpp"
 
 namespace rekon {
 namespace {

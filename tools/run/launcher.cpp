@@ -22,8 +22,8 @@
 #include "rekon/common/frame_ring.hpp"
 #include "rekon/common/json.hpp"
 #include "rekon/common/logging.hpp"
+#include "rekon/mapper/store/keyframe_store.hpp"
 #include "rekon/report/run_report.hpp"
-#include "rekon/store/keyframe_store.hpp"
 #include "rekon/synth/synth.hpp"
 
 namespace rekon {

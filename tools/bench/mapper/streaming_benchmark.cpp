@@ -10,8 +10,8 @@
 #include "rekon/common/cli.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/common/logging.hpp"
+#include "rekon/mapper/volume/tsdf_volume.hpp"
 #include "rekon/synth/synth.hpp"
-#include "rekon/volume/tsdf_volume.hpp"
 
 int main(int argc, char** argv) try {
   rekon::setupLogging("volume_streaming", "warn");

@@ -22,9 +22,9 @@
 #include "rekon/common/logging.hpp"
 #include "rekon/eval/surface_eval.hpp"
 #include "rekon/mapper/mapper.hpp"
+#include "rekon/mapper/volume/tsdf_volume.hpp"
 #include "rekon/mapper_bench/bench_command.hpp"
 #include "rekon/report/plot.hpp"
-#include "rekon/volume/tsdf_volume.hpp"
 
 namespace rekon::mapper_bench {
 namespace fs = std::filesystem;

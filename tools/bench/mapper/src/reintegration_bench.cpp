@@ -1,5 +1,5 @@
 // rekon bench reintegration: the paper's Figure 7. The mapper
-// (services/mapper/service, the same code rekon-mapper runs) is fed the
+// (services/mapper, the same code rekon-mapper runs) is fed the
 // frames at the poses of a drifted trajectory, and graph updates move the
 // DVO keyframes toward the ground truth exactly as rekon-replay does
 // (services/replay's ReplayScript). For every kappa, m = m_total / kappa

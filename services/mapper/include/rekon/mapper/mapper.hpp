@@ -1,0 +1,159 @@
+#pragma once
+// The mapping core, free of the bus: frames with their tracked poses are
+// fused into KF keyframes, KF keyframes are integrated into the TSDF volume,
+// and every pose-graph update de-integrates and re-integrates the m keyframes
+// chosen by the re-integration mode (paper sections 3-4). The node
+// (node/mapper_service.cpp) feeds it from the bus on a worker thread; tests
+// drive it directly.
+#include <map>
+#include <memory>
+#include <optional>
+#include <vector>
+
+#include "rekon/common/config.hpp"
+#include "rekon/common/mesh.hpp"
+#include "rekon/mapper/fusion/keyframe_fusion.hpp"
+#include "rekon/mapper/reintegration.hpp"
+#include "rekon/mapper/store/keyframe_store.hpp"
+#include "rekon/mapper/volume/tsdf_volume.hpp"
+
+namespace rekon::mapper {
+
+struct MapperParams {
+  static constexpr int kDefaultM = 10;
+  // Movements below this (in the units of ||s t - s t'||: radians x2 and
+  // metres) are rounding, not corrections, and are never re-integrated.
+  static constexpr double kDefaultMinMovement = 1e-6;
+
+  fusion::FusionParams fusion;
+  volume::VolumeParams volume;
+  ReintegrationMode mode = ReintegrationMode::kConsecutive;
+  int m = kDefaultM;
+  double min_movement = kDefaultMinMovement;
+  // The *_ms counters in CPU time of the whole process instead of wall time:
+  // benchmarks on a shared machine, where other processes inflate wall time.
+  bool cpu_time_counters = false;
+  bool use_store = false;
+  // With the store: continue from a store left by a stopped or crashed
+  // mapper (true), or discard it as stale (false).
+  bool resume = false;
+  store::StoreOptions store;
+
+  static MapperParams fromConfig(const Config& config);
+};
+
+struct MapperCounters {
+  int64_t frames = 0;              // fused into KF keyframes
+  int64_t skipped_frames = 0;      // lost, or their DVO keyframe's pose unknown
+  int64_t kf_keyframes = 0;
+  int64_t integrations = 0;        // first integrations of KF keyframes
+  int64_t deintegrations = 0;
+  int64_t reintegrations = 0;      // integrations with a corrected pose
+  int64_t graph_updates = 0;
+  int64_t final_pass_reintegrations = 0;
+  int64_t restored_keyframes = 0;  // rebuilt from the store at start
+  int64_t input_frame_bytes = 0;   // depth + color of every frame handed to addFrame, as received
+  double integrate_ms_total = 0.0;            // every integration, first and corrected
+  double fuse_ms_total = 0.0;                 // keyframe fusion (depth and color) of all frames
+  double first_integration_ms_total = 0.0;    // KF keyframes integrated when they close
+  double reintegration_ms_total = 0.0;        // graph-update rounds: de-integration, re-integration, streaming
+  double final_pass_ms_total = 0.0;
+  int64_t reintegration_blocks_streamed = 0;  // blocks streamed in or out during graph-update rounds
+};
+
+// What one graph update (or one run of the final pass) cost.
+struct ReintegrationRound {
+  int keyframes = 0;  // KF keyframes de-integrated and re-integrated
+  double ms = 0.0;    // wall time of the whole round
+  int64_t blocks_streamed = 0;  // voxel blocks streamed in or out during it
+};
+
+// Bytes the mapper holds, for comparing keyframe fusion's memory with the input's.
+struct MemoryUse {
+  int64_t input_frame_bytes = 0;  // every frame as received (16-bit depth + 8-bit BGR)
+  int64_t keyframe_bytes = 0;     // KF keyframes in memory (float depth, float weight, BGR color)
+  int64_t keyframe_store_bytes = -1;  // used bytes of the shared-memory store; -1 without one
+  int64_t voxel_bytes = 0;            // every allocated block, active and host
+  int64_t active_voxel_bytes_peak = 0;
+};
+
+// One KF keyframe the mapper holds (in memory; mirrored in the store).
+struct KeyframeRecord {
+  fusion::FusedKeyframe kf;
+  bool integrated = false;
+  Pose integrated_pose = Pose::Identity();
+  // The pose of its first integration (never corrected): the uncorrected baseline.
+  Pose first_pose = Pose::Identity();
+};
+
+class Mapper {
+ public:
+  // With params.use_store and params.resume, an existing store is opened and
+  // every keyframe in it is integrated again with the pose it had (a restart);
+  // without resume an existing store is removed as stale.
+  explicit Mapper(const MapperParams& params);
+  ~Mapper();
+
+  // A new DVO keyframe's odometry estimate (ignored once a graph update placed it).
+  void setKeyframeEstimate(int64_t keyframe_id, const Pose& world);
+  // Stores every keyframe's optimised pose; then re-integrates at most m KF keyframes.
+  ReintegrationRound applyGraphUpdate(const std::vector<std::pair<int64_t, Pose>>& poses);
+  // Fuses one tracked frame; false (and counted as skipped) when lost or its
+  // DVO keyframe has no pose yet.
+  bool addFrame(const RgbdFrame& frame, const Intrinsics& k, int64_t keyframe_id, const Pose& pose_in_keyframe,
+                bool lost);
+  // Integrates the open KF keyframe, then re-integrates every keyframe whose
+  // pose still differs from the one it was integrated with (the final pass,
+  // in runs of m keyframes; one round each).
+  std::vector<ReintegrationRound> finish();
+  // Integrates the open KF keyframe only (a stop before the end: no final pass).
+  void flush();
+
+  // The current world pose of a KF keyframe (its DVO keyframe's pose times its pose in it).
+  std::optional<Pose> currentPose(const fusion::FusedKeyframe& kf) const;
+  // Movement of every integrated KF keyframe since its integration, in keyframe order.
+  std::vector<double> movements() const;
+
+  const volume::TsdfVolume& volume() const { return *volume_; }
+  const std::vector<KeyframeRecord>& keyframes() const { return keyframes_; }
+  // The frame after the newest one in a KF keyframe held (restored from the
+  // store or fused since), or -1 when none is held: where a restarted
+  // mapper's frames must resume (the KF keyframe being fused, the queued
+  // frames and those in flight died with the old instance).
+  int64_t firstMissingFrame() const;
+  const MapperCounters& counters() const { return counters_; }
+  Mesh extractMesh() const { return volume_->extractMesh(); }
+  // The paper's baseline: every KF keyframe integrated once at its first
+  // pose, never corrected, into a fresh volume of the same settings. Equals
+  // extractMesh() when no keyframe moved.
+  Mesh extractUncorrectedMesh() const;
+  MemoryUse memoryUse() const;
+  // Deletes the keyframe store (after a clean end of the run).
+  void removeStore();
+
+ private:
+  std::optional<Pose> keyframePose(int64_t keyframe_id) const;
+  void closeKeyframe();
+  void integrateKeyframe(KeyframeRecord& rec, const Pose& pose);
+  // De-integrates the chosen keyframes at their old poses, re-integrates them
+  // at their current ones (paper 4.3's streaming order); returns how many.
+  ReintegrationRound reintegrate(const std::vector<size_t>& chosen);
+  void ensureCamera(const Intrinsics& k);
+  void restoreFromStore();
+
+  MapperParams params_;
+  std::unique_ptr<volume::TsdfVolume> volume_;
+  std::unique_ptr<store::KeyframeStore> store_;
+  std::optional<Intrinsics> camera_;
+  std::unique_ptr<fusion::KeyframeFuser> fuser_;
+  std::map<int64_t, Pose> estimates_;    // keyframe_t
+  std::map<int64_t, Pose> graph_poses_;  // latest graph update
+  std::vector<KeyframeRecord> keyframes_;
+  int64_t next_kf_id_ = 0;
+  Eigen::Vector3d camera_position_ = Eigen::Vector3d::Zero();
+  MapperCounters counters_;
+  // Now on the clock the *_ms counters use (wall or process CPU), in ms.
+  double clockMs() const;
+};
+
+}  // namespace rekon::mapper

@@ -1,0 +1,154 @@
+#pragma once
+// The mapping core: a voxel-hashed TSDF (Voxel Hashing, Niessner et al. 2013)
+// with exact de-integration (paper eq. 2), streaming of blocks between the
+// active volume and a host store around a sphere (paper section 3), colored
+// marching cubes and ray casting.
+#include <opencv2/core/mat.hpp>
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include "rekon/common/camera.hpp"
+#include "rekon/common/mesh.hpp"
+#include "rekon/common/pose.hpp"
+#include "rekon/mapper/volume/volume_backend.hpp"
+
+namespace rekon::volume {
+
+struct VolumeParams {
+  static constexpr double kDefaultVoxelSize = 0.01;     // metres
+  static constexpr double kDefaultTruncation = 0.04;    // metres
+  static constexpr double kDefaultMaxDepth = 4.0;       // metres; farther pixels are ignored
+  static constexpr int kDefaultBlockCapacity = 1 << 15; // initial active-pool size in blocks
+  static constexpr double kDefaultStreamingRadius = 0;  // metres; 0 = never stream
+  // A pixel weight of 1 counts as this many integer weight units: weights are
+  // quantised to 1/32 so that sums stay exact integers. Keyframe weights
+  // cos(theta)/Z^2 reach 1/32 at Z = 4 m, theta = 60 deg; a voxel holds up to
+  // 2^21 units = 65535 observations of weight 1 (more is a loud error).
+  static constexpr double kDefaultWeightUnits = 32;
+  // Every stride-th pixel (in x and y) allocates blocks; at 4 m four pixels
+  // (f = 585) are 2.7 cm apart, well below the 8 cm block size. Integration then updates every
+  // voxel of those blocks from its own pixel.
+  static constexpr int kDefaultAllocationStride = 4;
+
+  double voxel_size = kDefaultVoxelSize;
+  double truncation = kDefaultTruncation;
+  double max_depth = kDefaultMaxDepth;
+  int block_capacity = kDefaultBlockCapacity;
+  bool grow_capacity = true;  // false: running out throws rekon::Error naming the number to raise
+  double streaming_radius = kDefaultStreamingRadius;
+  double weight_units = kDefaultWeightUnits;
+  int allocation_stride = kDefaultAllocationStride;
+  std::string backend = "auto";  // "auto", "cpu" or "cuda"
+  int cpu_threads = 0;           // 0 = all hardware threads
+
+  // Throws rekon::Error naming the setting and its valid range.
+  void validate() const;
+};
+
+struct VolumeStats {
+  int64_t blocks = 0;         // active + host store
+  int64_t active_blocks = 0;  // in the backend's pool (GPU memory for CUDA)
+  int64_t host_blocks = 0;
+  int64_t peak_active_blocks = 0;
+  int64_t block_capacity = 0;
+  int64_t streamed_out = 0;  // blocks moved active -> host store, in total
+  int64_t streamed_in = 0;   // blocks moved host store -> active, in total
+  int64_t last_update_blocks = 0;  // blocks the last (de-)integration updated
+  int bytes_per_voxel = static_cast<int>(sizeof(Voxel));
+  std::string backend;
+};
+
+struct RaycastImages {
+  cv::Mat depth;    // CV_32F, metres along the camera z axis; 0 = no surface
+  cv::Mat normals;  // CV_32FC3, unit normals in the world frame; 0 = none
+  cv::Mat color;    // CV_8UC3, BGR
+};
+
+class TsdfVolume {
+ public:
+  explicit TsdfVolume(const VolumeParams& params = {});
+  ~TsdfVolume();
+  TsdfVolume(const TsdfVolume&) = delete;
+  TsdfVolume& operator=(const TsdfVolume&) = delete;
+
+  // depth_m: CV_32F metres (0 = none); color: CV_8UC3 BGR or empty; weights:
+  // CV_32F per-pixel weights (1 = one ordinary observation) or empty. All of
+  // intrinsics' size. Throws rekon::Error for a bad pose, size or type.
+  void integrate(const cv::Mat& depth_m, const cv::Mat& color, const cv::Mat& weights, const Intrinsics& k,
+                 const Pose& camera_to_world);
+  // Exactly undoes integrate() with the same arguments (eq. 2): weights and
+  // signed distances return bit for bit, color within rounding; blocks left
+  // without weight are freed.
+  void deintegrate(const cv::Mat& depth_m, const cv::Mat& color, const cv::Mat& weights, const Intrinsics& k,
+                   const Pose& camera_to_world);
+
+  // Keeps blocks whose centre lies within streaming_radius of `centre` in the
+  // active volume and moves the others to the host store (radius 0: no-op).
+  void streamAround(const Eigen::Vector3d& centre);
+
+  // Marching cubes over active and host blocks; vertices are shared along
+  // voxel edges, colors are RGB.
+  Mesh extractMesh() const;
+  // Ray casts the active blocks (stream around the camera first).
+  RaycastImages raycast(const Intrinsics& k, const Pose& camera_to_world) const;
+
+  VolumeStats stats() const;
+  const VolumeParams& params() const { return params_; }
+  const std::string& backendName() const { return backend_name_; }
+
+  // The voxels of a block (active or host), or false when it is not allocated.
+  bool readBlock(const BlockCoord& coord, std::vector<Voxel>& voxels) const;
+  // Coordinates of every allocated block (active and host), unordered.
+  std::vector<BlockCoord> blockCoords() const;
+
+ private:
+  struct CoordHash {
+    size_t operator()(const BlockCoord& c) const { return hashBlock(c); }
+  };
+  using HostStore = std::unordered_map<BlockCoord, std::vector<Voxel>, CoordHash>;
+
+  void update(const cv::Mat& depth_m, const cv::Mat& color, const cv::Mat& weights, const Intrinsics& k,
+              const Pose& camera_to_world, int sign);
+  // The band's blocks, those allocated for this frame last (from *fresh_begin on).
+  std::vector<BlockRef> resolveBandBlocks(const std::vector<BlockCoord>& candidates, bool allocate, size_t* fresh_begin);
+  int32_t takeSlot(const BlockCoord& coord);
+  void releaseSlot(int32_t slot);
+  void ensureCapacity(int64_t active_needed);
+  void rehash(uint32_t table_size);
+  void tableInsert(const BlockCoord& coord, int32_t slot);
+  void tableErase(const BlockCoord& coord);
+  int32_t tableFind(const BlockCoord& coord) const;
+  void streamIn(const std::vector<BlockCoord>& coords, std::vector<int32_t>& slots);
+
+  VolumeParams params_;
+  std::unique_ptr<VolumeBackend> backend_;
+  std::string backend_name_;
+  std::vector<HashEntry> table_;  // size a power of two, at least twice the pool
+  uint64_t table_version_ = 0;
+  std::vector<BlockCoord> slot_coord_;
+  std::vector<uint8_t> slot_used_;
+  std::vector<uint32_t> slot_stamp_;  // last frame that touched the slot (dedup)
+  std::vector<int32_t> free_slots_;
+  uint32_t frame_stamp_ = 0;
+  int64_t active_blocks_ = 0;
+  int64_t peak_active_blocks_ = 0;
+  int64_t streamed_out_ = 0;
+  int64_t streamed_in_ = 0;
+  int64_t last_update_blocks_ = 0;
+  HostStore host_store_;
+  // The host store's blocks by coarse cell (kCellBlocks^3 blocks), so that
+  // stream-in visits only the cells the sphere overlaps, not the whole store.
+  static constexpr int kCellBlocks = 8;
+  std::unordered_map<BlockCoord, std::vector<BlockCoord>, CoordHash> host_cells_;
+  void hostInsert(const BlockCoord& coord, std::vector<Voxel> voxels);
+  std::vector<Voxel> hostTake(const BlockCoord& coord);
+};
+
+// Raw 16-bit depth (depth_scale units per metre, 0 = none) to CV_32F metres.
+cv::Mat depthToMetres(const cv::Mat& raw_depth, double depth_scale);
+
+}  // namespace rekon::volume

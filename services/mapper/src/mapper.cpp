@@ -1,0 +1,301 @@
+#include "rekon/mapper/mapper.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <time.h>
+
+#include <algorithm>
+#include <chrono>
+
+#include "rekon/common/cpu_time.hpp"
+#include "rekon/common/error.hpp"
+#include "rekon/mapper/volume/volume_config.hpp"
+
+namespace rekon::mapper {
+namespace {
+
+
+int64_t streamedBlocks(const volume::TsdfVolume& v) {
+  const volume::VolumeStats s = v.stats();
+  return s.streamed_in + s.streamed_out;
+}
+
+int64_t matBytes(const cv::Mat& m) { return static_cast<int64_t>(m.total() * m.elemSize()); }
+
+}  // namespace
+
+double Mapper::clockMs() const {
+  if (!params_.cpu_time_counters)
+    return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now().time_since_epoch()).count();
+  return processCpuMs();
+}
+
+MapperParams MapperParams::fromConfig(const Config& c) {
+  MapperParams p;
+  p.fusion = fusion::fusionParamsFromConfig(c);
+  p.volume = volume::volumeParamsFromConfig(c);
+  p.volume.streaming_radius = c.getDouble("mapper.streaming_radius");
+  p.volume.validate();
+  p.mode = parseReintegrationMode(c.getString("mapper.reintegration"));
+  p.m = c.getInt("mapper.m");
+  if (p.m < 1) throw Error("mapper.m must be at least 1 (keyframes re-integrated per graph update)");
+  p.min_movement = c.getDouble("mapper.min_movement");
+  if (!(p.min_movement >= 0)) throw Error("mapper.min_movement must not be negative");
+  p.use_store = c.getBool("mapper.use_store");
+  p.resume = c.getBool("mapper.resume");
+  p.store = store::StoreOptions::fromConfig(c);  // segment, size and spill folder (mapper.store_*)
+  return p;
+}
+
+Mapper::Mapper(const MapperParams& params) : params_(params) {
+  params_.fusion.validate();
+  if (params_.m < 1) throw Error("mapper.m must be at least 1 (keyframes re-integrated per graph update)");
+  volume_ = std::make_unique<volume::TsdfVolume>(params_.volume);
+  if (params_.use_store && !params_.resume && store::KeyframeStore::remove(params_.store.segment)) {
+    spdlog::warn("removed the stale keyframe store '{}' of an earlier run (set mapper.resume=true to continue from it)",
+                 params_.store.segment);
+  }
+  if (params_.use_store && params_.resume) {
+    try {
+      store_ = store::KeyframeStore::openExisting(params_.store.segment);
+    } catch (const Error&) {
+      return;  // no store yet: created with the first frame's camera
+    }
+    restoreFromStore();
+  }
+}
+
+Mapper::~Mapper() = default;
+
+int64_t Mapper::firstMissingFrame() const {
+  int64_t newest = -1;
+  for (const KeyframeRecord& rec : keyframes_) newest = std::max(newest, rec.kf.last_frame_id);
+  return newest < 0 ? -1 : newest + 1;
+}
+
+void Mapper::restoreFromStore() {
+  const Intrinsics k = store_->intrinsics();
+  ensureCamera(k);
+  for (const auto& [id, pose] : store_->anchorPoses()) graph_poses_[id] = pose;
+  const auto infos = store_->list();
+  spdlog::info("keyframe store '{}' holds {} keyframes: rebuilding the volume from them", params_.store.segment,
+               infos.size());
+  for (size_t i = 0; i < infos.size(); ++i) {
+    KeyframeRecord rec;
+    rec.kf = store_->load(i);
+    next_kf_id_ = std::max(next_kf_id_, rec.kf.id + 1);
+    keyframes_.push_back(std::move(rec));
+    if (infos[i].integrated) {
+      // Straight into the volume, not through integrateKeyframe: the store
+      // already records this pose and the counters describe this run's work.
+      KeyframeRecord& r = keyframes_.back();
+      volume_->streamAround(infos[i].integrated_pose.translation());
+      volume_->integrate(r.kf.depth, r.kf.color, r.kf.weight, *camera_, infos[i].integrated_pose);
+      r.integrated = true;
+      r.integrated_pose = infos[i].integrated_pose;
+      r.first_pose = infos[i].integrated_pose;  // the store keeps no older pose: the baseline starts here
+      camera_position_ = infos[i].integrated_pose.translation();
+    }
+    ++counters_.restored_keyframes;
+    if ((i + 1) % 20 == 0) spdlog::info("rebuilt {} of {} keyframes", i + 1, infos.size());
+  }
+}
+
+void Mapper::ensureCamera(const Intrinsics& k) {
+  if (camera_) {
+    if (k.width != camera_->width || k.height != camera_->height || k.fx != camera_->fx || k.fy != camera_->fy ||
+        k.cx != camera_->cx || k.cy != camera_->cy)
+      throw Error("mapper: a frame's intrinsics differ from the first frame's; one camera per run");
+    return;
+  }
+  k.validate("mapper camera");
+  camera_ = k;
+  fuser_ = std::make_unique<fusion::KeyframeFuser>(params_.fusion, k);
+  if (params_.use_store && !store_) {
+    store_ = store::KeyframeStore::openOrCreate(params_.store, k);
+    spdlog::info("keyframe store '{}' created ({} MiB)", params_.store.segment, params_.store.size_mb);
+  }
+}
+
+void Mapper::setKeyframeEstimate(int64_t keyframe_id, const Pose& world) {
+  estimates_[keyframe_id] = world;
+  if (store_ && !graph_poses_.count(keyframe_id)) store_->setAnchorPose(keyframe_id, world);
+}
+
+std::optional<Pose> Mapper::keyframePose(int64_t keyframe_id) const {
+  if (auto it = graph_poses_.find(keyframe_id); it != graph_poses_.end()) return it->second;
+  if (auto it = estimates_.find(keyframe_id); it != estimates_.end()) return it->second;
+  return std::nullopt;
+}
+
+std::optional<Pose> Mapper::currentPose(const fusion::FusedKeyframe& kf) const {
+  const auto anchor = keyframePose(kf.anchor_keyframe_id);
+  if (!anchor) return std::nullopt;
+  return orthonormalised(*anchor * kf.pose_in_anchor);
+}
+
+std::vector<double> Mapper::movements() const {
+  std::vector<double> out;
+  for (const KeyframeRecord& r : keyframes_) {
+    const auto now = r.integrated ? currentPose(r.kf) : std::nullopt;
+    out.push_back(now ? poseMovement(r.integrated_pose, *now) : 0.0);
+  }
+  return out;
+}
+
+bool Mapper::addFrame(const RgbdFrame& frame, const Intrinsics& k, int64_t keyframe_id, const Pose& pose_in_keyframe,
+                      bool lost) {
+  ensureCamera(k);
+  counters_.input_frame_bytes += matBytes(frame.depth) + matBytes(frame.color);
+  const auto anchor = keyframePose(keyframe_id);
+  if (lost || !anchor) {
+    if (!lost) spdlog::warn("frame {}: DVO keyframe {} has no pose yet; frame skipped", frame.id, keyframe_id);
+    ++counters_.skipped_frames;
+    return false;
+  }
+  const Pose world = orthonormalised(*anchor * pose_in_keyframe);
+  double t0 = clockMs();
+  if (fuser_->startsNewKeyframe(keyframe_id, world)) {
+    counters_.fuse_ms_total += clockMs() - t0;
+    closeKeyframe();
+    t0 = clockMs();
+    fuser_->begin(next_kf_id_++, keyframe_id, pose_in_keyframe, world);
+  }
+  fuser_->add(frame, world);
+  counters_.fuse_ms_total += clockMs() - t0;
+  camera_position_ = world.translation();
+  ++counters_.frames;
+  return true;
+}
+
+void Mapper::closeKeyframe() {
+  if (!fuser_ || !fuser_->active()) return;
+  KeyframeRecord rec;
+  const double t0 = clockMs();
+  rec.kf = fuser_->finish();  // the color fusion
+  counters_.fuse_ms_total += clockMs() - t0;
+  ++counters_.kf_keyframes;
+  if (store_) store_->add(rec.kf);
+  keyframes_.push_back(std::move(rec));
+  const auto pose = currentPose(keyframes_.back().kf);
+  if (!pose) throw Error("mapper: KF keyframe's DVO keyframe lost its pose");  // anchors are never forgotten
+  const double t1 = clockMs();
+  integrateKeyframe(keyframes_.back(), *pose);
+  keyframes_.back().first_pose = *pose;
+  counters_.first_integration_ms_total += clockMs() - t1;
+  ++counters_.integrations;
+}
+
+void Mapper::integrateKeyframe(KeyframeRecord& rec, const Pose& pose) {
+  const double t0 = clockMs();
+  volume_->streamAround(pose.translation());
+  volume_->integrate(rec.kf.depth, rec.kf.color, rec.kf.weight, *camera_, pose);
+  counters_.integrate_ms_total += clockMs() - t0;
+  rec.integrated = true;
+  rec.integrated_pose = pose;
+  if (store_) store_->setIntegratedPose(rec.kf.id, pose);
+}
+
+ReintegrationRound Mapper::reintegrate(const std::vector<size_t>& chosen) {
+  ReintegrationRound round;
+  if (chosen.empty()) return round;
+  const double t0 = clockMs();
+  const int64_t streamed_before = streamedBlocks(*volume_);
+  std::vector<Pose> updated;
+  for (size_t i : chosen) updated.push_back(*currentPose(keyframes_[i].kf));
+  // Paper 4.3: the sphere around the first keyframe's old pose, de-integrate
+  // with the old poses, the sphere around its new pose, re-integrate with the
+  // new poses, then back to the camera.
+  volume_->streamAround(keyframes_[chosen.front()].integrated_pose.translation());
+  for (size_t i : chosen) {
+    KeyframeRecord& r = keyframes_[i];
+    volume_->streamAround(r.integrated_pose.translation());
+    volume_->deintegrate(r.kf.depth, r.kf.color, r.kf.weight, *camera_, r.integrated_pose);
+    ++counters_.deintegrations;
+  }
+  volume_->streamAround(updated.front().translation());
+  for (size_t n = 0; n < chosen.size(); ++n) {
+    integrateKeyframe(keyframes_[chosen[n]], updated[n]);
+    ++counters_.reintegrations;
+  }
+  volume_->streamAround(camera_position_);
+  round.keyframes = static_cast<int>(chosen.size());
+  round.ms = clockMs() - t0;
+  round.blocks_streamed = streamedBlocks(*volume_) - streamed_before;
+  return round;
+}
+
+ReintegrationRound Mapper::applyGraphUpdate(const std::vector<std::pair<int64_t, Pose>>& poses) {
+  for (const auto& [id, pose] : poses) {
+    graph_poses_[id] = pose;
+    if (store_) store_->setAnchorPose(id, pose);
+  }
+  ++counters_.graph_updates;
+  const std::vector<double> moved = movements();
+  const auto chosen = selectForReintegration(params_.mode, moved, params_.m, params_.min_movement);
+  const ReintegrationRound round = reintegrate(chosen);
+  counters_.reintegration_ms_total += round.ms;
+  counters_.reintegration_blocks_streamed += round.blocks_streamed;
+  if (round.keyframes > 0)
+    spdlog::debug("graph update {}: re-integrated {} KF keyframes from {} in {:.1f} ms", counters_.graph_updates,
+                  round.keyframes, keyframes_[chosen.front()].kf.id, round.ms);
+  return round;
+}
+
+void Mapper::flush() { closeKeyframe(); }
+
+std::vector<ReintegrationRound> Mapper::finish() {
+  closeKeyframe();
+  std::vector<ReintegrationRound> rounds;
+  if (params_.mode == ReintegrationMode::kNone) {
+    spdlog::info("final pass skipped (mapper.reintegration: none)");
+    return rounds;
+  }
+  const std::vector<double> moved = movements();
+  std::vector<size_t> chosen;
+  for (size_t i = 0; i < moved.size(); ++i)
+    if (moved[i] > params_.min_movement) chosen.push_back(i);
+  spdlog::info("final pass: {} of {} KF keyframes still moved", chosen.size(), keyframes_.size());
+  // In runs of m so that the streaming sphere follows the trajectory.
+  for (size_t begin = 0; begin < chosen.size(); begin += static_cast<size_t>(params_.m)) {
+    const size_t end = std::min(chosen.size(), begin + static_cast<size_t>(params_.m));
+    rounds.push_back(reintegrate(std::vector<size_t>(chosen.begin() + static_cast<std::ptrdiff_t>(begin),
+                                                     chosen.begin() + static_cast<std::ptrdiff_t>(end))));
+    counters_.final_pass_reintegrations += rounds.back().keyframes;
+    counters_.final_pass_ms_total += rounds.back().ms;
+  }
+  return rounds;
+}
+
+Mesh Mapper::extractUncorrectedMesh() const {
+  if (!camera_) return Mesh{};
+  // Same settings and order as the first integrations, so that an unmoved run gives the same voxels.
+  volume::TsdfVolume baseline(params_.volume);
+  for (const KeyframeRecord& r : keyframes_) {
+    if (!r.integrated) continue;
+    baseline.streamAround(r.first_pose.translation());
+    baseline.integrate(r.kf.depth, r.kf.color, r.kf.weight, *camera_, r.first_pose);
+  }
+  return baseline.extractMesh();
+}
+
+MemoryUse Mapper::memoryUse() const {
+  MemoryUse m;
+  m.input_frame_bytes = counters_.input_frame_bytes;
+  for (const KeyframeRecord& r : keyframes_) m.keyframe_bytes += matBytes(r.kf.depth) + matBytes(r.kf.weight) + matBytes(r.kf.color);
+  if (store_) m.keyframe_store_bytes = static_cast<int64_t>(store_->totalBytes() - store_->freeBytes());
+  const volume::VolumeStats vs = volume_->stats();
+  const int64_t block_bytes = static_cast<int64_t>(volume::kBlockVoxels) * vs.bytes_per_voxel;
+  m.voxel_bytes = vs.blocks * block_bytes;
+  m.active_voxel_bytes_peak = vs.peak_active_blocks * block_bytes;
+  return m;
+}
+
+void Mapper::removeStore() {
+  if (!params_.use_store) return;
+  store_.reset();
+  if (store::KeyframeStore::remove(params_.store.segment))
+    spdlog::info("keyframe store '{}' removed", params_.store.segment);
+}
+
+}  // namespace rekon::mapper

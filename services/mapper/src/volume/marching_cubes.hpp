@@ -1,0 +1,23 @@
+#pragma once
+// Colored marching cubes over a set of voxel blocks. Vertices sit on voxel
+// edges and each edge's vertex is made once (by the voxel at its lower end),
+// so neighbouring cubes and blocks share it.
+#include <array>
+#include <cstdint>
+#include <vector>
+
+#include "rekon/common/mesh.hpp"
+#include "rekon/mapper/volume/volume_kernels.hpp"
+
+namespace rekon::volume {
+
+// Triangles of each of the 256 inside/outside corner patterns, as edge
+// numbers, -1 terminated. Corner i is inside when its signed distance is < 0.
+using TriangleTable = std::array<std::array<int8_t, 37>, 256>;
+const TriangleTable& triangleTable();
+
+// blocks[i] holds kBlockVoxels voxels of block coords[i]; both from any store.
+Mesh marchingCubes(const std::vector<BlockCoord>& coords, const std::vector<const Voxel*>& blocks, float voxel_size,
+                   float truncation);
+
+}  // namespace rekon::volume
