@@ -2,13 +2,15 @@
 
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <mutex>
+#include <string>
 #include <thread>
 
-#include "rekon/common/error.hpp"
 #include "rekon/common/messages.hpp"
+#include "rekon/common/pose.hpp"
 #include "rekon/replay/replay.hpp"
 #include "rekon_msgs/done_t.hpp"
 #include "rekon_msgs/end_of_stream_t.hpp"
@@ -20,6 +22,21 @@
 
 namespace rekon::replay {
 namespace {
+
+// As the optimiser: the last update and done may be dropped by UDP, so thrice.
+constexpr int kDoneRepeats = 3;
+constexpr auto kDoneGap = std::chrono::milliseconds(50);
+
+ReplayParams paramsFromArgs(const ArgParser& args) {
+  ReplayParams p;
+  p.trajectory = args.get("trajectory");
+  p.target = args.get("target");
+  p.update_every_keyframes = args.getInt("update-every");
+  p.stream_alpha = args.getDouble("stream-alpha");
+  p.final_updates = args.getInt("final-updates");
+  p.validate();
+  return p;
+}
 
 void publishUpdate(Bus& bus, const ReplayGraphUpdate& u) {
   rekon_msgs::graph_update_t m{};
@@ -33,6 +50,26 @@ void publishUpdate(Bus& bus, const ReplayGraphUpdate& u) {
   bus.publish(channel::kGraphUpdates, m);
 }
 
+// The frame's new keyframe, if it starts one, then the tracked frame, as the tracker sends them.
+void publishTracked(Bus& bus, const ReplayTracked& t) {
+  if (t.new_keyframe_world) {
+    rekon_msgs::keyframe_t kf{};
+    kf.keyframe_id = t.keyframe_id;
+    kf.frame_id = t.frame_id;
+    kf.timestamp = t.timestamp;
+    kf.pose_world = toMsg(*t.new_keyframe_world);
+    bus.publish(channel::kKeyframes, kf);
+  }
+  rekon_msgs::tracked_frame_t tf{};
+  tf.frame_id = t.frame_id;
+  tf.timestamp = t.timestamp;
+  tf.keyframe_id = t.keyframe_id;
+  tf.pose_in_keyframe = toMsg(t.pose_in_keyframe);
+  toArray(Eigen::Matrix<double, 6, 6>::Identity() * 1e-6, tf.covariance);
+  tf.state = t.lost ? rekon_msgs::tracked_frame_t::STATE_LOST : rekon_msgs::tracked_frame_t::STATE_OK;
+  bus.publish(channel::kTrackedFrames, tf);
+}
+
 void publishDone(Bus& bus, const std::string& service, int64_t last_frame) {
   rekon_msgs::done_t d{};
   d.service = service;
@@ -40,86 +77,92 @@ void publishDone(Bus& bus, const std::string& service, int64_t last_frame) {
   bus.publish(channel::kDone, d);
 }
 
+// The script driven by the frames the player announces (on the bus thread);
+// the main thread finishes it after the end of stream.
+class ScriptedFrontend {
+ public:
+  ScriptedFrontend(ServiceContext& ctx, ReplayScript& script) : ctx_(ctx), script_(script) {}
+
+  void subscribe() {
+    ctx_.bus().subscribe<rekon_msgs::end_of_stream_t>(
+        channel::kEndOfStream, [this](const rekon_msgs::end_of_stream_t& m) { end_frame_.store(m.last_frame_id); });
+    ctx_.bus().subscribe<rekon_msgs::frame_t>(channel::kFrames, [this](const rekon_msgs::frame_t& m) { onFrame(m); });
+  }
+
+  // Until every frame up to the end of stream is answered, or a stop request.
+  void waitForEndOfStream() const {
+    while (!ctx_.stopRequested()) {
+      const int64_t end = end_frame_.load();
+      if (end != kNoEndYet && last_handled_.load() >= end) return;
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+  }
+
+  // done_t for the tracker, the final updates `gap_ms` apart, then done_t for the optimiser.
+  void finish(int gap_ms) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    publishDone(ctx_.bus(), "tracker", end_frame_.load());
+    for (const ReplayGraphUpdate& u : script_.finalUpdates()) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(gap_ms));
+      publishUpdate(ctx_.bus(), u);
+      ++updates_;
+    }
+    for (int i = 0; i < kDoneRepeats; ++i) {
+      std::this_thread::sleep_for(kDoneGap);
+      publishDone(ctx_.bus(), "optimiser", end_frame_.load());
+    }
+    ctx_.stats().set("keyframes", static_cast<long long>(keyframes_)).set("graph_updates", static_cast<long long>(updates_))
+        .set("lost_frames", static_cast<long long>(lost_));
+    spdlog::info("replay: {} DVO keyframes, {} graph updates, {} frames without a pose", keyframes_, updates_, lost_);
+  }
+
+ private:
+  static constexpr int64_t kNoEndYet = -2;
+
+  void onFrame(const rekon_msgs::frame_t& msg) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    const ReplayTracked t = script_.onFrame(msg.frame_id, msg.timestamp);
+    publishTracked(ctx_.bus(), t);
+    keyframes_ += t.new_keyframe_world.has_value();
+    lost_ += t.lost;
+    if (auto u = script_.dueUpdate()) {
+      publishUpdate(ctx_.bus(), *u);
+      ++updates_;
+    }
+    rekon_msgs::frame_ack_t ack{};
+    ack.service = ctx_.name();
+    ack.frame_id = msg.frame_id;
+    ctx_.bus().publish(channel::kFrameAck, ack);
+    ctx_.setLastFrame(msg.frame_id);
+    last_handled_.store(msg.frame_id);
+  }
+
+  ServiceContext& ctx_;
+  ReplayScript& script_;
+  std::mutex mutex_;
+  std::atomic<int64_t> last_handled_{-1}, end_frame_{kNoEndYet};
+  int64_t keyframes_ = 0, updates_ = 0, lost_ = 0;
+};
+
 }  // namespace
 
 void runReplayService(ServiceContext& ctx) {
-  ReplayParams p;
-  p.trajectory = ctx.args().get("trajectory");
-  p.target = ctx.args().get("target");
-  p.update_every_keyframes = ctx.args().getInt("update-every");
-  p.stream_alpha = ctx.args().getDouble("stream-alpha");
-  p.final_updates = ctx.args().getInt("final-updates");
-  p.validate();
+  const ReplayParams p = paramsFromArgs(ctx.args());
   const Trajectory source = readTumTrajectory(p.trajectory);
   const int max_frames = ctx.config().getInt("player.max_frames");
   const int64_t total = max_frames > 0 ? std::min<int64_t>(max_frames, static_cast<int64_t>(source.size()))
                                        : static_cast<int64_t>(source.size());
   ReplayScript script(source, readTumTrajectory(p.target), p, total);
   const int gap_ms = ctx.args().getInt("gap-ms");
-  Bus& bus = ctx.bus();
-  std::mutex mutex;
-  std::atomic<int64_t> last_handled{-1}, end_frame{-2};
-  int64_t keyframes = 0, updates = 0, lost = 0;
-
+  ScriptedFrontend frontend(ctx, script);
   StopThreadsOnExit stop_threads(ctx);  // before the state above dies: the bus handlers use it
-  bus.subscribe<rekon_msgs::end_of_stream_t>(channel::kEndOfStream,
-                                             [&](const rekon_msgs::end_of_stream_t& m) { end_frame.store(m.last_frame_id); });
-  bus.subscribe<rekon_msgs::frame_t>(channel::kFrames, [&](const rekon_msgs::frame_t& msg) {
-    std::lock_guard<std::mutex> lock(mutex);
-    const ReplayTracked t = script.onFrame(msg.frame_id, msg.timestamp);
-    if (t.new_keyframe_world) {
-      rekon_msgs::keyframe_t kf{};
-      kf.keyframe_id = t.keyframe_id;
-      kf.frame_id = t.frame_id;
-      kf.timestamp = t.timestamp;
-      kf.pose_world = toMsg(*t.new_keyframe_world);
-      bus.publish(channel::kKeyframes, kf);
-      ++keyframes;
-    }
-    rekon_msgs::tracked_frame_t tf{};
-    tf.frame_id = t.frame_id;
-    tf.timestamp = t.timestamp;
-    tf.keyframe_id = t.keyframe_id;
-    tf.pose_in_keyframe = toMsg(t.pose_in_keyframe);
-    toArray(Eigen::Matrix<double, 6, 6>::Identity() * 1e-6, tf.covariance);
-    tf.state = t.lost ? rekon_msgs::tracked_frame_t::STATE_LOST : rekon_msgs::tracked_frame_t::STATE_OK;
-    lost += t.lost;
-    bus.publish(channel::kTrackedFrames, tf);
-    if (auto u = script.dueUpdate()) {
-      publishUpdate(bus, *u);
-      ++updates;
-    }
-    rekon_msgs::frame_ack_t ack{};
-    ack.service = ctx.name();
-    ack.frame_id = msg.frame_id;
-    bus.publish(channel::kFrameAck, ack);
-    ctx.setLastFrame(msg.frame_id);
-    last_handled.store(msg.frame_id);
-  });
+  frontend.subscribe();
   ctx.setState("running");
   spdlog::info("replaying {} toward {}", p.trajectory, p.target);
-  while (!ctx.stopRequested()) {
-    const int64_t end = end_frame.load();
-    if (end != -2 && last_handled.load() >= end) break;
-    std::this_thread::sleep_for(std::chrono::milliseconds(10));
-  }
+  frontend.waitForEndOfStream();
   if (ctx.stopRequested()) return;
   ctx.setState("finishing");
-  std::lock_guard<std::mutex> lock(mutex);
-  publishDone(bus, "tracker", end_frame.load());
-  for (const ReplayGraphUpdate& u : script.finalUpdates()) {
-    std::this_thread::sleep_for(std::chrono::milliseconds(gap_ms));
-    publishUpdate(bus, u);
-    ++updates;
-  }
-  // As the optimiser: its last update and done may be dropped by UDP, so thrice.
-  for (int i = 0; i < 3; ++i) {
-    std::this_thread::sleep_for(std::chrono::milliseconds(50));
-    publishDone(bus, "optimiser", end_frame.load());
-  }
-  ctx.stats().set("keyframes", static_cast<long long>(keyframes)).set("graph_updates", static_cast<long long>(updates))
-      .set("lost_frames", static_cast<long long>(lost));
-  spdlog::info("replay: {} DVO keyframes, {} graph updates, {} frames without a pose", keyframes, updates, lost);
+  frontend.finish(gap_ms);
 }
 
 }  // namespace rekon::replay

@@ -1,0 +1,81 @@
+#include "graph_worker.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <variant>
+
+#include "rekon/common/error.hpp"
+#include "rekon/optimiser/graph_messages.hpp"
+
+namespace rekon::optimiser {
+
+bool GraphWorker::addConstraint(const Constraint& c) {
+  try {
+    graph_.addConstraint(c);
+    return true;
+  } catch (const Error& e) {
+    spdlog::error("{}", e.what());
+    ++rejected_;
+    return false;
+  }
+}
+
+bool GraphWorker::apply(const std::vector<GraphItem>& items) {
+  bool new_edges = false;
+  for (const auto& item : items) {
+    if (const auto* kf = std::get_if<KeyframeIn>(&item)) {
+      if (!keyframes_.insert(kf->id).second) {
+        ++duplicates_;
+        continue;
+      }
+      try {
+        graph_.addKeyframe(kf->id, kf->pose_world);
+      } catch (const Error& e) {
+        spdlog::error("{}", e.what());
+        ++rejected_;
+      }
+      continue;
+    }
+    const Constraint& c = std::get<Constraint>(item);
+    if (!constraints_.emplace(static_cast<int>(c.kind), c.from_id, c.to_id).second) {
+      ++duplicates_;
+      continue;
+    }
+    if (!graph_.hasKeyframe(c.from_id) || !graph_.hasKeyframe(c.to_id)) {
+      waiting_.push_back(c);
+      continue;
+    }
+    new_edges |= addConstraint(c);
+  }
+  // Constraints whose keyframes have come meanwhile.
+  for (auto it = waiting_.begin(); it != waiting_.end();) {
+    if (graph_.hasKeyframe(it->from_id) && graph_.hasKeyframe(it->to_id)) {
+      new_edges |= addConstraint(*it);
+      it = waiting_.erase(it);
+    } else {
+      ++it;
+    }
+  }
+  return new_edges;
+}
+
+rekon_msgs::graph_update_t GraphWorker::optimise(bool final, int64_t last_frame_id) {
+  const OptimiseReport r = graph_.optimise(final);
+  ++optimisations_;
+  if (r.loop_edges_removed > 0)
+    spdlog::info("removed {} outlier loop edge(s); {} loop edges kept", r.loop_edges_removed, graph_.numLoopEdges());
+  optimise_ms_ += r.ms;
+  timing_.push_back({last_frame_id, r.ms, graph_.numKeyframes(), version_ + 1});
+  spdlog::debug("optimised {} keyframes / {} edges: {} iterations, cost {:.3g} -> {:.3g}, {} loop edges removed, "
+                "{:.1f} ms",
+                r.keyframes_optimised, r.edges_used, r.iterations, r.initial_cost, r.final_cost, r.loop_edges_removed,
+                r.ms);
+  return graphUpdateMsg(graph_, ++version_, final);
+}
+
+double GraphWorker::optimiseMsMean() const {
+  return optimise_ms_ / static_cast<double>(std::max<int64_t>(optimisations_, 1));
+}
+
+}  // namespace rekon::optimiser

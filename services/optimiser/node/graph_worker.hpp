@@ -1,0 +1,65 @@
+#pragma once
+// The pose graph the optimisation thread feeds from the inbox. Keyframes and
+// constraints arrive live and again in replays: each is added once, and a
+// constraint whose keyframes have not arrived (lost on the way) waits for
+// them. Optimisations are counted and timed for the outputs.
+#include <cstdint>
+#include <set>
+#include <tuple>
+#include <vector>
+
+#include "inbox.hpp"
+#include "rekon/optimiser/params.hpp"
+#include "rekon/optimiser/pose_graph.hpp"
+#include "rekon_msgs/graph_update_t.hpp"
+
+namespace rekon::optimiser {
+
+class GraphWorker {
+ public:
+  struct Timing {
+    int64_t last_frame_id;  // the newest tracked frame at the time
+    double ms;
+    size_t keyframes;
+    int64_t version;
+  };
+
+  explicit GraphWorker(const PoseGraphParams& params) : graph_(params) {}
+
+  // Adds queued keyframes and constraints in arrival order, each once; true
+  // when an edge was added.
+  bool apply(const std::vector<GraphItem>& items);
+  // Optimises (the bounded background budget, or the final one) and returns
+  // the graph update, numbered with the next version.
+  rekon_msgs::graph_update_t optimise(bool final, int64_t last_frame_id);
+  // A restarted optimiser numbers its updates past what consumers have seen.
+  void continueVersionsAfter(int64_t version) { version_ = version; }
+  void countRejected(int64_t n) { rejected_ += n; }
+
+  const PoseGraph& graph() const { return graph_; }
+  size_t keyframesSeen() const { return keyframes_.size(); }
+  size_t constraintsSeen() const { return constraints_.size(); }
+  size_t constraintsWaiting() const { return waiting_.size(); }
+  int64_t duplicates() const { return duplicates_; }
+  int64_t optimisations() const { return optimisations_; }
+  double optimiseMsMean() const;
+  int64_t rejected() const { return rejected_; }
+  int64_t version() const { return version_; }
+  const std::vector<Timing>& timing() const { return timing_; }
+
+ private:
+  bool addConstraint(const Constraint& c);
+
+  PoseGraph graph_;
+  std::set<int64_t> keyframes_;
+  std::set<std::tuple<int, int64_t, int64_t>> constraints_;  // kind, from, to
+  std::vector<Constraint> waiting_;
+  int64_t duplicates_ = 0;
+  int64_t optimisations_ = 0;
+  double optimise_ms_ = 0.0;
+  int64_t rejected_ = 0;
+  int64_t version_ = 0;
+  std::vector<Timing> timing_;
+};
+
+}  // namespace rekon::optimiser

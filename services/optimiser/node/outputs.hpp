@@ -1,0 +1,21 @@
+#pragma once
+// What the optimiser leaves at the end: <out>/trajectory.txt (every tracked
+// frame at its keyframe's optimised pose), <out>/optimiser_timing.csv (one
+// row per optimisation, in the report's format: tools/report run_files.hpp)
+// and its stats (written by the service context).
+#include <cstddef>
+#include <vector>
+
+#include "graph_worker.hpp"
+#include "rekon/common/service.hpp"
+#include "rekon/optimiser/graph_messages.hpp"
+
+namespace rekon::optimiser {
+
+// Returns how many frames the trajectory holds (frames whose keyframe the
+// graph never received are left out, with an error in the log).
+size_t writeTrajectoryAndTiming(const ServiceContext& ctx, const GraphWorker& worker,
+                                const std::vector<TrackedFrame>& frames);
+void setStats(ServiceContext& ctx, const GraphWorker& worker, size_t trajectory_frames);
+
+}  // namespace rekon::optimiser

@@ -1,0 +1,142 @@
+#include "history.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <chrono>
+#include <thread>
+
+#include "rekon/common/messages.hpp"
+#include "rekon_msgs/replay_end_t.hpp"
+
+namespace rekon::tracker {
+namespace {
+
+// A replay is paced (a pause after every kReplayBurst messages) so that no
+// receiver's socket buffer overflows on a loaded machine.
+constexpr int kReplayBurst = 20;
+constexpr auto kReplayPause = std::chrono::milliseconds(2);
+
+}  // namespace
+
+void History::publishResult(const TrackResult& r) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  rekon_msgs::tracked_frame_t tf{};
+  tf.frame_id = r.frame_id;
+  tf.timestamp = r.timestamp;
+  tf.keyframe_id = r.keyframe_id;
+  tf.pose_in_keyframe = toMsg(r.pose_in_keyframe);
+  toArray(r.covariance, tf.covariance);
+  tf.state = r.state == TrackingState::Ok ? rekon_msgs::tracked_frame_t::STATE_OK : rekon_msgs::tracked_frame_t::STATE_LOST;
+  if (r.new_keyframe) {
+    rekon_msgs::keyframe_t kf{};
+    kf.keyframe_id = r.keyframe_id;
+    kf.frame_id = r.frame_id;
+    kf.timestamp = r.timestamp;
+    kf.pose_world = toMsg(r.keyframe_pose_world);
+    keyframes_.push_back(kf);
+    keyframe_of_frame_[r.frame_id] = kf;
+    bus_.publish(channel::kKeyframes, kf);
+  }
+  if (r.odometry) {
+    rekon_msgs::constraint_t c{};
+    c.kind = rekon_msgs::constraint_t::KIND_ODOMETRY;
+    c.from_id = r.odometry->from_id;
+    c.to_id = r.odometry->to_id;
+    c.relative = toMsg(r.odometry->relative);
+    toArray(r.odometry->information, c.information);
+    constraints_.push_back(c);
+    bus_.publish(channel::kConstraints, c);
+  }
+  tracked_[r.frame_id] = tf;
+  published_for_[r.frame_id] = mapper_instance_;
+  bus_.publish(channel::kTrackedFrames, tf);
+}
+
+void History::publishLoopConstraint(const LoopConstraint& l) {
+  rekon_msgs::constraint_t c{};
+  c.kind = rekon_msgs::constraint_t::KIND_LOOP;
+  c.from_id = l.from_id;
+  c.to_id = l.to_id;
+  c.relative = toMsg(l.relative);
+  toArray(l.information, c.information);
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    constraints_.push_back(c);
+  }
+  bus_.publish(channel::kConstraints, c);
+  spdlog::info("loop closure {} -> {} (ln det ratios coarse {:.2f}, fine {:.2f}, {} pixels)", l.from_id, l.to_id,
+               l.coarse_ratio, l.fine_ratio, l.valid_pixels);
+}
+
+bool History::republishResult(int64_t frame_id) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  auto tf = tracked_.find(frame_id);
+  if (tf == tracked_.end()) return false;
+  int& published_for = published_for_[frame_id];
+  if (published_for >= mapper_instance_) return true;
+  published_for = mapper_instance_;
+  if (auto kf = keyframe_of_frame_.find(frame_id); kf != keyframe_of_frame_.end())
+    bus_.publish(channel::kKeyframes, kf->second);
+  bus_.publish(channel::kTrackedFrames, tf->second);
+  return true;
+}
+
+void History::addReplayRequest(const rekon_msgs::replay_request_t& request) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  requests_.push_back(request);
+}
+
+void History::serveReplays() {
+  std::vector<rekon_msgs::replay_request_t> requests;
+  std::vector<rekon_msgs::keyframe_t> keyframes;
+  std::vector<rekon_msgs::constraint_t> constraints;
+  std::vector<rekon_msgs::tracked_frame_t> tracked;
+  rekon_msgs::replay_end_t end{};
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (requests_.empty()) return;
+    requests.swap(requests_);
+    keyframes = keyframes_;
+    constraints = constraints_;
+    for (const auto& [id, tf] : tracked_) tracked.push_back(tf);
+    end.keyframes = static_cast<int64_t>(keyframes.size());
+    end.constraints = static_cast<int64_t>(constraints.size());
+    end.tracked_frames = static_cast<int64_t>(tracked.size());
+    end.last_frame_id = tracked_.empty() ? -1 : tracked_.rbegin()->first;
+    end.graph_version = graph_version_;
+    end.done = done_;
+  }
+  // Requests that came together are answered with one replay.
+  int n = 0;
+  auto pace = [&] {
+    if (++n % kReplayBurst == 0) std::this_thread::sleep_for(kReplayPause);
+  };
+  for (const auto& m : keyframes) bus_.publish(channel::kKeyframesResent, m), pace();
+  for (const auto& m : constraints) bus_.publish(channel::kConstraintsResent, m), pace();
+  for (const auto& m : tracked) bus_.publish(channel::kTrackedFramesResent, m), pace();
+  for (const auto& r : requests) {
+    end.service = r.service;
+    end.request_id = r.request_id;
+    bus_.publish(channel::kReplayEnd, end);
+  }
+  spdlog::info("replayed {} keyframes, {} constraints and {} tracked frames for rekon-{}", keyframes.size(),
+               constraints.size(), tracked.size(), requests.front().service);
+}
+
+void History::noteGraphVersion(int64_t version) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  graph_version_ = std::max(graph_version_, version);
+}
+
+void History::markDone() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  done_ = true;
+}
+
+void History::setMapperInstance(int instance) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  mapper_instance_ = instance;
+}
+
+}  // namespace rekon::tracker

@@ -1,0 +1,71 @@
+#pragma once
+// Everything the tracker has published that a consumer may need again, and
+// the publishing itself: a restarted optimiser rebuilds its graph from a
+// replay of it, and a frame the player sends again (for a restarted mapper)
+// gets its stored result instead of being tracked twice. Written by the bus
+// thread and the loop-closure worker; replays go out from the main thread.
+#include <cstdint>
+#include <map>
+#include <mutex>
+#include <vector>
+
+#include "rekon/common/bus.hpp"
+#include "rekon/tracker/loop_closure.hpp"
+#include "rekon/tracker/tracker.hpp"
+#include "rekon_msgs/constraint_t.hpp"
+#include "rekon_msgs/keyframe_t.hpp"
+#include "rekon_msgs/replay_request_t.hpp"
+#include "rekon_msgs/tracked_frame_t.hpp"
+
+namespace rekon::tracker {
+
+class History {
+ public:
+  explicit History(Bus& bus) : bus_(bus) {}
+
+  // A tracked frame's new keyframe and odometry constraint, then the tracked
+  // frame itself: a consumer meeting a new keyframe id in a tracked frame
+  // already knows the keyframe.
+  void publishResult(const TrackResult& r);
+  // An accepted loop closure, from the loop-closure worker.
+  void publishLoopConstraint(const LoopConstraint& l);
+  // A frame sent again (the player rewinds for a restarted mapper): its
+  // stored result goes out again on the live channels, keyframe first as
+  // before, when the mapper has restarted since it went out. The optimiser
+  // ignores what it already has. False when the frame was never tracked (it
+  // was lost on its first way): tracking it now, out of order, would corrupt
+  // the odometry.
+  bool republishResult(int64_t frame_id);
+
+  // Replay requests wait for serveReplays(), called from the main thread.
+  void addReplayRequest(const rekon_msgs::replay_request_t& request);
+  // Answers the waiting replay requests: every keyframe, then every
+  // constraint (so that each edge's keyframes come first), then every tracked
+  // frame, on the *_RESENT channels, and a replay_end_t with the totals.
+  void serveReplays();
+
+  // What a replay_end_t reports besides the totals: the newest graph version
+  // seen (a restarted optimiser numbers its updates past it) and whether the
+  // tracker has finished.
+  void noteGraphVersion(int64_t version);
+  void markDone();
+  // Which mapper instance (1, then 2... after restarts) results now go out
+  // to: a frame sent again goes out again only to a newer instance, so that a
+  // frame re-sent for a lost acknowledgement is not fused twice.
+  void setMapperInstance(int instance);
+
+ private:
+  Bus& bus_;
+  std::mutex mutex_;
+  std::vector<rekon_msgs::keyframe_t> keyframes_;
+  std::vector<rekon_msgs::constraint_t> constraints_;  // odometry and loop edges, in publication order
+  std::map<int64_t, rekon_msgs::tracked_frame_t> tracked_;  // by frame id
+  std::map<int64_t, rekon_msgs::keyframe_t> keyframe_of_frame_;
+  int mapper_instance_ = 1;
+  std::map<int64_t, int> published_for_;  // the mapper instance each frame's result went out to
+  int64_t graph_version_ = -1;
+  bool done_ = false;
+  std::vector<rekon_msgs::replay_request_t> requests_;  // waiting for the main thread
+};
+
+}  // namespace rekon::tracker

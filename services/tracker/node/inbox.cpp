@@ -1,0 +1,83 @@
+#include "inbox.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <string>
+#include <unordered_map>
+#include <utility>
+
+#include "rekon/common/error.hpp"
+#include "rekon/common/graph_update.hpp"
+#include "rekon/common/pose.hpp"
+#include "rekon_msgs/frame_ack_t.hpp"
+#include "rekon_msgs/replay_request_t.hpp"
+
+namespace rekon::tracker {
+
+Inbox::Inbox(ServiceContext& ctx, TrackingWorker& worker, History& history, LoopClosureWorker& loops)
+    : ctx_(ctx), worker_(worker), history_(history), loops_(loops) {}
+
+void Inbox::subscribe(PeerWatch& peers) {
+  Bus& bus = ctx_.bus();
+  peers.onNewInstance([this](const std::string& service, int instance) {
+    if (service != "mapper") return;
+    spdlog::warn("rekon-mapper restarted (instance {}): frames sent again get their results again", instance);
+    history_.setMapperInstance(instance);
+  });
+  bus.subscribe<rekon_msgs::replay_request_t>(channel::kReplayRequest, [this](const rekon_msgs::replay_request_t& m) {
+    spdlog::info("rekon-{} (pid {}) asks for a replay", m.service, m.pid);
+    history_.addReplayRequest(m);
+  });
+  bus.subscribe<rekon_msgs::graph_update_t>(channel::kGraphUpdates,
+                                            [this](const rekon_msgs::graph_update_t& m) { onGraphUpdate(m); });
+  bus.subscribe<rekon_msgs::end_of_stream_t>(channel::kEndOfStream,
+                                             [this](const rekon_msgs::end_of_stream_t& m) { onEndOfStream(m); });
+  bus.subscribe<rekon_msgs::frame_t>(channel::kFrames, [this](const rekon_msgs::frame_t& m) { onFrame(m); });
+}
+
+double Inbox::secondsSinceLastFrame() const {
+  const auto t = Clock::time_point(Clock::duration(last_frame_at_.load()));
+  return std::chrono::duration<double>(Clock::now() - t).count();
+}
+
+void Inbox::onFrame(const rekon_msgs::frame_t& msg) {
+  last_frame_at_.store(Clock::now().time_since_epoch().count());
+  bool tracked = false;
+  if (msg.frame_id <= last_handled_.load()) {
+    // Sent again: for a restarted mapper, or because its acknowledgement was lost.
+    ++duplicates_;
+    if (!history_.republishResult(msg.frame_id))
+      spdlog::warn("frame {} came again but was never tracked (lost on its first way); skipped", msg.frame_id);
+  } else {
+    tracked = worker_.track(msg);  // a frame that does not decode is acknowledged all the same: the source goes on
+  }
+  rekon_msgs::frame_ack_t ack{};
+  ack.service = ctx_.name();
+  ack.frame_id = msg.frame_id;
+  ctx_.bus().publish(channel::kFrameAck, ack);
+  // Only a tracked frame moves the mark: a rejected one with a huge id would
+  // make every later frame a duplicate and end the stream early.
+  if (tracked && msg.frame_id > last_handled_.load()) {
+    ctx_.setLastFrame(msg.frame_id);
+    last_handled_.store(msg.frame_id);
+  }
+}
+
+void Inbox::onGraphUpdate(const rekon_msgs::graph_update_t& m) {
+  history_.noteGraphVersion(m.version);
+  std::unordered_map<int64_t, Pose> poses;
+  try {
+    for (const auto& [id, pose] : graphPoses(m)) poses.emplace(id, pose);
+  } catch (const Error& e) {
+    spdlog::error("{}", e.what());
+    return;
+  }
+  loops_.updateGraph(m.version, std::move(poses));  // older versions are ignored there
+}
+
+void Inbox::onEndOfStream(const rekon_msgs::end_of_stream_t& m) {
+  spdlog::info("end of stream after frame {} ({} frames)", m.last_frame_id, m.frames);
+  end_frame_.store(m.last_frame_id);
+}
+
+}  // namespace rekon::tracker

@@ -1,0 +1,51 @@
+#pragma once
+// What the tracker hears on the bus, handled on the bus thread: frames
+// (tracked at once by the TrackingWorker, or answered from the History when
+// sent again), the end of stream, graph updates for the loop-closure checks,
+// replay requests and restarted mappers.
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+
+#include "history.hpp"
+#include "rekon/common/service.hpp"
+#include "rekon/tracker/loop_closure.hpp"
+#include "rekon_msgs/end_of_stream_t.hpp"
+#include "rekon_msgs/frame_t.hpp"
+#include "rekon_msgs/graph_update_t.hpp"
+#include "tracking_worker.hpp"
+
+namespace rekon::tracker {
+
+class Inbox {
+ public:
+  static constexpr int64_t kNoEndYet = -2;
+
+  Inbox(ServiceContext& ctx, TrackingWorker& worker, History& history, LoopClosureWorker& loops);
+  // Call after the StopThreadsOnExit that guards everything the handlers use.
+  void subscribe(PeerWatch& peers);
+
+  // The last frame id of the end of stream; kNoEndYet before it came.
+  int64_t endFrame() const { return end_frame_.load(); }
+  // The newest frame tracked; -1 before the first.
+  int64_t lastTracked() const { return last_handled_.load(); }
+  double secondsSinceLastFrame() const;
+  int64_t framesSentAgain() const { return duplicates_.load(); }
+
+ private:
+  using Clock = std::chrono::steady_clock;
+  void onFrame(const rekon_msgs::frame_t& msg);
+  void onGraphUpdate(const rekon_msgs::graph_update_t& m);
+  void onEndOfStream(const rekon_msgs::end_of_stream_t& m);
+
+  ServiceContext& ctx_;
+  TrackingWorker& worker_;
+  History& history_;
+  LoopClosureWorker& loops_;
+  std::atomic<int64_t> last_handled_{-1};
+  std::atomic<int64_t> end_frame_{kNoEndYet};
+  std::atomic<int64_t> duplicates_{0};
+  std::atomic<Clock::rep> last_frame_at_{Clock::now().time_since_epoch().count()};
+};
+
+}  // namespace rekon::tracker

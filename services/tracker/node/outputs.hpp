@@ -1,0 +1,16 @@
+#pragma once
+// What the tracker leaves at the end: its stats (written by the service
+// context), <out>/odometry.txt (world poses by odometry alone),
+// <out>/tracker_timing.csv (ms per frame) and a summary in the log.
+#include <cstdint>
+
+#include "rekon/common/service.hpp"
+#include "rekon/tracker/loop_closure.hpp"
+#include "tracking_worker.hpp"
+
+namespace rekon::tracker {
+
+void writeOutputs(ServiceContext& ctx, const TrackingTotals& totals, int64_t frames_sent_again,
+                  const LoopClosureStats& loops);
+
+}  // namespace rekon::tracker
