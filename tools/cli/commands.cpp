@@ -5,7 +5,6 @@
 #include "rekon/render/render.hpp"
 
 #include "rekon/mapper_bench/bench_command.hpp"
-#include "rekon/tracker/odometry_command.hpp"
 #include "launcher.hpp"
 #include "listen.hpp"
 #include "rekon/report/run_report.hpp"
@@ -19,7 +18,7 @@ const std::vector<Command>& commands() {
       {"eval", "trajectory (ATE, RPE) and surface (CORR, COMPL) errors against ground truth", &eval::evalCommand},
       {"render", "offscreen shaded image of a colored mesh (PLY to PNG)", &render::renderCommand},
       {"fuse", "integrate a dataset at given poses into the TSDF volume and write its mesh", &fuseCommand},
-      {"odometry", "dense RGB-D odometry (DVO) in-process on a dataset; writes a TUM trajectory", tracker::odometryMain},
+      {"odometry", "dense RGB-D odometry (DVO) in-process on a dataset; writes a TUM trajectory", &odometryCommand},
       {"synth", "write a synthetic RGB-D sequence with exact ground truth", &synth::synthCommand},
       {"run", "run the whole pipeline on a dataset (every service as its own process)", &runCommand},
       {"demo", "run the whole pipeline on the built-in default scene", &demoCommand},

@@ -15,6 +15,9 @@ const std::vector<Command>& commands();
 // `rekon fuse`: integrates a TUM-layout dataset at given poses into the TSDF
 // volume and writes its mesh (e.g. the reference mesh from ground truth).
 int fuseCommand(int argc, char** argv);
+// `rekon odometry`: the DVO tracker in-process on a TUM-layout dataset; writes
+// every frame's world pose as a TUM trajectory.
+int odometryCommand(int argc, char** argv);
 // `rekon keyframes --list | --export DIR | --remove [--segment NAME]`: the
 // mapper's shared-memory keyframe store, read from another process.
 int keyframesCommand(int argc, char** argv);

@@ -1,12 +1,11 @@
-#include "rekon/tracker/odometry_command.hpp"
-
+// `rekon odometry` (commands.hpp).
 #include <spdlog/spdlog.h>
 
-#include <time.h>
-
+#include <algorithm>
 #include <chrono>
 #include <iostream>
 
+#include "commands.hpp"
 #include "rekon/common/cli.hpp"
 #include "rekon/common/config.hpp"
 #include "rekon/common/cpu_time.hpp"
@@ -15,15 +14,17 @@
 #include "rekon/common/json.hpp"
 #include "rekon/common/logging.hpp"
 #include "rekon/common/pose.hpp"
+#include "rekon/tracker/params.hpp"
 #include "rekon/tracker/tracker.hpp"
 
-namespace rekon::tracker {
-namespace {
+namespace rekon {
 
+using tracker::Tracker;
+using tracker::TrackerParams;
+using tracker::TrackingState;
+using tracker::TrackResult;
 
-}  // namespace
-
-int odometryMain(int argc, char** argv) {
+int odometryCommand(int argc, char** argv) {
   ArgParser args(argv[0],
                  "Runs the DVO tracker in-process (no LCM) on a TUM-layout dataset and writes the world pose of "
                  "every frame as a TUM trajectory (the first keyframe at the origin). The last line printed is "
@@ -43,7 +44,7 @@ int odometryMain(int argc, char** argv) {
 
   const Config config = Config::load(args.has("config") ? args.get("config") : "", args.all("set"));
   setupLogging("odometry", config.getString("log.level"));
-  const TrackerParams params = trackerParamsFromConfig(config);
+  const TrackerParams params = tracker::trackerParamsFromConfig(config);
 
   DatasetOptions options;
   options.max_frames = max_frames;
@@ -69,7 +70,7 @@ int odometryMain(int argc, char** argv) {
     if (result.state == TrackingState::Lost) ++lost;
     trajectory.push_back({frame.timestamp, result.pose_world});
     spdlog::debug("frame {} kf {} state {} iterations {} valid {} entropy {:.2f} ratio {:.3f} sigma {:.4f} {:.4f} m", i,
-                  result.keyframe_id, result.state == TrackingState::Ok ? "ok" : toString(result.lost_reason),
+                  result.keyframe_id, result.state == TrackingState::Ok ? "ok" : tracker::toString(result.lost_reason),
                   result.iterations, result.valid_pixels, result.entropy, result.entropy_ratio, result.intensity_sigma,
                   result.depth_sigma);
   }
@@ -86,4 +87,4 @@ int odometryMain(int argc, char** argv) {
   return 0;
 }
 
-}  // namespace rekon::tracker
+}  // namespace rekon
