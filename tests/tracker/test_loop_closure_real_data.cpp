@@ -1,15 +1,15 @@
 // Loop closures on real data (7-Scenes loop, 1 000 frames; skipped visibly
 // when ../shared/data is absent): the tracker with its loop detection and the
-// pose graph in one process (in_process_slam.hpp), against the dataset's
-// ground truth. Issue 5's goal: ATE with loop closures at most 0.7 x ATE of
-// odometry alone.
+// pose graph in one process (rekon/slam_bench/in_process_slam.hpp), against
+// the dataset's ground truth. Issue 5's goal: ATE with loop closures at most
+// 0.7 x ATE of odometry alone.
 #include <gtest/gtest.h>
 
 #include <cstdio>
 
-#include "in_process_slam.hpp"
 #include "rekon/common/config.hpp"
 #include "rekon/eval/trajectory_eval.hpp"
+#include "rekon/slam_bench/in_process_slam.hpp"
 #include "test_support.hpp"
 
 namespace rekon::tracker {
@@ -20,8 +20,8 @@ TEST(LoopClosureRealData, SevenScenesLoopsCutTheAteToAtMost70PercentOfOdometry) 
   const TumDataset dataset(data);
   ASSERT_TRUE(dataset.hasGroundTruth());
   const Config config = Config::load();
-  const auto slam = test::runInProcess(dataset, trackerParamsFromConfig(config));
-  const auto optimised = test::optimise(slam, optimiser::optimiserParamsFromConfig(config));
+  const auto slam = slam_bench::runInProcess(dataset, trackerParamsFromConfig(config));
+  const auto optimised = slam_bench::optimise(slam, optimiser::optimiserParamsFromConfig(config));
   const auto odometry = eval::evaluateTrajectory(dataset.groundTruth(), slam.odometry);
   const auto with_loops = eval::evaluateTrajectory(dataset.groundTruth(), optimised.trajectory);
   std::printf("7scenes loop: %zu keyframes, %zu loops accepted of %ld candidates, %zu kept; ATE odometry %.4f m, "

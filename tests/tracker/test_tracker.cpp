@@ -5,9 +5,9 @@
 
 #include "rekon/common/config.hpp"
 #include "rekon/common/error.hpp"
+#include "rekon/slam_bench/trajectory_metrics.hpp"
 #include "rekon/tracker/tracker.hpp"
 #include "synthetic_views.hpp"
-#include "trajectory_metrics.hpp"
 
 namespace rekon::tracker {
 namespace {
@@ -183,7 +183,7 @@ TEST(TrackerKeyframes, SelectionFiresAtASensibleRateOnTheRoomAndChainsConstraint
   // every frame or two would defeat its purpose (at most 50: one per 3 frames).
   EXPECT_GE(keyframes, 6);
   EXPECT_LE(keyframes, 50);
-  const auto errors = test::compareTrajectories(estimate, truth);
+  const auto errors = slam_bench::compareTrajectories(estimate, truth);
   // Exact geometry and white sensor noise, rendered with fixed seeds: measured
   // 0.1876 mm in 3 runs, identical to the last digit (no run-to-run noise).
   // 0.25 mm leaves a third for another compiler or CPU's rounding; a tracker

@@ -3,9 +3,9 @@
 #include <gtest/gtest.h>
 
 #include "rekon/common/dataset.hpp"
+#include "rekon/slam_bench/trajectory_metrics.hpp"
 #include "rekon/tracker/tracker.hpp"
 #include "test_support.hpp"
-#include "trajectory_metrics.hpp"
 
 namespace rekon::tracker {
 namespace {
@@ -25,7 +25,7 @@ TEST(TrackerRealData, First60FramesOf7ScenesStayWithin1_5cmAte) {
     lost += r.state == TrackingState::Lost;
     estimate.push_back({frame.timestamp, r.pose_world});
   }
-  const auto errors = test::compareTrajectories(estimate, dataset.groundTruth());
+  const auto errors = slam_bench::compareTrajectories(estimate, dataset.groundTruth());
   EXPECT_EQ(lost, 0);
   EXPECT_EQ(errors.matched, 60);
   // Measured 0.54 cm over these 2 s (0.32 m of path). The bound leaves room

@@ -6,9 +6,9 @@
 #include <sstream>
 
 #include "rekon/common/pose.hpp"
+#include "rekon/slam_bench/trajectory_metrics.hpp"
 #include "rekon/synth/synth.hpp"
 #include "test_support.hpp"
-#include "trajectory_metrics.hpp"
 
 namespace rekon::tracker {
 namespace {
@@ -35,7 +35,7 @@ TEST(TrackerService, TracksEveryFrameThePlayerSendsAndWritesTheOdometry) {
   EXPECT_NE(stats.str().find("\"lost_frames\": 0"), std::string::npos) << stats.str();
   const Trajectory odometry = readTumTrajectory(dir / "out/odometry.txt");
   ASSERT_EQ(odometry.size(), 20u);
-  const auto errors = test::compareTrajectories(odometry, readTumTrajectory(dir / "room/groundtruth.txt"));
+  const auto errors = slam_bench::compareTrajectories(odometry, readTumTrajectory(dir / "room/groundtruth.txt"));
   // The same frames tracked in-process stay far below a millimetre; 5 mm
   // catches frames lost, reordered or mis-decoded on the way.
   EXPECT_LT(errors.ate_rmse_m, 0.005);

@@ -1,12 +1,12 @@
-#include "trajectory_metrics.hpp"
-
-#include "rekon/eval/trajectory_eval.hpp"
+#include "rekon/slam_bench/trajectory_metrics.hpp"
 
 #include <cmath>
 #include <numbers>
 #include <vector>
 
-namespace rekon::tracker::test {
+#include "rekon/eval/trajectory_eval.hpp"
+
+namespace rekon::slam_bench {
 
 TrajectoryErrors compareTrajectories(const Trajectory& estimate, const Trajectory& ground_truth) {
   // ATE and RPE as `rekon eval traj` computes them; drift per metre of path is
@@ -48,4 +48,4 @@ TrajectoryErrors compareTrajectories(const Trajectory& estimate, const Trajector
   return out;
 }
 
-}  // namespace rekon::tracker::test
+}  // namespace rekon::slam_bench

@@ -1,9 +1,10 @@
 #pragma once
-// Trajectory error metrics for the tracker's tests and benchmark: ATE and RPE
-// from rekon_eval (as `rekon eval traj`), plus drift per metre of path.
+// Trajectory error metrics for tracker_bench and the tracker's tests: ATE
+// and RPE from rekon_eval (as `rekon eval traj`), plus drift per metre of
+// path.
 #include "rekon/common/pose.hpp"
 
-namespace rekon::tracker::test {
+namespace rekon::slam_bench {
 
 struct TrajectoryErrors {
   int matched = 0;                  // estimated poses with ground truth within 20 ms
@@ -17,4 +18,4 @@ struct TrajectoryErrors {
 
 TrajectoryErrors compareTrajectories(const Trajectory& estimate, const Trajectory& ground_truth);
 
-}  // namespace rekon::tracker::test
+}  // namespace rekon::slam_bench

@@ -22,9 +22,9 @@
 #include "rekon/common/dataset.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/eval/trajectory_eval.hpp"
-#include "in_process_slam.hpp"
 #include "rekon/optimiser/params.hpp"
 #include "rekon/optimiser/pose_graph.hpp"
+#include "rekon/slam_bench/in_process_slam.hpp"
 
 namespace {
 
@@ -64,7 +64,7 @@ int main(int argc, char** argv) {
     const rekon::TumDataset dataset(argv[1], options);
     if (!dataset.hasGroundTruth()) throw rekon::Error(std::string(argv[1]) + " has no groundtruth.txt");
     const rekon::Trajectory gt = dataset.groundTruth();
-    const auto slam = rekon::tracker::test::runInProcess(dataset, params);
+    const auto slam = rekon::slam_bench::runInProcess(dataset, params);
 
     std::map<int64_t, rekon::Pose> kf_truth;
     for (const auto& k : slam.keyframes) {
@@ -107,13 +107,13 @@ int main(int argc, char** argv) {
                     c.valid_pixels);
       }
     }
-    rekon::tracker::test::LoopPose loop_pose;
+    rekon::slam_bench::LoopPose loop_pose;
     if (getenv("ORACLE"))
       loop_pose = [&](const rekon::tracker::LoopConstraint& c) -> std::optional<rekon::Pose> {
         const auto truth = truthOf(c.from_id, c.to_id);
         return truth ? truth : std::optional<rekon::Pose>(c.relative);
       };
-    const auto result = rekon::tracker::test::optimise(slam, graph_params, loop_pose);
+    const auto result = rekon::slam_bench::optimise(slam, graph_params, loop_pose);
     std::printf("graph: %zu keyframes, %zu loop edges kept, %zu removed, %.1f ms\n", slam.keyframes.size(),
                 result.loop_edges_kept, result.loop_edges_removed, result.ms);
     const double ate_odometry = rekon::eval::evaluateTrajectory(gt, slam.odometry).ate_rmse_m;
@@ -139,7 +139,7 @@ int main(int argc, char** argv) {
         for (const int gap : {1, 5, 10, 20, 30}) {
           for (const double cross : {0.05, 0.02}) {
             for (const double depth_sigma : {1e9, 0.05}) {
-              const auto filtered = rekon::tracker::test::optimise(
+              const auto filtered = rekon::slam_bench::optimise(
                   slam, graph_params, [&](const rekon::tracker::LoopConstraint& l) -> std::optional<rekon::Pose> {
                     if (l.cross_check_m <= cross && l.depth_sigma <= depth_sigma && l.fine_ratio >= ratio &&
                         l.to_id - l.from_id >= gap)

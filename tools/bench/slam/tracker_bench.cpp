@@ -19,9 +19,9 @@
 #include "rekon/common/cpu_time.hpp"
 #include "rekon/common/dataset.hpp"
 #include "rekon/common/error.hpp"
+#include "rekon/slam_bench/trajectory_metrics.hpp"
 #include "rekon/synth/synth.hpp"
 #include "rekon/tracker/tracker.hpp"
-#include "trajectory_metrics.hpp"
 
 int main(int argc, char** argv) {
   if (argc < 2) {
@@ -103,7 +103,7 @@ int main(int argc, char** argv) {
     std::printf("entropy_ratio min=%.3f p01=%.3f median=%.3f\n", percentile(ratios, 0.0), percentile(ratios, 0.01),
                 percentile(ratios, 0.5));
     if (!ground_truth.empty()) {
-      const auto e = rekon::tracker::test::compareTrajectories(trajectory, ground_truth);
+      const auto e = rekon::slam_bench::compareTrajectories(trajectory, ground_truth);
       std::printf(
           "matched=%d ate_rmse_cm=%.2f rpe_trans_cm_per_s=%.2f rpe_rot_deg_per_s=%.2f path_m=%.2f "
           "drift_percent=%.2f drift_deg_per_m=%.3f\n",

@@ -3,7 +3,7 @@
 // on the calling thread) and rekon_optimiser's PoseGraph in one process over
 // a dataset: what rekon run's tracker and optimiser compute, without the
 // timing of their threads, so the result is the same every run. Used by
-// loop_closure_bench and the real-data loop-closure test.
+// loop_closure_bench and the real-data loop-closure test (tests/tracker).
 #include <cstdint>
 #include <functional>
 #include <optional>
@@ -16,7 +16,7 @@
 #include "rekon/tracker/loop_closure.hpp"
 #include "rekon/tracker/params.hpp"
 
-namespace rekon::tracker::test {
+namespace rekon::slam_bench {
 
 struct KeyframeAt {
   int64_t id = -1;
@@ -28,14 +28,14 @@ struct InProcessSlam {
   Trajectory odometry;  // the tracker's pose of every frame
   std::vector<optimiser::TrackedFrame> frames;  // what the tracker publishes of each frame
   std::vector<KeyframeAt> keyframes;
-  std::vector<OdometryConstraint> odometry_edges;
-  std::vector<LoopConstraint> loop_edges;
-  LoopClosureStats stats;
+  std::vector<tracker::OdometryConstraint> odometry_edges;
+  std::vector<tracker::LoopConstraint> loop_edges;
+  tracker::LoopClosureStats stats;
   double check_ms = 0.0;  // wall time of all loop checks
 };
 
 // Tracks every frame of `dataset` and checks every new keyframe for loops.
-InProcessSlam runInProcess(const TumDataset& dataset, const TrackerParams& params);
+InProcessSlam runInProcess(const TumDataset& dataset, const tracker::TrackerParams& params);
 
 struct Optimised {
   Trajectory trajectory;  // every frame, as rekon-optimiser writes trajectory.txt (frameTrajectory)
@@ -44,7 +44,7 @@ struct Optimised {
 };
 
 // The pose of a loop edge in the graph, or none to leave the edge out.
-using LoopPose = std::function<std::optional<Pose>(const LoopConstraint&)>;
+using LoopPose = std::function<std::optional<Pose>(const tracker::LoopConstraint&)>;
 
 // The keyframe graph of `slam` (information x params.information_scale),
 // optimised as rekon-optimiser's final optimisation. `loop_pose` (default:
@@ -52,4 +52,4 @@ using LoopPose = std::function<std::optional<Pose>(const LoopConstraint&)>;
 Optimised optimise(const InProcessSlam& slam, const optimiser::OptimiserServiceParams& params,
                    const LoopPose& loop_pose = {});
 
-}  // namespace rekon::tracker::test
+}  // namespace rekon::slam_bench

@@ -1,11 +1,18 @@
-#include "in_process_slam.hpp"
+#include "rekon/slam_bench/in_process_slam.hpp"
 
 #include <chrono>
 
 #include "rekon/optimiser/pose_graph.hpp"
 #include "rekon/tracker/tracker.hpp"
 
-namespace rekon::tracker::test {
+namespace rekon::slam_bench {
+
+using tracker::LoopClosureDetector;
+using tracker::LoopConstraint;
+using tracker::OdometryConstraint;
+using tracker::Tracker;
+using tracker::TrackerParams;
+using tracker::TrackResult;
 
 InProcessSlam runInProcess(const TumDataset& dataset, const TrackerParams& params) {
   InProcessSlam out;
@@ -55,4 +62,4 @@ Optimised optimise(const InProcessSlam& slam, const optimiser::OptimiserServiceP
   return out;
 }
 
-}  // namespace rekon::tracker::test
+}  // namespace rekon::slam_bench
