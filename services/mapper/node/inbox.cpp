@@ -1,0 +1,224 @@
+#include "inbox.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+
+#include "rekon/common/error.hpp"
+#include "rekon/common/messages.hpp"
+#include "rekon_msgs/frame_ack_t.hpp"
+
+namespace rekon::mapper {
+
+Inbox::Inbox(ServiceContext& ctx, size_t max_queued_frames) : ctx_(ctx), max_queued_(max_queued_frames) {}
+
+void Inbox::subscribe() {
+  Bus& bus = ctx_.bus();
+  bus.subscribe<rekon_msgs::frame_t>(channel::kFrames, [this](const rekon_msgs::frame_t& m) { onFrame(m); });
+  bus.subscribe<rekon_msgs::tracked_frame_t>(channel::kTrackedFrames,
+                                             [this](const rekon_msgs::tracked_frame_t& m) { onTrackedFrame(m); });
+  bus.subscribe<rekon_msgs::keyframe_t>(channel::kKeyframes, [this](const rekon_msgs::keyframe_t& m) { onKeyframe(m); });
+  bus.subscribe<rekon_msgs::graph_update_t>(channel::kGraphUpdates,
+                                            [this](const rekon_msgs::graph_update_t& m) { onGraphUpdate(m); });
+  bus.subscribe<rekon_msgs::end_of_stream_t>(channel::kEndOfStream,
+                                             [this](const rekon_msgs::end_of_stream_t& m) { onEndOfStream(m); });
+  bus.subscribe<rekon_msgs::done_t>(channel::kDone, [this](const rekon_msgs::done_t& m) { onDone(m); });
+}
+
+void Inbox::onFrame(const rekon_msgs::frame_t& msg) {
+  std::optional<bool> again_ack;  // set for a frame sent again: whether to acknowledge it now
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (seen(msg.frame_id)) {
+      // Sent again: the first copy is (or was) in the work. Acknowledged
+      // again unless its acknowledgement is still held back.
+      ++counts_.frames_received_again;
+      again_ack = !ackDeferred(msg.frame_id);
+    }
+  }
+  if (again_ack) {
+    if (*again_ack) ack(msg.frame_id);
+    return;
+  }
+  Intrinsics k;
+  std::optional<RgbdFrame> frame = receiver_.receive(msg, &k);  // a copy out of the ring: safe to acknowledge
+  bool ack_now = true;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (frame) {
+      // A tracked frame older than this image whose image never came (dropped by the transport) never will.
+      while (!tracked_.empty() && tracked_.begin()->first < msg.frame_id) {
+        last_resolved_ = std::max(last_resolved_, tracked_.begin()->first);
+        tracked_.erase(tracked_.begin());
+        ++counts_.dropped_frames;
+      }
+      images_[msg.frame_id] = {std::move(*frame), k};
+      join(msg.frame_id);
+      if (queuedFrames() > max_queued_) {
+        deferred_acks_.push_back(msg.frame_id);
+        ack_now = false;
+      }
+    } else {
+      ++counts_.dropped_frames;
+    }
+  }
+  if (ack_now) ack(msg.frame_id);
+  ctx_.setLastFrame(msg.frame_id);
+}
+
+void Inbox::onTrackedFrame(const rekon_msgs::tracked_frame_t& msg) {
+  const auto pose = fromMsg(msg.pose_in_keyframe);
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!pose) {
+    spdlog::error("tracked frame {}: invalid pose_in_keyframe; dropped", msg.frame_id);
+    last_resolved_ = std::max(last_resolved_, msg.frame_id);
+    return;
+  }
+  // Tracked frames come in order: older images without one will never get it.
+  while (!images_.empty() && images_.begin()->first < msg.frame_id) {
+    spdlog::warn("frame {}: no tracked frame came for it; dropped", images_.begin()->first);
+    last_resolved_ = std::max(last_resolved_, images_.begin()->first);
+    images_.erase(images_.begin());
+    ++counts_.dropped_frames;
+  }
+  tracked_[msg.frame_id] = {msg.keyframe_id, *pose, msg.state == rekon_msgs::tracked_frame_t::STATE_LOST};
+  join(msg.frame_id);
+}
+
+void Inbox::onKeyframe(const rekon_msgs::keyframe_t& msg) {
+  const auto pose = fromMsg(msg.pose_world);
+  if (!pose) {
+    spdlog::error("keyframe {}: invalid pose_world; dropped", msg.keyframe_id);
+    return;
+  }
+  std::lock_guard<std::mutex> lock(mutex_);
+  queue_.push_back(KeyframeWork{msg.keyframe_id, *pose});
+  work_ready_.notify_one();
+}
+
+void Inbox::onGraphUpdate(const rekon_msgs::graph_update_t& msg) {
+  if (!filter_.accept(msg.version)) return;
+  GraphWork g{msg.version, {}};
+  try {
+    g.poses = graphPoses(msg);
+  } catch (const Error& e) {
+    spdlog::error("{}", e.what());
+    return;
+  }
+  std::lock_guard<std::mutex> lock(mutex_);
+  // Every update carries all poses: a newer one replaces one still waiting.
+  for (Work& w : queue_) {
+    if (std::holds_alternative<GraphWork>(w)) {
+      w = std::move(g);
+      ++counts_.coalesced_updates;
+      return;
+    }
+  }
+  queue_.push_back(std::move(g));
+  work_ready_.notify_one();
+}
+
+void Inbox::onEndOfStream(const rekon_msgs::end_of_stream_t& m) {
+  spdlog::info("end of stream after frame {} ({} frames)", m.last_frame_id, m.frames);
+  std::lock_guard<std::mutex> lock(mutex_);
+  end_frame_ = m.last_frame_id;
+}
+
+void Inbox::onDone(const rekon_msgs::done_t& m) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (m.service == "optimiser" && !optimiser_done_) {
+    spdlog::info("the optimiser is done");
+    optimiser_done_ = true;
+  }
+  if (m.service == "tracker") tracker_done_ = true;
+}
+
+void Inbox::ack(int64_t frame_id) {
+  rekon_msgs::frame_ack_t a{};
+  a.service = ctx_.name();
+  a.frame_id = frame_id;
+  ctx_.bus().publish(channel::kFrameAck, a);
+}
+
+void Inbox::join(int64_t id) {
+  auto img = images_.find(id);
+  auto tr = tracked_.find(id);
+  if (img == images_.end() || tr == tracked_.end()) return;
+  queue_.push_back(FrameWork{std::move(img->second.first), img->second.second, tr->second});
+  ++frames_in_queue_;
+  images_.erase(img);
+  tracked_.erase(tr);
+  last_resolved_ = std::max(last_resolved_, id);
+  work_ready_.notify_one();
+}
+
+bool Inbox::ackDeferred(int64_t id) const {
+  return std::find(deferred_acks_.begin(), deferred_acks_.end(), id) != deferred_acks_.end();
+}
+
+std::optional<Work> Inbox::next() {
+  std::unique_lock<std::mutex> lock(mutex_);
+  work_ready_.wait(lock, [&] { return stop_worker_ || !queue_.empty(); });
+  if (queue_.empty()) return std::nullopt;
+  Work w = std::move(queue_.front());
+  queue_.pop_front();
+  busy_ = true;
+  return w;
+}
+
+void Inbox::finished(bool was_frame, const MapperCounters& progress) {
+  std::vector<int64_t> release;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    busy_ = false;
+    progress_ = progress;
+    if (was_frame) --frames_in_queue_;
+    while (!deferred_acks_.empty() && queuedFrames() <= max_queued_) {
+      release.push_back(deferred_acks_.front());
+      deferred_acks_.pop_front();
+    }
+    if (queue_.empty()) idle_.notify_all();
+  }
+  for (int64_t id : release) ack(id);
+}
+
+void Inbox::failed(const std::string& error) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  worker_error_ = error;
+  busy_ = false;
+  idle_.notify_all();
+}
+
+bool Inbox::streamOver(bool wait_for_optimiser, bool queue_baseline) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const bool frames_done = end_frame_ != kNoEndYet && (tracker_done_ || last_resolved_ >= end_frame_);
+  if (end_frame_ != kNoEndYet && (wait_for_optimiser ? optimiser_done_ : frames_done)) return true;
+  if (frames_done && queue_baseline && !baseline_queued_) {
+    baseline_queued_ = true;
+    queue_.push_back(BaselineWork{});  // after every frame's work
+    work_ready_.notify_one();
+  }
+  return false;
+}
+
+void Inbox::logProgress() {
+  std::lock_guard<std::mutex> lock(mutex_);  // the worker's copy: the mapper's own counters are its alone
+  spdlog::info("mapper: {} frames fused into {} KF keyframes, {} re-integrations, {} frames queued", progress_.frames,
+               progress_.kf_keyframes, progress_.reintegrations, queuedFrames());
+}
+
+void Inbox::drain() {
+  std::unique_lock<std::mutex> lock(mutex_);
+  idle_.wait(lock, [&] { return (queue_.empty() && !busy_) || !worker_error_.empty(); });
+  stop_worker_ = true;
+  work_ready_.notify_all();
+}
+
+void Inbox::dropUnjoinedFrames() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (images_.empty()) return;
+  spdlog::warn("{} frames never got a tracked frame; dropped", images_.size());
+  counts_.dropped_frames += static_cast<int64_t>(images_.size());
+}
+
+}  // namespace rekon::mapper

@@ -1,0 +1,67 @@
+#include "mapping_worker.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <exception>
+
+namespace rekon::mapper {
+
+MappingWorker::MappingWorker(ServiceContext& ctx, Mapper& mapper, Inbox& inbox)
+    : ctx_(ctx), mapper_(mapper), inbox_(inbox) {}
+
+void MappingWorker::run() {
+  while (std::optional<Work> w = inbox_.next()) {
+    try {
+      process(*w);
+    } catch (const std::exception& e) {  // rekon::Error, or OpenCV's for a broken image
+      inbox_.failed(e.what());
+      ctx_.requestStop();
+      return;
+    }
+    inbox_.finished(std::holds_alternative<FrameWork>(*w), mapper_.counters());
+  }
+}
+
+void MappingWorker::process(const Work& w) {
+  if (const auto* f = std::get_if<FrameWork>(&w)) {
+    fuse(*f);
+  } else if (const auto* kf = std::get_if<KeyframeWork>(&w)) {
+    mapper_.setKeyframeEstimate(kf->id, kf->world);
+  } else if (std::holds_alternative<BaselineWork>(w)) {
+    mapper_.flush();  // no frame comes after the end of the stream: the last KF keyframe is complete
+    writeUncorrectedMesh(mapper_, ctx_.outDir());
+    baseline_written_ = true;
+  } else {
+    const GraphWork& g = std::get<GraphWork>(w);
+    const ReintegrationRound round = mapper_.applyGraphUpdate(g.poses);
+    last_graph_version_ = g.version;
+    rounds_.push_back({secondsSinceFirstFrame(), g.version, round, false});
+  }
+}
+
+void MappingWorker::fuse(const FrameWork& f) {
+  const auto t0 = std::chrono::steady_clock::now();
+  if (!first_frame_time_) first_frame_time_ = t0;
+  const MapperCounters before = mapper_.counters();
+  mapper_.addFrame(f.frame, f.k, f.tracked.keyframe_id, f.tracked.pose_in_keyframe, f.tracked.lost);
+  const MapperCounters& after = mapper_.counters();
+  frame_timing_.push_back({f.frame.id, std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count(),
+                           after.fuse_ms_total - before.fuse_ms_total,
+                           after.first_integration_ms_total - before.first_integration_ms_total});
+}
+
+void MappingWorker::finish(bool clean) {
+  if (clean) {
+    for (const ReintegrationRound& r : mapper_.finish()) rounds_.push_back({secondsSinceFirstFrame(), last_graph_version_, r, true});
+  } else {
+    mapper_.flush();
+    spdlog::warn("mapper stopped before the end: no final pass; the keyframe store is kept (mapper.resume=true continues from it)");
+  }
+}
+
+double MappingWorker::secondsSinceFirstFrame() const {
+  if (!first_frame_time_) return 0.0;
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - *first_frame_time_).count();
+}
+
+}  // namespace rekon::mapper

@@ -1,0 +1,49 @@
+#pragma once
+// The one thread that changes the Mapper: it takes the inbox's work in order
+// (fuse a joined frame, place a new DVO keyframe, apply a graph update, write
+// the uncorrected baseline), so a re-integration never stalls frame intake,
+// and records the time of every frame and every re-integration round.
+#include <chrono>
+#include <cstdint>
+#include <optional>
+#include <vector>
+
+#include "inbox.hpp"
+#include "outputs.hpp"
+#include "rekon/common/service.hpp"
+#include "rekon/mapper/mapper.hpp"
+
+namespace rekon::mapper {
+
+class MappingWorker {
+ public:
+  // BaselineWork (queued only with an output folder) writes mesh_uncorrected.ply into ctx.outDir().
+  MappingWorker(ServiceContext& ctx, Mapper& mapper, Inbox& inbox);
+
+  // The thread's body: until the inbox lets it stop, or until a piece of work
+  // fails (the inbox then holds the error, and a stop is requested).
+  void run();
+
+  // After run() returned, on the calling thread: the final pass after a clean
+  // end (its rounds recorded), else only the open KF keyframe integrated.
+  void finish(bool clean);
+  const std::vector<FrameTiming>& frameTiming() const { return frame_timing_; }
+  const std::vector<RoundRecord>& rounds() const { return rounds_; }
+  bool baselineWritten() const { return baseline_written_; }
+
+ private:
+  void process(const Work& w);
+  void fuse(const FrameWork& f);
+  double secondsSinceFirstFrame() const;
+
+  ServiceContext& ctx_;
+  Mapper& mapper_;
+  Inbox& inbox_;
+  std::vector<FrameTiming> frame_timing_;
+  std::vector<RoundRecord> rounds_;
+  std::optional<std::chrono::steady_clock::time_point> first_frame_time_;
+  int64_t last_graph_version_ = 0;
+  bool baseline_written_ = false;
+};
+
+}  // namespace rekon::mapper

@@ -1,0 +1,110 @@
+#include "outputs.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <thread>
+
+#include "rekon/common/error.hpp"
+#include "rekon/common/mesh.hpp"
+#include "rekon/common/messages.hpp"
+#include "rekon_msgs/done_t.hpp"
+
+namespace rekon::mapper {
+namespace {
+
+void writeFrameTiming(const std::vector<FrameTiming>& rows, const std::string& path) {
+  std::ofstream out(path);
+  out << "frame_id,ms,fuse_ms,integrate_ms\n";
+  for (const FrameTiming& r : rows) out << r.frame_id << ',' << r.ms << ',' << r.fuse_ms << ',' << r.integrate_ms << '\n';
+  if (!out) throw Error("cannot write " + path + "; check that the output folder is writable");
+}
+
+void writeRounds(const std::vector<RoundRecord>& rows, const std::string& path) {
+  std::ofstream out(path);
+  out << "time_s,graph_version,keyframes_reintegrated,ms,blocks_streamed,final_pass\n";
+  for (const RoundRecord& r : rows)
+    out << r.time_s << ',' << r.graph_version << ',' << r.round.keyframes << ',' << r.round.ms << ','
+        << r.round.blocks_streamed << ',' << (r.final_pass ? 1 : 0) << '\n';
+  if (!out) throw Error("cannot write " + path + "; check that the output folder is writable");
+}
+
+}  // namespace
+
+void writeUncorrectedMesh(const Mapper& mapper, const std::string& out_dir) {
+  const auto t0 = std::chrono::steady_clock::now();
+  const std::string path = (std::filesystem::path(out_dir) / "mesh_uncorrected.ply").string();
+  const Mesh uncorrected = mapper.extractUncorrectedMesh();
+  writePly(uncorrected, path);
+  spdlog::info("wrote {} ({} vertices, {:.1f} s: every KF keyframe at its first pose)", path, uncorrected.vertices.size(),
+               std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+}
+
+void writeMeshAndTables(const Mapper& mapper, const std::vector<FrameTiming>& frames,
+                        const std::vector<RoundRecord>& rounds, const std::string& out_dir) {
+  const std::filesystem::path out(out_dir);
+  const std::string path = (out / "mesh.ply").string();
+  const Mesh mesh = mapper.extractMesh();
+  writePly(mesh, path);
+  spdlog::info("wrote {} ({} vertices)", path, mesh.vertices.size());
+  writeFrameTiming(frames, (out / "mapper_timing.csv").string());
+  writeRounds(rounds, (out / "mapper_reintegration.csv").string());
+}
+
+void publishDone(ServiceContext& ctx, int64_t last_frame_id) {
+  rekon_msgs::done_t done{};
+  done.service = ctx.name();
+  done.last_frame_id = last_frame_id;
+  for (int i = 0; i < 3; ++i) {  // UDP multicast may drop one
+    ctx.bus().publish(channel::kDone, done);
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+}
+
+void recordStats(ServiceContext& ctx, const Mapper& mapper, const MapperParams& params, const InboxCounts& inbox) {
+  const MapperCounters& c = mapper.counters();
+  const volume::VolumeStats vs = mapper.volume().stats();
+  const MemoryUse mem = mapper.memoryUse();
+  const double n_frames = static_cast<double>(std::max<int64_t>(1, c.frames + c.skipped_frames));
+  ctx.stats()
+      .set("frames_fused", static_cast<long long>(c.frames))
+      .set("frames_skipped", static_cast<long long>(c.skipped_frames))
+      .set("frames_dropped", static_cast<long long>(inbox.dropped_frames))
+      .set("frames_received_again", static_cast<long long>(inbox.frames_received_again))
+      .set("kf_keyframes", static_cast<long long>(c.kf_keyframes))
+      .set("integrations", static_cast<long long>(c.integrations))
+      .set("deintegrations", static_cast<long long>(c.deintegrations))
+      .set("reintegrations", static_cast<long long>(c.reintegrations))
+      .set("final_pass_reintegrations", static_cast<long long>(c.final_pass_reintegrations))
+      .set("graph_updates", static_cast<long long>(c.graph_updates))
+      .set("graph_updates_coalesced", static_cast<long long>(inbox.coalesced_updates))
+      .set("restored_keyframes", static_cast<long long>(c.restored_keyframes))
+      .set("integrate_ms_mean", c.integrate_ms_total / static_cast<double>(std::max<int64_t>(1, c.integrations + c.reintegrations)))
+      .set("voxel_blocks", static_cast<long long>(vs.blocks))
+      .set("bytes_per_voxel", vs.bytes_per_voxel)
+      .set("active_blocks_peak", static_cast<long long>(vs.peak_active_blocks))
+      .set("streamed_out", static_cast<long long>(vs.streamed_out))
+      .set("streamed_in", static_cast<long long>(vs.streamed_in))
+      .set("fuse_ms_per_frame", c.fuse_ms_total / n_frames)
+      .set("integration_ms_per_frame", c.first_integration_ms_total / n_frames)
+      .set("reintegration_ms_per_frame", c.reintegration_ms_total / n_frames)
+      .set("final_pass_ms", c.final_pass_ms_total)
+      .set("reintegration_blocks_streamed", static_cast<long long>(c.reintegration_blocks_streamed))
+      .set("input_frame_bytes", static_cast<long long>(mem.input_frame_bytes))
+      .set("keyframe_bytes", static_cast<long long>(mem.keyframe_bytes))
+      .set("keyframe_over_input_bytes",
+           static_cast<double>(mem.keyframe_bytes) / static_cast<double>(std::max<int64_t>(1, mem.input_frame_bytes)))
+      .set("voxel_bytes", static_cast<long long>(mem.voxel_bytes))
+      .set("active_voxel_bytes_peak", static_cast<long long>(mem.active_voxel_bytes_peak))
+      .set("reintegration", toString(params.mode))
+      .set("m", params.m)
+      .set("kappa", params.fusion.kappa);
+  if (mem.keyframe_store_bytes >= 0) ctx.stats().set("keyframe_store_bytes", static_cast<long long>(mem.keyframe_store_bytes));
+  spdlog::info("mapper: {} frames into {} KF keyframes; {} re-integrations ({} in the final pass); {} blocks",
+               c.frames, c.kf_keyframes, c.reintegrations, c.final_pass_reintegrations, vs.blocks);
+}
+
+}  // namespace rekon::mapper

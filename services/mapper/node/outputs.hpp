@@ -1,0 +1,40 @@
+#pragma once
+// What the mapper leaves at the end of a run: in the output folder mesh.ply,
+// mesh_uncorrected.ply (the paper's baseline), mapper_timing.csv and
+// mapper_reintegration.csv (tools/report/README.md reads them); done_t for
+// the services downstream; its stats and a summary line in the log.
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "inbox.hpp"
+#include "rekon/common/service.hpp"
+#include "rekon/mapper/mapper.hpp"
+
+namespace rekon::mapper {
+
+// One row of mapper_timing.csv: the wall time of a frame, split into keyframe
+// fusion and the integration of a KF keyframe it closed.
+struct FrameTiming {
+  int64_t frame_id;
+  double ms, fuse_ms, integrate_ms;
+};
+// One row of mapper_reintegration.csv.
+struct RoundRecord {
+  double time_s;
+  int64_t graph_version;
+  ReintegrationRound round;
+  bool final_pass;
+};
+
+// mesh_uncorrected.ply: every KF keyframe at the pose of its first integration.
+void writeUncorrectedMesh(const Mapper& mapper, const std::string& out_dir);
+// mesh.ply, mapper_timing.csv and mapper_reintegration.csv.
+void writeMeshAndTables(const Mapper& mapper, const std::vector<FrameTiming>& frames,
+                        const std::vector<RoundRecord>& rounds, const std::string& out_dir);
+// done_t after a clean end, so that the services downstream may finish.
+void publishDone(ServiceContext& ctx, int64_t last_frame_id);
+// ctx.stats() (written to <out>/mapper_stats.json at exit) and a summary in the log.
+void recordStats(ServiceContext& ctx, const Mapper& mapper, const MapperParams& params, const InboxCounts& inbox);
+
+}  // namespace rekon::mapper
