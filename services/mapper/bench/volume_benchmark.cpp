@@ -29,6 +29,87 @@ struct Frame {
   rekon::Pose pose;
 };
 
+// Every frame of the dataset that has a ground-truth pose, decoded up front.
+std::vector<Frame> loadFrames(const rekon::TumDataset& dataset, double max_time_difference, bool no_color) {
+  std::vector<Frame> frames;
+  for (size_t i = 0; i < dataset.size(); ++i) {
+    const int p = rekon::nearestInTime(dataset.groundTruth(), dataset.timestamp(i), max_time_difference);
+    if (p < 0) continue;
+    const rekon::RgbdFrame f = dataset.load(i);
+    frames.push_back({rekon::volume::depthToMetres(f.depth, dataset.intrinsics().depth_scale),
+                      no_color ? cv::Mat() : f.color, f.depth, dataset.groundTruth()[p].pose});
+  }
+  return frames;
+}
+
+// Exactness on real data: A (first half) + B (second half) - B, B removed
+// in a shuffled order, against A alone.
+void printExactness(const std::vector<Frame>& frames, const rekon::volume::VolumeParams& params, const rekon::Intrinsics& k) {
+  const size_t half = frames.size() / 2;
+  rekon::volume::TsdfVolume a_only(params), a_plus_b(params);
+  for (size_t i = 0; i < half; ++i) {
+    a_only.integrate(frames[i].depth, frames[i].color, cv::Mat(), k, frames[i].pose);
+    a_plus_b.integrate(frames[i].depth, frames[i].color, cv::Mat(), k, frames[i].pose);
+  }
+  std::vector<size_t> b;
+  for (size_t i = half; i < frames.size(); ++i) {
+    a_plus_b.integrate(frames[i].depth, frames[i].color, cv::Mat(), k, frames[i].pose);
+    b.push_back(i);
+  }
+  for (size_t i = 0; i < b.size(); ++i) std::swap(b[i], b[(i * 7919 + 13) % b.size()]);
+  for (size_t i : b) a_plus_b.deintegrate(frames[i].depth, frames[i].color, cv::Mat(), k, frames[i].pose);
+  long long sdf = 0, weight = 0, color = 0, differing_color = 0, voxels = 0;
+  std::vector<rekon::volume::Voxel> va, vb;
+  const auto coords_a = a_only.blockCoords();
+  for (const auto& c : coords_a) {
+    a_only.readBlock(c, va);
+    if (!a_plus_b.readBlock(c, vb)) {
+      sdf = weight = -1;  // a block of A is missing
+      break;
+    }
+    for (size_t i = 0; i < va.size(); ++i) {
+      sdf = std::max<long long>(sdf, std::llabs(static_cast<long long>(va[i].sdf_sum) - vb[i].sdf_sum));
+      using rekon::volume::voxelColor;
+      using rekon::volume::voxelWeight;
+      weight = std::max<long long>(weight, std::llabs(static_cast<long long>(voxelWeight(va[i])) - voxelWeight(vb[i])));
+      int dc = 0;
+      for (int ch = 0; ch < 3; ++ch) dc = std::max(dc, std::abs(voxelColor(va[i], ch) - voxelColor(vb[i], ch)));
+      color = std::max<long long>(color, dc);
+      differing_color += dc != 0;
+      voxels += voxelWeight(va[i]) != 0;
+    }
+  }
+  std::printf("exactness: A=%zu frames, B=%zu frames removed shuffled: blocks A=%zu A+B-B=%lld max_abs_diff sdf_sum=%lld "
+              "weight=%lld color=%lld (levels; %lld of %lld observed voxels differ in color)\n",
+              half, b.size(), coords_a.size(), static_cast<long long>(a_plus_b.stats().blocks), sdf, weight, color,
+              differing_color, voxels);
+}
+
+#ifdef REKON_WITH_OPEN3D
+// Open3D's VoxelBlockGrid on the same frames, with 16-bit and float voxels.
+void compareWithOpen3d(const std::vector<Frame>& frames, const rekon::volume::VolumeParams& params,
+                       const rekon::Intrinsics& k, double integrate_ms, double integrate_cpu_ms, double mesh_s) {
+  std::vector<cv::Mat> raw, color;
+  std::vector<rekon::Pose> poses;
+  for (const Frame& f : frames) {
+    raw.push_back(f.raw_depth);
+    color.push_back(f.color);
+    poses.push_back(f.pose);
+  }
+  for (const bool float_voxels : {false, true}) {
+    const Open3dResult o3d = runOpen3dReference(raw, color, poses, k, params.voxel_size, params.truncation,
+                                                params.max_depth, float_voxels);
+    const char* layout = float_voxels ? "float32" : "uint16";
+    std::printf("open3d_%s_integrate_ms_per_frame=%.2f open3d_%s_mesh_s=%.3f open3d_blocks=%lld open3d_mesh_vertices=%zu\n",
+                layout, o3d.integrate_ms_per_frame, layout, o3d.mesh_s, o3d.blocks, o3d.mesh_vertices);
+    std::printf("open3d_%s_integrate_cpu_ms_per_frame=%.2f\n", layout, o3d.integrate_cpu_ms_per_frame);
+    std::printf("speedup_vs_open3d_%s_same_run=%.2f (cpu time %.2f) mesh_speedup=%.2f\n", layout,
+                o3d.integrate_ms_per_frame / integrate_ms, o3d.integrate_cpu_ms_per_frame / integrate_cpu_ms,
+                o3d.mesh_s / mesh_s);
+  }
+}
+#endif
+
 }  // namespace
 
 int main(int argc, char** argv) try {
@@ -47,14 +128,7 @@ int main(int argc, char** argv) try {
   if (!dataset.hasGroundTruth()) throw rekon::Error(args.get("dataset") + ": needs groundtruth.txt");
   const rekon::Intrinsics& k = dataset.intrinsics();
 
-  std::vector<Frame> frames;
-  for (size_t i = 0; i < dataset.size(); ++i) {
-    const int p = rekon::nearestInTime(dataset.groundTruth(), dataset.timestamp(i), options.max_time_difference);
-    if (p < 0) continue;
-    const rekon::RgbdFrame f = dataset.load(i);
-    frames.push_back({rekon::volume::depthToMetres(f.depth, k.depth_scale), args.flagSet("no-color") ? cv::Mat() : f.color,
-                      f.depth, dataset.groundTruth()[p].pose});
-  }
+  const std::vector<Frame> frames = loadFrames(dataset, options.max_time_difference, args.flagSet("no-color"));
   spdlog::info("{} frames with poses loaded from {}", frames.size(), args.get("dataset"));
 
   rekon::volume::VolumeParams params;  // voxel 1 cm, truncation 4 cm, max depth 4 m
@@ -108,70 +182,10 @@ int main(int argc, char** argv) try {
               mesh.triangles.size(), s.bytes_per_voxel,
               s.blocks * rekon::volume::kBlockVoxels * s.bytes_per_voxel / 1048576.0,
               static_cast<long long>(volume.stats().blocks));
-  // Exactness on real data: A (first half) + B (second half) - B, B removed
-  // in a shuffled order, against A alone.
-  {
-    const size_t half = frames.size() / 2;
-    rekon::volume::TsdfVolume a_only(params), a_plus_b(params);
-    for (size_t i = 0; i < half; ++i) {
-      a_only.integrate(frames[i].depth, frames[i].color, cv::Mat(), k, frames[i].pose);
-      a_plus_b.integrate(frames[i].depth, frames[i].color, cv::Mat(), k, frames[i].pose);
-    }
-    std::vector<size_t> b;
-    for (size_t i = half; i < frames.size(); ++i) {
-      a_plus_b.integrate(frames[i].depth, frames[i].color, cv::Mat(), k, frames[i].pose);
-      b.push_back(i);
-    }
-    for (size_t i = 0; i < b.size(); ++i) std::swap(b[i], b[(i * 7919 + 13) % b.size()]);
-    for (size_t i : b) a_plus_b.deintegrate(frames[i].depth, frames[i].color, cv::Mat(), k, frames[i].pose);
-    long long sdf = 0, weight = 0, color = 0, differing_color = 0, voxels = 0;
-    std::vector<rekon::volume::Voxel> va, vb;
-    const auto coords_a = a_only.blockCoords();
-    for (const auto& c : coords_a) {
-      a_only.readBlock(c, va);
-      if (!a_plus_b.readBlock(c, vb)) {
-        sdf = weight = -1;  // a block of A is missing
-        break;
-      }
-      for (size_t i = 0; i < va.size(); ++i) {
-        sdf = std::max<long long>(sdf, std::llabs(static_cast<long long>(va[i].sdf_sum) - vb[i].sdf_sum));
-        using rekon::volume::voxelColor;
-        using rekon::volume::voxelWeight;
-        weight = std::max<long long>(weight, std::llabs(static_cast<long long>(voxelWeight(va[i])) - voxelWeight(vb[i])));
-        int dc = 0;
-        for (int ch = 0; ch < 3; ++ch) dc = std::max(dc, std::abs(voxelColor(va[i], ch) - voxelColor(vb[i], ch)));
-        color = std::max<long long>(color, dc);
-        differing_color += dc != 0;
-        voxels += voxelWeight(va[i]) != 0;
-      }
-    }
-    std::printf("exactness: A=%zu frames, B=%zu frames removed shuffled: blocks A=%zu A+B-B=%lld max_abs_diff sdf_sum=%lld "
-                "weight=%lld color=%lld (levels; %lld of %lld observed voxels differ in color)\n",
-                half, b.size(), coords_a.size(), static_cast<long long>(a_plus_b.stats().blocks), sdf, weight, color,
-                differing_color, voxels);
-  }
+  printExactness(frames, params, k);
 
 #ifdef REKON_WITH_OPEN3D
-  if (!args.flagSet("no-color")) {
-    std::vector<cv::Mat> raw, color;
-    std::vector<rekon::Pose> poses;
-    for (const Frame& f : frames) {
-      raw.push_back(f.raw_depth);
-      color.push_back(f.color);
-      poses.push_back(f.pose);
-    }
-    for (const bool float_voxels : {false, true}) {
-      const Open3dResult o3d = runOpen3dReference(raw, color, poses, k, params.voxel_size, params.truncation,
-                                                  params.max_depth, float_voxels);
-      const char* layout = float_voxels ? "float32" : "uint16";
-      std::printf("open3d_%s_integrate_ms_per_frame=%.2f open3d_%s_mesh_s=%.3f open3d_blocks=%lld open3d_mesh_vertices=%zu\n",
-                  layout, o3d.integrate_ms_per_frame, layout, o3d.mesh_s, o3d.blocks, o3d.mesh_vertices);
-      std::printf("open3d_%s_integrate_cpu_ms_per_frame=%.2f\n", layout, o3d.integrate_cpu_ms_per_frame);
-      std::printf("speedup_vs_open3d_%s_same_run=%.2f (cpu time %.2f) mesh_speedup=%.2f\n", layout,
-                  o3d.integrate_ms_per_frame / integrate_ms, o3d.integrate_cpu_ms_per_frame / integrate_cpu_ms,
-                  o3d.mesh_s / mesh_s);
-    }
-  }
+  if (!args.flagSet("no-color")) compareWithOpen3d(frames, params, k, integrate_ms, integrate_cpu_ms, mesh_s);
 #else
   std::printf("open3d: not built (install libopen3d-dev and re-configure to compare in the same run)\n");
 #endif

@@ -134,6 +134,37 @@ std::string number(double v) {
   return buf;
 }
 
+// The runs --kappas, --no-dvo, --dist and --overlaps ask for, each from `base`.
+std::vector<StrategyRun> strategyRuns(const ArgParser& args, const fusion::FusionParams& base) {
+  std::vector<StrategyRun> runs;
+  for (double kappa : parseNumberList(args.get("kappas"), "kappas")) {
+    if (kappa < 1 || kappa != static_cast<int>(kappa)) throw Error("--kappas: " + number(kappa) + " is not a whole number >= 1");
+    StrategyRun r{fusion::KeyframeStrategy::kConst, "kappa=" + number(kappa), base};
+    r.fusion.strategy = r.strategy;
+    r.fusion.kappa = static_cast<int>(kappa);
+    runs.push_back(r);
+  }
+  if (!args.flagSet("no-dvo")) {
+    StrategyRun r{fusion::KeyframeStrategy::kDvo, "tracker", base};
+    r.fusion.strategy = r.strategy;
+    runs.push_back(r);
+  }
+  for (const auto& [t, deg] : parsePairList(args.get("dist"), "dist")) {
+    StrategyRun r{fusion::KeyframeStrategy::kDist, "t=" + number(t) + ";r=" + number(deg), base};
+    r.fusion.strategy = r.strategy;
+    r.fusion.dist_translation = t;
+    r.fusion.dist_rotation_deg = deg;
+    runs.push_back(r);
+  }
+  for (double o : parseNumberList(args.get("overlaps"), "overlaps")) {
+    StrategyRun r{fusion::KeyframeStrategy::kOverlap, "min_overlap=" + number(o), base};
+    r.fusion.strategy = r.strategy;
+    r.fusion.min_overlap = o;
+    runs.push_back(r);
+  }
+  return runs;
+}
+
 }  // namespace
 
 int benchKeyframesCommand(int argc, char** argv) {
@@ -162,37 +193,12 @@ int benchKeyframesCommand(int argc, char** argv) {
   const std::string out_dir = args.get("out");
   makeOutputFolder(out_dir);
 
-  std::vector<StrategyRun> runs;
   mapper::MapperParams base = mapper::MapperParams::fromConfig(config);
   base.cpu_time_counters = !args.flagSet("wall");
   // The paper's Figure 5 measures each strategy as defined, uncapped: the
   // sequences are finite and the sweep's own frames bound the memory.
   base.fusion.max_frames_per_keyframe = std::numeric_limits<int>::max();
-  for (double kappa : parseNumberList(args.get("kappas"), "kappas")) {
-    if (kappa < 1 || kappa != static_cast<int>(kappa)) throw Error("--kappas: " + number(kappa) + " is not a whole number >= 1");
-    StrategyRun r{fusion::KeyframeStrategy::kConst, "kappa=" + number(kappa), base.fusion};
-    r.fusion.strategy = r.strategy;
-    r.fusion.kappa = static_cast<int>(kappa);
-    runs.push_back(r);
-  }
-  if (!args.flagSet("no-dvo")) {
-    StrategyRun r{fusion::KeyframeStrategy::kDvo, "tracker", base.fusion};
-    r.fusion.strategy = r.strategy;
-    runs.push_back(r);
-  }
-  for (const auto& [t, deg] : parsePairList(args.get("dist"), "dist")) {
-    StrategyRun r{fusion::KeyframeStrategy::kDist, "t=" + number(t) + ";r=" + number(deg), base.fusion};
-    r.fusion.strategy = r.strategy;
-    r.fusion.dist_translation = t;
-    r.fusion.dist_rotation_deg = deg;
-    runs.push_back(r);
-  }
-  for (double o : parseNumberList(args.get("overlaps"), "overlaps")) {
-    StrategyRun r{fusion::KeyframeStrategy::kOverlap, "min_overlap=" + number(o), base.fusion};
-    r.fusion.strategy = r.strategy;
-    r.fusion.min_overlap = o;
-    runs.push_back(r);
-  }
+  const std::vector<StrategyRun> runs = strategyRuns(args, base.fusion);
   for (const StrategyRun& r : runs) r.fusion.validate();  // before minutes of loading
 
   const auto start = std::chrono::steady_clock::now();

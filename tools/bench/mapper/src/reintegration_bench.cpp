@@ -162,6 +162,41 @@ const RunResult& find(const std::vector<RunResult>& runs, int kappa, mapper::Rei
   throw Error("internal: no run for kappa " + std::to_string(kappa));
 }
 
+// --kappas, whole numbers >= 1, with the two the headline compares, sorted and unique.
+std::vector<int> kappaList(const std::string& text) {
+  std::vector<int> kappas;
+  for (double k : parseNumberList(text, "kappas")) {
+    if (k < 1 || k != static_cast<int>(k)) throw Error("--kappas: every entry must be a whole number >= 1");
+    kappas.push_back(static_cast<int>(k));
+  }
+  kappas.push_back(kBundleFusionKappa);
+  kappas.push_back(kOursKappa);
+  std::sort(kappas.begin(), kappas.end());
+  kappas.erase(std::unique(kappas.begin(), kappas.end()), kappas.end());
+  return kappas;
+}
+
+// The headline: kappa 20, m 5, consecutive against kappa 1, m 100, most_moved
+// (BundleFusion's setting) and against most_moved at kappa 20.
+void printHeadline(const std::vector<RunResult>& runs, double tracking_ms, const std::string& tracking_source,
+                   bool cpu_time) {
+  const RunResult& ours = find(runs, kOursKappa, mapper::ReintegrationMode::kConsecutive);
+  const RunResult& ours_mm = find(runs, kOursKappa, mapper::ReintegrationMode::kMostMoved);
+  const RunResult& bf = find(runs, kBundleFusionKappa, mapper::ReintegrationMode::kMostMoved);
+  const auto withFusion = [&](const RunResult& r) { return r.perFrame(r.fuse_ms) + r.reintegrationPerFrame(); };
+  std::cout << "times in " << (cpu_time ? "process CPU" : "wall") << " ms; tracking " << tracking_ms << " ms/frame ("
+            << tracking_source << "); kappa " << kOursKappa << " m " << ours.m << ": blocks streamed in rounds consecutive "
+            << ours.blocks_streamed_in_rounds << ", most_moved " << ours_mm.blocks_streamed_in_rounds << "\n";
+  std::cout << keyValueLine({{"with_fusion_ours_over_bundlefusion", withFusion(ours) / withFusion(bf)},
+                             {"total_ours_over_bundlefusion", (tracking_ms + withFusion(ours)) / (tracking_ms + withFusion(bf))},
+                             {"blocks_streamed_consecutive", static_cast<double>(ours.blocks_streamed_in_rounds)},
+                             {"blocks_streamed_most_moved", static_cast<double>(ours_mm.blocks_streamed_in_rounds)}})
+            << "\n";
+  std::cout << keyValueLine({{"ours_over_bundlefusion", ours.reintegrationPerFrame() / bf.reintegrationPerFrame()},
+                             {"consecutive_over_most_moved", ours.reintegrationPerFrame() / ours_mm.reintegrationPerFrame()}})
+            << std::endl;
+}
+
 }  // namespace
 
 int benchReintegrationCommand(int argc, char** argv) {
@@ -200,15 +235,7 @@ int benchReintegrationCommand(int argc, char** argv) {
     throw Error(source_file + ": not found; give --trajectory, or a dataset written by rekon synth --drift T,R");
   const int m_total = args.getInt("m-total");
   if (m_total < 1) throw Error("--m-total must be at least 1");
-  std::vector<int> kappas;
-  for (double k : parseNumberList(args.get("kappas"), "kappas")) {
-    if (k < 1 || k != static_cast<int>(k)) throw Error("--kappas: every entry must be a whole number >= 1");
-    kappas.push_back(static_cast<int>(k));
-  }
-  kappas.push_back(kBundleFusionKappa);
-  kappas.push_back(kOursKappa);
-  std::sort(kappas.begin(), kappas.end());
-  kappas.erase(std::unique(kappas.begin(), kappas.end()), kappas.end());
+  const std::vector<int> kappas = kappaList(args.get("kappas"));
 
   replay::ReplayParams rp;
   rp.trajectory = source_file;
@@ -240,22 +267,8 @@ int benchReintegrationCommand(int argc, char** argv) {
   writeCsv(runs, tracking_ms, (fs::path(out_dir) / "reintegration.csv").string());
   writePlot(runs, tracking_ms, (fs::path(out_dir) / "reintegration_plot.svg").string(), m_total,
             base.cpu_time_counters);
-
-  const RunResult& ours = find(runs, kOursKappa, mapper::ReintegrationMode::kConsecutive);
-  const RunResult& ours_mm = find(runs, kOursKappa, mapper::ReintegrationMode::kMostMoved);
-  const RunResult& bf = find(runs, kBundleFusionKappa, mapper::ReintegrationMode::kMostMoved);
-  const auto withFusion = [&](const RunResult& r) { return r.perFrame(r.fuse_ms) + r.reintegrationPerFrame(); };
-  std::cout << "times in " << (base.cpu_time_counters ? "process CPU" : "wall") << " ms; tracking " << tracking_ms << " ms/frame (" << (args.has("tracking-csv") ? args.get("tracking-csv") : "DVO tracker on these frames")
-            << "); kappa " << kOursKappa << " m " << ours.m << ": blocks streamed in rounds consecutive "
-            << ours.blocks_streamed_in_rounds << ", most_moved " << ours_mm.blocks_streamed_in_rounds << "\n";
-  std::cout << keyValueLine({{"with_fusion_ours_over_bundlefusion", withFusion(ours) / withFusion(bf)},
-                             {"total_ours_over_bundlefusion", (tracking_ms + withFusion(ours)) / (tracking_ms + withFusion(bf))},
-                             {"blocks_streamed_consecutive", static_cast<double>(ours.blocks_streamed_in_rounds)},
-                             {"blocks_streamed_most_moved", static_cast<double>(ours_mm.blocks_streamed_in_rounds)}})
-            << "\n";
-  std::cout << keyValueLine({{"ours_over_bundlefusion", ours.reintegrationPerFrame() / bf.reintegrationPerFrame()},
-                             {"consecutive_over_most_moved", ours.reintegrationPerFrame() / ours_mm.reintegrationPerFrame()}})
-            << std::endl;
+  printHeadline(runs, tracking_ms, args.has("tracking-csv") ? args.get("tracking-csv") : "DVO tracker on these frames",
+                base.cpu_time_counters);
   return 0;
 }
 
