@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cstdint>
 #include <thread>
 
 #include "rekon/common/messages.hpp"
@@ -16,6 +17,18 @@ namespace {
 // receiver's socket buffer overflows on a loaded machine.
 constexpr int kReplayBurst = 20;
 constexpr auto kReplayPause = std::chrono::milliseconds(2);
+
+// An odometry or loop constraint (the same fields) as it goes on the bus.
+template <class Edge>
+rekon_msgs::constraint_t constraintMsg(int8_t kind, const Edge& edge) {
+  rekon_msgs::constraint_t c{};
+  c.kind = kind;
+  c.from_id = edge.from_id;
+  c.to_id = edge.to_id;
+  c.relative = toMsg(edge.relative);
+  toArray(edge.information, c.information);
+  return c;
+}
 
 }  // namespace
 
@@ -39,12 +52,7 @@ void History::publishResult(const TrackResult& r) {
     bus_.publish(channel::kKeyframes, kf);
   }
   if (r.odometry) {
-    rekon_msgs::constraint_t c{};
-    c.kind = rekon_msgs::constraint_t::KIND_ODOMETRY;
-    c.from_id = r.odometry->from_id;
-    c.to_id = r.odometry->to_id;
-    c.relative = toMsg(r.odometry->relative);
-    toArray(r.odometry->information, c.information);
+    const rekon_msgs::constraint_t c = constraintMsg(rekon_msgs::constraint_t::KIND_ODOMETRY, *r.odometry);
     constraints_.push_back(c);
     bus_.publish(channel::kConstraints, c);
   }
@@ -54,12 +62,7 @@ void History::publishResult(const TrackResult& r) {
 }
 
 void History::publishLoopConstraint(const LoopConstraint& l) {
-  rekon_msgs::constraint_t c{};
-  c.kind = rekon_msgs::constraint_t::KIND_LOOP;
-  c.from_id = l.from_id;
-  c.to_id = l.to_id;
-  c.relative = toMsg(l.relative);
-  toArray(l.information, c.information);
+  const rekon_msgs::constraint_t c = constraintMsg(rekon_msgs::constraint_t::KIND_LOOP, l);
   {
     std::lock_guard<std::mutex> lock(mutex_);
     constraints_.push_back(c);
