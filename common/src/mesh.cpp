@@ -68,22 +68,24 @@ double readBinary(const char*& p, const char* end, const std::string& t, const s
   return v;
 }
 
-}  // namespace
+// The header: the body's format and its elements with their properties.
+struct PlyHeader {
+  std::string format;
+  std::vector<Element> elements;
+};
 
-Mesh readPly(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw Error(path + ": cannot open mesh; check the path");
+PlyHeader readHeader(std::istream& in, const std::string& path) {
   std::string line;
   std::getline(in, line);
   if (line.rfind("ply", 0) != 0) throw Error(path + ": not a PLY file");
-  std::string format;
-  std::vector<Element> elements;
+  PlyHeader header;
+  auto& elements = header.elements;
   while (std::getline(in, line)) {
     if (!line.empty() && line.back() == '\r') line.pop_back();
     std::istringstream ss(line);
     std::string word;
     ss >> word;
-    if (word == "format") ss >> format;
+    if (word == "format") ss >> header.format;
     else if (word == "element") {
       Element e;
       ss >> e.name >> e.count;
@@ -105,63 +107,107 @@ Mesh readPly(const std::string& path) {
       break;
     }
   }
-  if (format != "binary_little_endian" && format != "ascii") {
-    throw Error(path + ": PLY format '" + format + "' is not supported; save as binary_little_endian or ascii");
+  if (header.format != "binary_little_endian" && header.format != "ascii") {
+    throw Error(path + ": PLY format '" + header.format +
+                "' is not supported; save as binary_little_endian or ascii");
   }
-  const std::string body((std::istreambuf_iterator<char>(in)), {});
-  const char* p = body.data();
-  const char* end = p + body.size();
-  std::istringstream ascii(format == "ascii" ? body : std::string());
-  auto next = [&](const std::string& type) -> double {
-    if (format == "ascii") {
+  return header;
+}
+
+// The body after the header, one value at a time: numbers in text for ASCII,
+// little-endian values of each property's type for binary.
+class PlyValues {
+ public:
+  PlyValues(std::istream& in, const std::string& format, const std::string& path)
+      : path_(path),
+        ascii_format_(format == "ascii"),
+        body_((std::istreambuf_iterator<char>(in)), {}),
+        p_(body_.data()),
+        end_(p_ + body_.size()),
+        ascii_(ascii_format_ ? body_ : std::string()) {}
+  PlyValues(const PlyValues&) = delete;  // p_ and end_ point into body_
+  PlyValues& operator=(const PlyValues&) = delete;
+
+  double next(const std::string& type) {
+    if (ascii_format_) {
       double v;
-      if (!(ascii >> v)) throw Error(path + ": PLY data is truncated or not numeric");
+      if (!(ascii_ >> v)) throw Error(path_ + ": PLY data is truncated or not numeric");
       return v;
     }
-    return readBinary(p, end, type, path);
-  };
+    return readBinary(p_, end_, type, path_);
+  }
 
-  Mesh mesh;
-  for (const auto& e : elements) {
-    const bool is_vertex = e.name == "vertex";
-    const bool is_face = e.name == "face";
-    if (is_vertex) mesh.vertices.reserve(e.count);
-    bool has_color = false;
-    for (const auto& prop : e.properties) has_color |= is_vertex && prop.name == "red";
-    for (size_t i = 0; i < e.count; ++i) {
-      Eigen::Vector3f v = Eigen::Vector3f::Zero();
-      std::array<uint8_t, 3> c{0, 0, 0};
-      for (const auto& prop : e.properties) {
-        if (prop.is_list) {
-          const auto n = static_cast<long>(next(prop.list_count_type));
-          if (n < 0 || n > 64) throw Error(path + ": PLY face with " + std::to_string(n) + " vertices");
-          std::vector<int> idx(n);
-          for (auto& x : idx) x = static_cast<int>(next(prop.type));
-          if (is_face && (prop.name == "vertex_indices" || prop.name == "vertex_index")) {
-            for (long k = 1; k + 1 < n; ++k) mesh.triangles.emplace_back(idx[0], idx[k], idx[k + 1]);
-          }
-          continue;
-        }
-        const double x = next(prop.type);
-        if (!is_vertex) continue;
-        if (prop.name == "x") v.x() = static_cast<float>(x);
-        else if (prop.name == "y") v.y() = static_cast<float>(x);
-        else if (prop.name == "z") v.z() = static_cast<float>(x);
-        else if (prop.name == "red") c[0] = static_cast<uint8_t>(x);
-        else if (prop.name == "green") c[1] = static_cast<uint8_t>(x);
-        else if (prop.name == "blue") c[2] = static_cast<uint8_t>(x);
+ private:
+  const std::string& path_;
+  const bool ascii_format_;
+  const std::string body_;
+  const char* p_;
+  const char* end_;
+  std::istringstream ascii_;
+};
+
+// A list property: its values, and the triangles of a fan over them when it
+// is a face's vertex indices.
+void readList(const Property& prop, bool is_face, PlyValues& values, Mesh& mesh, const std::string& path) {
+  const auto n = static_cast<long>(values.next(prop.list_count_type));
+  if (n < 0 || n > 64) throw Error(path + ": PLY face with " + std::to_string(n) + " vertices");
+  std::vector<int> idx(n);
+  for (auto& x : idx) x = static_cast<int>(values.next(prop.type));
+  if (is_face && (prop.name == "vertex_indices" || prop.name == "vertex_index")) {
+    for (long k = 1; k + 1 < n; ++k) mesh.triangles.emplace_back(idx[0], idx[k], idx[k + 1]);
+  }
+}
+
+// Every item of one element; vertices and faces go into the mesh, the
+// values of anything else are read past.
+void readElement(const Element& e, PlyValues& values, Mesh& mesh, const std::string& path) {
+  const bool is_vertex = e.name == "vertex";
+  const bool is_face = e.name == "face";
+  if (is_vertex) mesh.vertices.reserve(e.count);
+  bool has_color = false;
+  for (const auto& prop : e.properties) has_color |= is_vertex && prop.name == "red";
+  for (size_t i = 0; i < e.count; ++i) {
+    Eigen::Vector3f v = Eigen::Vector3f::Zero();
+    std::array<uint8_t, 3> c{0, 0, 0};
+    for (const auto& prop : e.properties) {
+      if (prop.is_list) {
+        readList(prop, is_face, values, mesh, path);
+        continue;
       }
-      if (is_vertex) {
-        mesh.vertices.push_back(v);
-        if (has_color) mesh.colors.push_back(c);
-      }
+      const double x = values.next(prop.type);
+      if (!is_vertex) continue;
+      if (prop.name == "x") v.x() = static_cast<float>(x);
+      else if (prop.name == "y") v.y() = static_cast<float>(x);
+      else if (prop.name == "z") v.z() = static_cast<float>(x);
+      else if (prop.name == "red") c[0] = static_cast<uint8_t>(x);
+      else if (prop.name == "green") c[1] = static_cast<uint8_t>(x);
+      else if (prop.name == "blue") c[2] = static_cast<uint8_t>(x);
+    }
+    if (is_vertex) {
+      mesh.vertices.push_back(v);
+      if (has_color) mesh.colors.push_back(c);
     }
   }
+}
+
+void checkFaceIndices(const Mesh& mesh, const std::string& path) {
   for (const auto& t : mesh.triangles) {
     if ((t.array() < 0).any() || (t.array() >= static_cast<int>(mesh.vertices.size())).any()) {
       throw Error(path + ": a face refers to a vertex that does not exist; the mesh is corrupt");
     }
   }
+}
+
+}  // namespace
+
+Mesh readPly(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw Error(path + ": cannot open mesh; check the path");
+  const PlyHeader header = readHeader(in, path);
+  PlyValues values(in, header.format, path);
+  Mesh mesh;
+  for (const auto& e : header.elements) readElement(e, values, mesh, path);
+  checkFaceIndices(mesh, path);
   return mesh;
 }
 

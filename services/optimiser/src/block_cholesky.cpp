@@ -47,11 +47,33 @@ int64_t pairKey(int i, int j) {
   return (static_cast<int64_t>(lo) << 32) | static_cast<int64_t>(hi);
 }
 
+// The neighbours of each block row in the pattern, both ways round.
+std::vector<std::vector<int>> blockAdjacency(int n, const std::vector<std::pair<int, int>>& pairs) {
+  std::vector<std::vector<int>> adjacency(static_cast<size_t>(n));
+  for (const auto& [i, j] : pairs) {
+    adjacency[static_cast<size_t>(i)].push_back(j);
+    adjacency[static_cast<size_t>(j)].push_back(i);
+  }
+  return adjacency;
+}
+
 }  // namespace
 
 void BlockCholesky::analyse(int n, const std::vector<std::pair<int, int>>& pairs) {
   n_ = n;
-  // Unique pairs, each remembered in its first orientation.
+  keepUniquePairs(pairs);
+  const std::vector<std::vector<int>> adjacency = blockAdjacency(n, pair_rows_);
+  orderToReduceFill(adjacency);
+  analyseFactorPattern(adjacency);
+  l_blocks_.resize(col_rows_.size());
+  l_diag_.resize(static_cast<size_t>(n));
+  placePairBlocks();
+  diag_.assign(static_cast<size_t>(n), Block6::Zero());
+  off_.assign(pair_rows_.size(), Block6::Zero());
+}
+
+void BlockCholesky::keepUniquePairs(const std::vector<std::pair<int, int>>& pairs) {
+  // Each pair is remembered in its first orientation.
   std::vector<std::pair<int64_t, int>> keyed;
   keyed.reserve(pairs.size());
   for (size_t k = 0; k < pairs.size(); ++k) keyed.emplace_back(pairKey(pairs[k].first, pairs[k].second), static_cast<int>(k));
@@ -65,34 +87,33 @@ void BlockCholesky::analyse(int n, const std::vector<std::pair<int, int>>& pairs
     pair_key_index_.push_back(static_cast<int>(pair_rows_.size()));
     pair_rows_.push_back(pairs[static_cast<size_t>(k)]);
   }
+}
 
-  // Fill-reducing ordering of the block graph (AMD, as CHOLMOD would use).
-  std::vector<std::vector<int>> adjacency(static_cast<size_t>(n));
-  for (const auto& [i, j] : pair_rows_) {
-    adjacency[static_cast<size_t>(i)].push_back(j);
-    adjacency[static_cast<size_t>(j)].push_back(i);
-  }
+void BlockCholesky::orderToReduceFill(const std::vector<std::vector<int>>& adjacency) {
+  // AMD on the block graph, as CHOLMOD would use.
   std::vector<Eigen::Triplet<double, int>> triplets;
-  for (int i = 0; i < n; ++i) {
+  for (int i = 0; i < n_; ++i) {
     triplets.emplace_back(i, i, 1.0);
     for (int j : adjacency[static_cast<size_t>(i)]) triplets.emplace_back(i, j, 1.0);
   }
-  Eigen::SparseMatrix<double, Eigen::ColMajor, int> pattern(n, n);
+  Eigen::SparseMatrix<double, Eigen::ColMajor, int> pattern(n_, n_);
   pattern.setFromTriplets(triplets.begin(), triplets.end());
   Eigen::PermutationMatrix<Eigen::Dynamic, Eigen::Dynamic, int> amd;
   Eigen::AMDOrdering<int>()(pattern, amd);
-  perm_.assign(amd.indices().data(), amd.indices().data() + n);
-  iperm_.assign(static_cast<size_t>(n), 0);
-  for (int p = 0; p < n; ++p) iperm_[static_cast<size_t>(perm_[static_cast<size_t>(p)])] = p;
+  perm_.assign(amd.indices().data(), amd.indices().data() + n_);
+  iperm_.assign(static_cast<size_t>(n_), 0);
+  for (int p = 0; p < n_; ++p) iperm_[static_cast<size_t>(perm_[static_cast<size_t>(p)])] = p;
+}
 
-  // Symbolic factorisation: column p's rows are its own lower neighbours and
-  // those of its children in the elimination tree, less p itself.
-  std::vector<std::vector<int>> children(static_cast<size_t>(n));
-  std::vector<int> mark(static_cast<size_t>(n), -1);
+void BlockCholesky::analyseFactorPattern(const std::vector<std::vector<int>>& adjacency) {
+  // Column p's rows are its own lower neighbours and those of its children in
+  // the elimination tree, less p itself.
+  std::vector<std::vector<int>> children(static_cast<size_t>(n_));
+  std::vector<int> mark(static_cast<size_t>(n_), -1);
   col_start_.assign(1, 0);
   col_rows_.clear();
   std::vector<int> rows;
-  for (int p = 0; p < n; ++p) {
+  for (int p = 0; p < n_; ++p) {
     rows.clear();
     mark[static_cast<size_t>(p)] = p;
     for (int j : adjacency[static_cast<size_t>(perm_[static_cast<size_t>(p)])]) {
@@ -116,9 +137,9 @@ void BlockCholesky::analyse(int n, const std::vector<std::pair<int, int>>& pairs
     col_start_.push_back(static_cast<int>(col_rows_.size()));
     if (!rows.empty()) children[static_cast<size_t>(rows.front())].push_back(p);
   }
-  l_blocks_.resize(col_rows_.size());
-  l_diag_.resize(static_cast<size_t>(n));
+}
 
+void BlockCholesky::placePairBlocks() {
   pair_slot_.resize(pair_rows_.size());
   pair_transposed_.resize(pair_rows_.size());
   for (size_t k = 0; k < pair_rows_.size(); ++k) {
@@ -129,8 +150,6 @@ void BlockCholesky::analyse(int n, const std::vector<std::pair<int, int>>& pairs
     pair_slot_[k] = static_cast<int>(std::lower_bound(begin, end, row) - col_rows_.begin());
     pair_transposed_[k] = a < b;  // stored A(i, j) sits above the diagonal in the new order
   }
-  diag_.assign(static_cast<size_t>(n), Block6::Zero());
-  off_.assign(pair_rows_.size(), Block6::Zero());
 }
 
 int BlockCholesky::pairIndex(int i, int j) const {

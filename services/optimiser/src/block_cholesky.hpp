@@ -42,6 +42,16 @@ class BlockCholesky {
   int64_t factorBlocks() const { return static_cast<int64_t>(l_blocks_.size()) + n_; }
 
  private:
+  // analyse(), step by step; each fills the members it names.
+  // pair_rows_ and pair_keys_ / pair_key_index_, without duplicates.
+  void keepUniquePairs(const std::vector<std::pair<int, int>>& pairs);
+  // perm_ and iperm_.
+  void orderToReduceFill(const std::vector<std::vector<int>>& adjacency);
+  // col_start_ and col_rows_ (the symbolic factorisation).
+  void analyseFactorPattern(const std::vector<std::vector<int>>& adjacency);
+  // pair_slot_ and pair_transposed_.
+  void placePairBlocks();
+
   int n_ = 0;
   std::vector<int> perm_, iperm_;  // new position of old row i: iperm_[i]; old row at new position p: perm_[p]
   // Column p of L (new order): rows col_rows_[col_start_[p] .. col_start_[p+1]), ascending, all > p.

@@ -253,24 +253,148 @@ void retract(const double* x, const double* step, double* out) {
   for (int i = 0; i < 4; ++i) out[3 + i] = q.coeffs()[i];
 }
 
+// Levenberg-Marquardt damping of solveBlockCholesky: lambda scales diag(H).
+// Starting small makes the first steps Gauss-Newton steps (a pose graph
+// from chained odometry is well within their basin); beyond the maximum a
+// step is too short to matter and the solve ends.
+constexpr double kInitialDamping = 1e-6;
+constexpr double kMinDamping = 1e-9;
+constexpr double kMaxDamping = 1e6;
+
+// One kept edge between attached keyframes as the block-Cholesky solve sees
+// it: the parameter blocks of its keyframes, their variable indices (-1 for
+// the fixed anchor) and its off-diagonal block in the factor (-1 without one).
+struct Term {
+  const detail::RelativeMeasurement* z;
+  const Matrix6d* sqrt_information;
+  bool loop;
+  const double* a;
+  const double* b;
+  int ia, ib, pair;
+};
+
+// When a solve stops: after max_iterations, at a relative decrease of the cost
+// below tolerance, or (unless final) once max_solver_time_s have passed since start.
+struct StopRule {
+  bool final;
+  int max_iterations;
+  double tolerance;
+  double max_solver_time_s;
+  std::chrono::steady_clock::time_point start;
+};
+
+// 0.5 * sum of the robustified squared whitened residuals: at the current
+// poses, or with each variable at moved[variable] where moved is given.
+double totalCost(const std::vector<Term>& terms, const PoseGraphParams& params,
+                 const std::vector<const double*>* moved) {
+  double total = 0.0;
+  Vector6d e;
+  for (const Term& t : terms) {
+    const double* a = t.ia >= 0 && moved ? (*moved)[static_cast<size_t>(t.ia)] : t.a;
+    const double* b = t.ib >= 0 && moved ? (*moved)[static_cast<size_t>(t.ib)] : t.b;
+    detail::relativeErrorAndJacobians(a, b, *t.z, e, nullptr, nullptr);
+    // U is stored with its zeros: a plain fixed-size product is faster than a triangular view.
+    const Vector6d r = *t.sqrt_information * e;
+    const double s = r.squaredNorm();
+    total += t.loop ? robust(params.loop_loss, params.loop_loss_scale, s).rho : s;
+  }
+  return 0.5 * total;
+}
+
+// Normal equations J^T W J (into chol) and gradient J^T W r at the current
+// poses, with the robust loss as iteratively reweighted least squares.
+void linearise(const std::vector<Term>& terms, const PoseGraphParams& params, detail::BlockCholesky& chol,
+               Eigen::VectorXd& gradient) {
+  chol.setZero();
+  gradient.setZero();
+  auto& diag = chol.diagonal();
+  auto& off = chol.offDiagonal();
+  Vector6d e;
+  Matrix6d ja, jb;
+  for (const Term& t : terms) {
+    detail::relativeErrorAndJacobians(t.a, t.b, *t.z, e, &ja, &jb);
+    const Matrix6d& u = *t.sqrt_information;
+    const Vector6d r = u * e;
+    const double w = t.loop ? robust(params.loop_loss, params.loop_loss_scale, r.squaredNorm()).slope : 1.0;
+    Matrix6d wa, wb;
+    wa.noalias() = u * ja;
+    wb.noalias() = u * jb;
+    if (t.ia >= 0) {
+      diag[static_cast<size_t>(t.ia)].noalias() += w * wa.transpose() * wa;
+      gradient.segment<6>(6 * t.ia).noalias() += w * wa.transpose() * r;
+    }
+    if (t.ib >= 0) {
+      diag[static_cast<size_t>(t.ib)].noalias() += w * wb.transpose() * wb;
+      gradient.segment<6>(6 * t.ib).noalias() += w * wb.transpose() * r;
+    }
+    if (t.pair >= 0) {
+      if (chol.pairRows()[static_cast<size_t>(t.pair)].first == t.ia)
+        off[static_cast<size_t>(t.pair)].noalias() += w * wa.transpose() * wb;
+      else
+        off[static_cast<size_t>(t.pair)].noalias() += w * wb.transpose() * wa;
+    }
+  }
+}
+
+// Levenberg-Marquardt on H + lambda diag(H): close to Gauss-Newton while
+// steps succeed, a shorter gradient-like step after one that failed. Moves
+// the variables' parameter blocks (vars, those the terms point to) in place;
+// `current` is their cost on entry and on return. Returns the iterations.
+int levenbergMarquardt(const std::vector<Term>& terms, const std::vector<double*>& vars, detail::BlockCholesky& chol,
+                       const PoseGraphParams& params, const StopRule& stop, double& current) {
+  const int n = static_cast<int>(vars.size());
+  Eigen::VectorXd gradient(6 * n);
+  std::vector<double> candidate(7 * static_cast<size_t>(n));
+  std::vector<const double*> moved(static_cast<size_t>(n));
+  for (int i = 0; i < n; ++i) moved[static_cast<size_t>(i)] = candidate.data() + 7 * i;
+  double lambda = kInitialDamping;
+  int iterations = 0;
+  bool relinearise = true;
+  Eigen::VectorXd step;
+  while (iterations < stop.max_iterations) {
+    if (!stop.final && std::chrono::duration<double>(std::chrono::steady_clock::now() - stop.start).count() >
+                           stop.max_solver_time_s)
+      break;
+    if (relinearise) linearise(terms, params, chol, gradient);
+    relinearise = false;
+    ++iterations;
+    if (!chol.factorize(lambda)) {
+      lambda *= 10.0;
+      continue;
+    }
+    step = -gradient;
+    chol.solve(step);
+    for (int i = 0; i < n; ++i) retract(vars[static_cast<size_t>(i)], step.data() + 6 * i, candidate.data() + 7 * i);
+    const double next = totalCost(terms, params, &moved);
+    if (!(next < current)) {
+      lambda = std::min(lambda * 10.0, kMaxDamping);
+      if (lambda >= kMaxDamping) break;  // no step along the gradient lowers the cost: converged
+      continue;
+    }
+    for (int i = 0; i < n; ++i) std::copy_n(candidate.data() + 7 * i, 7, vars[static_cast<size_t>(i)]);
+    const double decrease = (current - next) / current;
+    current = next;
+    lambda = std::max(lambda / 10.0, kMinDamping);
+    relinearise = true;
+    if (decrease < stop.tolerance) break;
+  }
+  return iterations;
+}
+
 }  // namespace
 
 int PoseGraph::solveBlockCholesky(bool final, OptimiseReport& report, bool first_round) {
-  const auto start = std::chrono::steady_clock::now();
+  const StopRule stop{final, final ? params_.final_max_iterations : params_.max_iterations,
+                      final ? params_.final_function_tolerance : params_.function_tolerance,
+                      params_.max_solver_time_s, std::chrono::steady_clock::now()};
   // Variables: the attached keyframes but the anchor, ascending id.
-  std::vector<Node*> vars;
+  std::vector<double*> vars;
   std::map<int64_t, int> index;
   for (auto& [id, n] : nodes_) {
     if (!n.attached || (anchor_ && id == *anchor_)) continue;
     index[id] = static_cast<int>(vars.size());
-    vars.push_back(&n);
+    vars.push_back(n.x);
   }
-  struct Term {
-    const Edge* edge;
-    const double* a;
-    const double* b;
-    int ia, ib, pair;
-  };
   std::vector<Term> terms;
   std::vector<std::pair<int, int>> pairs;
   std::set<int64_t> used;
@@ -280,7 +404,8 @@ int PoseGraph::solveBlockCholesky(bool final, OptimiseReport& report, bool first
     const Node& b = nodes_.at(e.c.to_id);
     if (!a.attached || !b.attached) continue;
     const auto ia = index.find(e.c.from_id), ib = index.find(e.c.to_id);
-    Term t{&e, a.x, b.x, ia == index.end() ? -1 : ia->second, ib == index.end() ? -1 : ib->second, -1};
+    Term t{e.z.get(), &e.sqrt_information, e.c.kind == EdgeKind::Loop, a.x, b.x,
+           ia == index.end() ? -1 : ia->second, ib == index.end() ? -1 : ib->second, -1};
     if (t.ia >= 0 && t.ib >= 0) pairs.emplace_back(t.ia, t.ib);
     terms.push_back(t);
     used.insert(e.c.from_id);
@@ -289,7 +414,18 @@ int PoseGraph::solveBlockCholesky(bool final, OptimiseReport& report, bool first
   report.edges_used = static_cast<int>(terms.size());
   report.keyframes_optimised = static_cast<int>(used.size());
   if (terms.empty()) return 0;
-  const int n = static_cast<int>(vars.size());
+  detail::BlockCholesky& chol = analysedCholesky(static_cast<int>(vars.size()), pairs);
+  for (Term& t : terms) {
+    if (t.ia >= 0 && t.ib >= 0) t.pair = chol.pairIndex(t.ia, t.ib);
+  }
+  double current = totalCost(terms, params_, nullptr);
+  if (first_round) report.initial_cost = current;
+  const int iterations = levenbergMarquardt(terms, vars, chol, params_, stop, current);
+  report.final_cost = current;
+  return iterations;
+}
+
+detail::BlockCholesky& PoseGraph::analysedCholesky(int n, const std::vector<std::pair<int, int>>& pairs) {
   // The symbolic analysis is redone only when the pattern changed (a new
   // keyframe or edge, a removed outlier).
   if (!cholesky_ || cholesky_pairs_ != pairs || cholesky_->size() != n) {
@@ -297,106 +433,8 @@ int PoseGraph::solveBlockCholesky(bool final, OptimiseReport& report, bool first
     cholesky_->analyse(n, pairs);
     cholesky_pairs_ = pairs;
   }
-  detail::BlockCholesky& chol = *cholesky_;
-  for (Term& t : terms) {
-    if (t.ia >= 0 && t.ib >= 0) t.pair = chol.pairIndex(t.ia, t.ib);
-  }
-
-  const auto cost = [&](const std::vector<const double*>* moved) {
-    double total = 0.0;
-    Vector6d e;
-    for (const Term& t : terms) {
-      const double* a = t.ia >= 0 && moved ? (*moved)[static_cast<size_t>(t.ia)] : t.a;
-      const double* b = t.ib >= 0 && moved ? (*moved)[static_cast<size_t>(t.ib)] : t.b;
-      detail::relativeErrorAndJacobians(a, b, *t.edge->z, e, nullptr, nullptr);
-      // U is stored with its zeros: a plain fixed-size product is faster than a triangular view.
-      const Vector6d r = t.edge->sqrt_information * e;
-      const double s = r.squaredNorm();
-      total += t.edge->c.kind == EdgeKind::Loop ? robust(params_.loop_loss, params_.loop_loss_scale, s).rho : s;
-    }
-    return 0.5 * total;
-  };
-  // Normal equations J^T W J and gradient J^T W r at the current poses, with
-  // the robust loss as iteratively reweighted least squares.
-  Eigen::VectorXd gradient(6 * n);
-  const auto linearise = [&] {
-    chol.setZero();
-    gradient.setZero();
-    auto& diag = chol.diagonal();
-    auto& off = chol.offDiagonal();
-    Vector6d e;
-    Matrix6d ja, jb;
-    for (const Term& t : terms) {
-      detail::relativeErrorAndJacobians(t.a, t.b, *t.edge->z, e, &ja, &jb);
-      const Matrix6d& u = t.edge->sqrt_information;
-      const Vector6d r = u * e;
-      const double w = t.edge->c.kind == EdgeKind::Loop
-                           ? robust(params_.loop_loss, params_.loop_loss_scale, r.squaredNorm()).slope
-                           : 1.0;
-      Matrix6d wa, wb;
-      wa.noalias() = u * ja;
-      wb.noalias() = u * jb;
-      if (t.ia >= 0) {
-        diag[static_cast<size_t>(t.ia)].noalias() += w * wa.transpose() * wa;
-        gradient.segment<6>(6 * t.ia).noalias() += w * wa.transpose() * r;
-      }
-      if (t.ib >= 0) {
-        diag[static_cast<size_t>(t.ib)].noalias() += w * wb.transpose() * wb;
-        gradient.segment<6>(6 * t.ib).noalias() += w * wb.transpose() * r;
-      }
-      if (t.pair >= 0) {
-        if (chol.pairRows()[static_cast<size_t>(t.pair)].first == t.ia)
-          off[static_cast<size_t>(t.pair)].noalias() += w * wa.transpose() * wb;
-        else
-          off[static_cast<size_t>(t.pair)].noalias() += w * wb.transpose() * wa;
-      }
-    }
-  };
-
-  const int max_iterations = final ? params_.final_max_iterations : params_.max_iterations;
-  const double tolerance = final ? params_.final_function_tolerance : params_.function_tolerance;
-  std::vector<double> candidate(7 * static_cast<size_t>(n));
-  std::vector<const double*> moved(static_cast<size_t>(n));
-  for (int i = 0; i < n; ++i) moved[static_cast<size_t>(i)] = candidate.data() + 7 * i;
-  double current = cost(nullptr);
-  if (first_round) report.initial_cost = current;
-  // Levenberg-Marquardt on H + lambda diag(H): close to Gauss-Newton while
-  // steps succeed, a shorter gradient-like step after one that failed.
-  double lambda = kInitialDamping;
-  int iterations = 0;
-  bool relinearise = true;
-  Eigen::VectorXd step;
-  while (iterations < max_iterations) {
-    if (!final && std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count() >
-                      params_.max_solver_time_s)
-      break;
-    if (relinearise) linearise();
-    relinearise = false;
-    ++iterations;
-    if (!chol.factorize(lambda)) {
-      lambda *= 10.0;
-      continue;
-    }
-    step = -gradient;
-    chol.solve(step);
-    for (int i = 0; i < n; ++i) retract(vars[static_cast<size_t>(i)]->x, step.data() + 6 * i, candidate.data() + 7 * i);
-    const double next = cost(&moved);
-    if (!(next < current)) {
-      lambda = std::min(lambda * 10.0, kMaxDamping);
-      if (lambda >= kMaxDamping) break;  // no step along the gradient lowers the cost: converged
-      continue;
-    }
-    for (int i = 0; i < n; ++i) std::copy_n(candidate.data() + 7 * i, 7, vars[static_cast<size_t>(i)]->x);
-    const double decrease = (current - next) / current;
-    current = next;
-    lambda = std::max(lambda / 10.0, kMinDamping);
-    relinearise = true;
-    if (decrease < tolerance) break;
-  }
-  report.final_cost = current;
-  return iterations;
+  return *cholesky_;
 }
-
 
 OptimiseReport PoseGraph::optimise(bool final) {
   const auto start = std::chrono::steady_clock::now();

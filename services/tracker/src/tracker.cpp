@@ -59,17 +59,12 @@ bool Tracker::keyframeDue(const AlignResult& aligned) const {
 
 TrackResult Tracker::track(const RgbdFrame& frame, const Intrinsics& k) {
   const auto& ap = params_.aligner;
-  const auto& lp = params_.lost;
   current_.build(frame, k, ap.finest_level, ap.coarsest_level, ap.min_depth, ap.max_depth);
 
   TrackResult r;
   r.frame_id = frame.id;
   r.timestamp = frame.timestamp;
-  LostReason reason = LostReason::None;
-  if (current_.validDepthFraction() < lp.min_valid_depth_fraction)
-    reason = LostReason::NoDepth;
-  else if (current_.meanIntensity() < lp.min_mean_intensity)
-    reason = LostReason::BlackImage;
+  LostReason reason = untrackableReason();
   const bool trackable = reason == LostReason::None;
 
   if (!keyframe_) {
@@ -88,49 +83,70 @@ TrackResult Tracker::track(const RgbdFrame& frame, const Intrinsics& k) {
   if (trackable) {
     const Pose prediction = last_in_keyframe_ * velocity_;
     aligned = aligner_.align(keyframe_->reference, current_, prediction);
-    r.entropy = aligned.entropy;
-    r.valid_pixels = aligned.valid_pixels;
-    r.iterations = aligned.iterations;
-    r.intensity_sigma = aligned.intensity_sigma;
-    r.depth_sigma = aligned.depth_sigma;
-    if (reference_entropy_ && aligned.valid) r.entropy_ratio = aligned.entropy / *reference_entropy_;
-    const Pose correction = prediction.inverse() * aligned.pose;
-    if (!aligned.valid)
-      reason = LostReason::AlignmentFailed;
-    else if (aligned.valid_pixels < lp.min_overlap * aligned.selected_pixels)
-      reason = LostReason::TooLittleOverlap;
-    else if (correction.translation().norm() > lp.max_frame_translation ||
-             rotationAngleOf(correction) > radians(lp.max_frame_rotation_deg))
-      reason = LostReason::JumpBeyondBasin;
-    else if ((aligned.intensity_sigma > lp.max_intensity_sigma || aligned.depth_sigma > lp.max_depth_sigma) &&
-             entropyRatioBelow(aligned.entropy, lp.residual_entropy_ratio))
-      reason = LostReason::LargeResidual;
+    reportAlignment(aligned, r);
+    reason = alignmentLostReason(aligned, prediction);
   }
+  if (reason != LostReason::None)
+    markLost(frame, reason, trackable, r);
+  else
+    followAlignment(frame, aligned, r);
+  return r;
+}
 
-  if (reason != LostReason::None) {
-    ++lost_in_a_row_;
-    velocity_ = Pose::Identity();
-    r.state = TrackingState::Lost;
-    r.lost_reason = reason;
-    spdlog::debug("frame {}: lost ({})", frame.id, toString(reason));
-    if (trackable && lost_in_a_row_ >= lp.max_lost_frames) {
-      // Re-initialising from the last good keyframe has not worked for too
-      // long: restart from this frame at the last good pose.
-      spdlog::warn("frame {}: lost for {} frames, new keyframe at the last good pose", frame.id, lost_in_a_row_);
-      keyframe_ = makeKeyframe(frame, keyframe_->pose_world * last_in_keyframe_);
-      lost_in_a_row_ = 0;
-      r.new_keyframe = true;
-      r.keyframe_reset = true;
-    } else {
-      r.covariance = Matrix6d::Identity() * kLostVariance;
-    }
-    r.keyframe_id = keyframe_->id;
-    r.pose_in_keyframe = last_in_keyframe_;
-    r.keyframe_pose_world = keyframe_->pose_world;
-    r.pose_world = keyframe_->pose_world * last_in_keyframe_;
-    return r;
+LostReason Tracker::untrackableReason() const {
+  const auto& lp = params_.lost;
+  if (current_.validDepthFraction() < lp.min_valid_depth_fraction) return LostReason::NoDepth;
+  if (current_.meanIntensity() < lp.min_mean_intensity) return LostReason::BlackImage;
+  return LostReason::None;
+}
+
+void Tracker::reportAlignment(const AlignResult& aligned, TrackResult& r) const {
+  r.entropy = aligned.entropy;
+  r.valid_pixels = aligned.valid_pixels;
+  r.iterations = aligned.iterations;
+  r.intensity_sigma = aligned.intensity_sigma;
+  r.depth_sigma = aligned.depth_sigma;
+  if (reference_entropy_ && aligned.valid) r.entropy_ratio = aligned.entropy / *reference_entropy_;
+}
+
+LostReason Tracker::alignmentLostReason(const AlignResult& aligned, const Pose& prediction) const {
+  const auto& lp = params_.lost;
+  const Pose correction = prediction.inverse() * aligned.pose;
+  if (!aligned.valid) return LostReason::AlignmentFailed;
+  if (aligned.valid_pixels < lp.min_overlap * aligned.selected_pixels) return LostReason::TooLittleOverlap;
+  if (correction.translation().norm() > lp.max_frame_translation ||
+      rotationAngleOf(correction) > radians(lp.max_frame_rotation_deg))
+    return LostReason::JumpBeyondBasin;
+  if ((aligned.intensity_sigma > lp.max_intensity_sigma || aligned.depth_sigma > lp.max_depth_sigma) &&
+      entropyRatioBelow(aligned.entropy, lp.residual_entropy_ratio))
+    return LostReason::LargeResidual;
+  return LostReason::None;
+}
+
+void Tracker::markLost(const RgbdFrame& frame, LostReason reason, bool trackable, TrackResult& r) {
+  ++lost_in_a_row_;
+  velocity_ = Pose::Identity();
+  r.state = TrackingState::Lost;
+  r.lost_reason = reason;
+  spdlog::debug("frame {}: lost ({})", frame.id, toString(reason));
+  if (trackable && lost_in_a_row_ >= params_.lost.max_lost_frames) {
+    // Re-initialising from the last good keyframe has not worked for too
+    // long: restart from this frame at the last good pose.
+    spdlog::warn("frame {}: lost for {} frames, new keyframe at the last good pose", frame.id, lost_in_a_row_);
+    keyframe_ = makeKeyframe(frame, keyframe_->pose_world * last_in_keyframe_);
+    lost_in_a_row_ = 0;
+    r.new_keyframe = true;
+    r.keyframe_reset = true;
+  } else {
+    r.covariance = Matrix6d::Identity() * kLostVariance;
   }
+  r.keyframe_id = keyframe_->id;
+  r.pose_in_keyframe = last_in_keyframe_;
+  r.keyframe_pose_world = keyframe_->pose_world;
+  r.pose_world = keyframe_->pose_world * last_in_keyframe_;
+}
 
+void Tracker::followAlignment(const RgbdFrame& frame, const AlignResult& aligned, TrackResult& r) {
   lost_in_a_row_ = 0;
   velocity_ = last_in_keyframe_.inverse() * aligned.pose;
   r.state = TrackingState::Ok;
@@ -155,7 +171,6 @@ TrackResult Tracker::track(const RgbdFrame& frame, const Intrinsics& k) {
   r.keyframe_id = keyframe_->id;
   r.keyframe_pose_world = keyframe_->pose_world;
   r.pose_world = keyframe_->pose_world * r.pose_in_keyframe;
-  return r;
 }
 
 }  // namespace rekon::tracker

@@ -126,14 +126,8 @@ class PoseGraph {
   int solve(bool final, OptimiseReport& report, bool first_round);
   int solveCeres(bool final, OptimiseReport& report, bool first_round);
   int solveBlockCholesky(bool final, OptimiseReport& report, bool first_round);
-
-  // Levenberg-Marquardt damping of solveBlockCholesky: lambda scales diag(H).
-  // Starting small makes the first steps Gauss-Newton steps (a pose graph
-  // from chained odometry is well within their basin); beyond the maximum a
-  // step is too short to matter and the solve ends.
-  static constexpr double kInitialDamping = 1e-6;
-  static constexpr double kMinDamping = 1e-9;
-  static constexpr double kMaxDamping = 1e6;
+  // cholesky_, analysed for n variables and these pairs (kept while they do not change).
+  detail::BlockCholesky& analysedCholesky(int n, const std::vector<std::pair<int, int>>& pairs);
 
   PoseGraphParams params_;
   std::map<int64_t, Node> nodes_;

@@ -98,6 +98,18 @@ class Tracker {
   bool keyframeDue(const AlignResult& aligned) const;
   bool entropyRatioBelow(double entropy, double threshold) const;
 
+  // track(), piece by piece, in the order it calls them.
+  // NoDepth or BlackImage for a frame (in current_) not worth aligning, else None.
+  LostReason untrackableReason() const;
+  // The alignment's statistics into the result.
+  void reportAlignment(const AlignResult& aligned, TrackResult& r) const;
+  // Why an alignment from `prediction` is not to be trusted; None when it is.
+  LostReason alignmentLostReason(const AlignResult& aligned, const Pose& prediction) const;
+  // A lost frame: the last good pose, and a new keyframe there after max_lost_frames.
+  void markLost(const RgbdFrame& frame, LostReason reason, bool trackable, TrackResult& r);
+  // A good frame: its pose, or a new keyframe with its odometry constraint when one is due.
+  void followAlignment(const RgbdFrame& frame, const AlignResult& aligned, TrackResult& r);
+
   TrackerParams params_;
   DenseAligner aligner_;
   RgbdPyramid current_;
