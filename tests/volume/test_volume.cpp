@@ -13,6 +13,7 @@
 #include "rekon/mapper/volume/tsdf_volume.hpp"
 #include "rekon/mapper/volume/volume_config.hpp"
 #include "test_support.hpp"
+#include "volume_snapshot.hpp"
 
 namespace {
 
@@ -27,17 +28,8 @@ struct View {
   Pose pose;
 };
 
-using Snapshot = std::map<std::tuple<int, int, int>, std::vector<Voxel>>;
-
-Snapshot snapshot(const TsdfVolume& volume) {
-  Snapshot out;
-  std::vector<Voxel> voxels;
-  for (const BlockCoord& c : volume.blockCoords()) {
-    EXPECT_TRUE(volume.readBlock(c, voxels));
-    out[{c.x, c.y, c.z}] = voxels;
-  }
-  return out;
-}
+using rekon::test::Snapshot;
+using rekon::test::snapshot;
 
 struct Difference {
   int64_t sdf = 0, weight = 0, color = 0;  // color in 1/kColorScale levels

@@ -33,6 +33,7 @@
 #include "rekon/common/dataset.hpp"
 #include "rekon/mapper/volume/tsdf_volume.hpp"
 #include "test_support.hpp"
+#include "volume_snapshot.hpp"
 
 namespace {
 
@@ -47,17 +48,8 @@ struct Frame {
   Pose pose;
 };
 
-using Snapshot = std::map<std::tuple<int, int, int>, std::vector<Voxel>>;
-
-Snapshot snapshot(const TsdfVolume& volume) {
-  Snapshot out;
-  std::vector<Voxel> voxels;
-  for (const BlockCoord& c : volume.blockCoords()) {
-    EXPECT_TRUE(volume.readBlock(c, voxels));
-    out[{c.x, c.y, c.z}] = voxels;
-  }
-  return out;
-}
+using rekon::test::Snapshot;
+using rekon::test::snapshot;
 
 std::string describe(const Voxel& v) {
   using rekon::volume::voxelColorFixed;
