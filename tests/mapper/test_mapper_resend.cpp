@@ -65,12 +65,6 @@ class InProcessService {
   int status_ = -1;
 };
 
-long long jsonInt(const std::string& json, const std::string& key) {
-  const auto at = json.find("\"" + key + "\":");
-  if (at == std::string::npos) return -1;
-  return std::stoll(json.substr(at + key.size() + 3));
-}
-
 TEST(MapperResend, FramesSentAgainAreNeitherQueuedTwiceNorDroppedAndEveryFrameIsAcknowledged) {
   test::TempDir dir;
   synth::SequenceOptions sequence;
@@ -145,10 +139,10 @@ TEST(MapperResend, FramesSentAgainAreNeitherQueuedTwiceNorDroppedAndEveryFrameIs
 
   // Each frame counted once: all fused, none dropped, every copy seen as one.
   const std::string stats = test::readText(dir / "out/mapper_stats.json");
-  EXPECT_EQ(jsonInt(stats, "frames_fused"), kFrames) << stats;
-  EXPECT_EQ(jsonInt(stats, "frames_dropped"), 0) << stats;
-  EXPECT_EQ(jsonInt(stats, "frames_received_again"), kFrames * (kCopiesWhileWaiting + kCopiesAfterJoin)) << stats;
-  EXPECT_EQ(jsonInt(stats, "kf_keyframes"), kFrames / 4) << stats;
+  EXPECT_EQ(test::jsonInt(stats, "frames_fused"), kFrames) << stats;
+  EXPECT_EQ(test::jsonInt(stats, "frames_dropped"), 0) << stats;
+  EXPECT_EQ(test::jsonInt(stats, "frames_received_again"), kFrames * (kCopiesWhileWaiting + kCopiesAfterJoin)) << stats;
+  EXPECT_EQ(test::jsonInt(stats, "kf_keyframes"), kFrames / 4) << stats;
 }
 
 }  // namespace

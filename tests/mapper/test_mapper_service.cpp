@@ -6,8 +6,6 @@
 
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
-#include <sstream>
 
 #include "rekon/common/mesh.hpp"
 #include "rekon/mapper/store/keyframe_store.hpp"
@@ -16,23 +14,11 @@
 #include "test_support.hpp"
 
 namespace fs = std::filesystem;
+using rekon::test::jsonInt;
+using rekon::test::readText;
 using rekon::test::runCommand;
 
 namespace {
-
-std::string readText(const std::string& path) {
-  std::ifstream in(path);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
-
-// The integer after "key": in a flat JSON object, or -1.
-long long jsonInt(const std::string& json, const std::string& key) {
-  const auto at = json.find("\"" + key + "\":");
-  if (at == std::string::npos) return -1;
-  return std::stoll(json.substr(at + key.size() + 3));
-}
 
 // `rekon eval surface MESH REF`: CORR (m) from its last line, -1 when absent.
 struct Surface {

@@ -5,22 +5,18 @@
 // (tests/support/in_netns.sh) so that its bus meets no other test.
 #include <gtest/gtest.h>
 #include <signal.h>
-#include <spawn.h>
 #include <sys/wait.h>
 
 #include <atomic>
 #include <chrono>
 #include <cmath>
-#include <cstdlib>
-#include <fstream>
 #include <map>
 #include <mutex>
-#include <sstream>
 #include <thread>
 
 #include "rekon/common/bus.hpp"
-#include "rekon/common/messages.hpp"
 #include "rekon/common/graph_update.hpp"
+#include "rekon/common/messages.hpp"
 #include "rekon/optimiser/synthetic_graph.hpp"
 #include "rekon_msgs/constraint_t.hpp"
 #include "rekon_msgs/done_t.hpp"
@@ -30,51 +26,19 @@
 #include "rekon_msgs/tracked_frame_t.hpp"
 #include "test_support.hpp"
 
-extern char** environ;
 
 namespace rekon::optimiser {
 namespace {
 
-constexpr const char* kInsideEnv = "REKON_OPTIMISER_TEST_INSIDE_NETNS";
 constexpr int kKeyframes = 40;
 constexpr int kFramesPerKeyframe = 3;  // the keyframe's own frame and two after it
 
 using Clock = std::chrono::steady_clock;
 
-// Runs the current test again inside a fresh network namespace; true when
-// this process is the inner one and should do the work.
-bool insideNetns() {
-  if (std::getenv(kInsideEnv)) return true;
-  const std::string in_netns = test::sourceDir() + "/tests/support/in_netns.sh";
-  if (test::runCommand(in_netns + " true") != 0) {
-    ADD_FAILURE() << "cannot create a network namespace (unshare -n)";
-    return false;
-  }
-  const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-  const std::string filter = std::string(info->test_suite_name()) + "." + info->name();
-  std::string out;
-  const int rc = test::runCommand(std::string(kInsideEnv) + "=1 " + in_netns + " /proc/" + std::to_string(getpid()) +
-                                      "/exe --gtest_filter=" + filter,
-                                  &out);
-  EXPECT_EQ(rc, 0) << out;
-  return false;
-}
-
 pid_t spawnOptimiser(const std::string& out_dir) {
   // The synthetic constraints' information is calibrated: no scaling.
-  const std::string cmd = "exec " + test::binDir() + "/rekon-optimiser --out " + out_dir +
-                          " --set optimiser.information_scale=1 > " + out_dir + "/optimiser.log 2>&1";
-  const char* argv[] = {"/bin/sh", "-c", cmd.c_str(), nullptr};
-  pid_t pid = -1;
-  if (posix_spawn(&pid, "/bin/sh", nullptr, nullptr, const_cast<char**>(argv), environ) != 0) return -1;
-  return pid;
-}
-
-std::string readFile(const std::string& path) {
-  std::ifstream in(path);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
+  return test::spawnShell("exec " + test::binDir() + "/rekon-optimiser --out " + out_dir +
+                          " --set optimiser.information_scale=1 > " + out_dir + "/optimiser.log 2>&1");
 }
 
 // Waits up to `timeout` for `done`, with the bus dispatched on this thread.
@@ -89,7 +53,7 @@ bool spinUntil(Bus& bus, Pred done, std::chrono::seconds timeout) {
 }
 
 TEST(OptimiserService, ClosesTheLoopAndWritesEveryTrackedFrame) {
-  if (!insideNetns()) return;
+  if (!test::insideNetns()) return;
   test::TempDir dir;
   LcmBus bus(BusOptions{});
 
@@ -112,7 +76,7 @@ TEST(OptimiserService, ClosesTheLoopAndWritesEveryTrackedFrame) {
   ASSERT_GT(pid, 0);
   // "running" is announced after the optimiser subscribed to its inputs.
   ASSERT_TRUE(spinUntil(bus, [&] { return running.load(); }, std::chrono::seconds(20)))
-      << readFile(dir / "optimiser.log");
+      << test::readText(dir / "optimiser.log");
 
   SyntheticGraphSpec spec;
   spec.keyframes = kKeyframes;
@@ -190,8 +154,8 @@ TEST(OptimiserService, ClosesTheLoopAndWritesEveryTrackedFrame) {
   int status = -1;
   if (!done) kill(pid, SIGTERM);
   waitpid(pid, &status, 0);
-  ASSERT_TRUE(done) << "no done_t from the optimiser\n" << readFile(dir / "optimiser.log");
-  EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << readFile(dir / "optimiser.log");
+  ASSERT_TRUE(done) << "no done_t from the optimiser\n" << test::readText(dir / "optimiser.log");
+  EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << test::readText(dir / "optimiser.log");
 
   // Graph updates: versions increase; the final one arrives (sent three times,
   // the filter passes it once) and holds every keyframe.
@@ -203,7 +167,7 @@ TEST(OptimiserService, ClosesTheLoopAndWritesEveryTrackedFrame) {
     previous = u.version;
     if (filter.accept(u.version) && u.final_update) final_update = &u;
   }
-  ASSERT_NE(final_update, nullptr) << readFile(dir / "optimiser.log");
+  ASSERT_NE(final_update, nullptr) << test::readText(dir / "optimiser.log");
   ASSERT_EQ(final_update->num_keyframes, kKeyframes);
   std::vector<std::pair<int64_t, Pose>> final_poses;
   for (int i = 0; i < kKeyframes; ++i) final_poses.emplace_back(final_update->keyframe_ids[i], *fromMsg(final_update->poses[i]));
@@ -231,7 +195,7 @@ TEST(OptimiserService, ClosesTheLoopAndWritesEveryTrackedFrame) {
     ++i;
   }
 
-  const std::string stats = readFile(dir / "optimiser_stats.json");
+  const std::string stats = test::readText(dir / "optimiser_stats.json");
   EXPECT_NE(stats.find("\"loop_closures\": 1"), std::string::npos) << stats;
   EXPECT_NE(stats.find("\"loop_edges_removed\": 0"), std::string::npos) << stats;
   EXPECT_NE(stats.find("\"keyframes\": 40"), std::string::npos) << stats;
@@ -239,8 +203,8 @@ TEST(OptimiserService, ClosesTheLoopAndWritesEveryTrackedFrame) {
   // held for a keyframe that may still come (the service's restart
   // recovery) and left out, with a logged error, at the end.
   EXPECT_NE(stats.find("\"rejected_messages\": 1"), std::string::npos) << "the NaN constraint\n" << stats;
-  EXPECT_NE(readFile(dir / "optimiser.log").find("1 constraints name a keyframe that never arrived"), std::string::npos)
-      << readFile(dir / "optimiser.log");
+  EXPECT_NE(test::readText(dir / "optimiser.log").find("1 constraints name a keyframe that never arrived"), std::string::npos)
+      << test::readText(dir / "optimiser.log");
 }
 
 }  // namespace

@@ -88,6 +88,12 @@ std::string readText(const std::string& path) {
   return s.str();
 }
 
+long long jsonInt(const std::string& json, const std::string& key) {
+  const auto at = json.find("\"" + key + "\":");
+  if (at == std::string::npos) return -1;
+  return std::stoll(json.substr(at + key.size() + 3));
+}
+
 bool insideNetns() {
   static const char* kInside = "REKON_TEST_INSIDE_NETNS";
   if (std::getenv(kInside)) return true;

@@ -42,6 +42,8 @@ pid_t spawnShell(const std::string& command);
 int waitForExit(pid_t pid, double seconds);
 // The whole text of a file ("" when it cannot be read).
 std::string readText(const std::string& path);
+// The integer after "key": in a flat JSON object (a service's stats), or -1.
+long long jsonInt(const std::string& json, const std::string& key);
 
 // Multi-process tests whose own process talks on the bus: runs the current
 // test again inside tests/support/in_netns.sh and reports its result; returns

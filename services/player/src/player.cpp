@@ -17,9 +17,7 @@
 namespace rekon {
 namespace {
 
-using Clock = std::chrono::steady_clock;
-
-double secondsSince(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+using Clock = ConsumerWatch::Clock;
 
 // Without any acknowledgement for this long, the newest frame is sent again:
 // the frame or its acknowledgements were lost (lcm.drop_fraction, a full
@@ -173,7 +171,7 @@ class Player {
     for (const auto& s : params_.wait_for)
       if (s != restarted) others.push_back(s);
     const auto since = Clock::now();
-    while (!ctx_.stopRequested() && secondsSince(since) < params_.wait_timeout_s &&
+    while (!ctx_.stopRequested() && ConsumerWatch::secondsSince(since) < params_.wait_timeout_s &&
            watch_.waitForAck(others, newest_sent_, kResendAfterS, ctx_) == ConsumerWatch::Wait::kStalled) {
     }
   }
@@ -204,10 +202,10 @@ class Player {
   }
 
   void reportProgress(int64_t next) {
-    if (secondsSince(last_report_) <= 2.0 && next != end_) return;
+    if (ConsumerWatch::secondsSince(last_report_) <= 2.0 && next != end_) return;
     last_report_ = Clock::now();
     spdlog::info("frame {}/{} ({:.0f} %), {:.1f} frames/s", sent_, count_, 100.0 * static_cast<double>(sent_) / count_,
-                 sent_ / secondsSince(start_));
+                 sent_ / ConsumerWatch::secondsSince(start_));
   }
 
   // Plays (again) up to the end, lets consumers finish the frames in flight,
@@ -234,7 +232,7 @@ class Player {
   }
 
   void reportPlayed() {
-    const double wall = secondsSince(start_);
+    const double wall = ConsumerWatch::secondsSince(start_);
     const char* transport = mode_ == TransportMode::kShm ? "shm" : "lcm";
     spdlog::info("played {} frames in {:.2f} s ({:.1f} frames/s, transport {})", sent_, wall,
                  static_cast<double>(sent_) / std::max(wall, 1e-9), transport);
