@@ -10,6 +10,7 @@
 #include <thread>
 
 #include "analytic_scene.hpp"
+#include "rekon/common/cli.hpp"
 #include "rekon/common/error.hpp"
 #include "png_writer.hpp"
 #include "sensor_noise.hpp"
@@ -69,12 +70,8 @@ SequenceReport writeSequence(const SequenceOptions& options, const std::string& 
   const auto scene = Scene::make(options.scene);
   const int frames = options.frames > 0 ? options.frames : scene->defaultFrames(options.laps);
   if (options.frames < 0) throw Error("--frames " + std::to_string(options.frames) + " is negative; give 1 or more (0 = scene default)");
-  std::error_code ec;
-  fs::create_directories(fs::path(out_dir) / "rgb", ec);
-  fs::create_directories(fs::path(out_dir) / "depth", ec);
-  if (ec || !fs::is_directory(fs::path(out_dir) / "depth")) {
-    throw Error(out_dir + ": cannot create the output folder (" + ec.message() + "); choose a writable --out");
-  }
+  createOutputFolder((fs::path(out_dir) / "rgb").string());
+  createOutputFolder((fs::path(out_dir) / "depth").string());
   const Intrinsics k = defaultIntrinsics();
   const Trajectory trajectory = scene->trajectory(frames, options.seed, options.laps);
 

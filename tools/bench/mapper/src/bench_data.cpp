@@ -98,11 +98,4 @@ std::vector<std::pair<double, double>> parsePairList(const std::string& text, co
   return out;
 }
 
-void makeOutputFolder(const std::string& dir) {
-  std::error_code ec;
-  std::filesystem::create_directories(dir, ec);
-  if (ec || !std::filesystem::is_directory(dir))
-    throw Error(dir + ": cannot create the output folder (" + ec.message() + "); give a writable --out");
-}
-
 }  // namespace rekon::mapper_bench

@@ -42,7 +42,5 @@ std::vector<double> parseNumberList(const std::string& text, const std::string& 
 // "0.05:5,0.1:10" -> {{0.05, 5}, {0.1, 10}}.
 std::vector<std::pair<double, double>> parsePairList(const std::string& text, const std::string& option);
 
-// Creates the folder (rekon::Error naming it when that fails).
-void makeOutputFolder(const std::string& dir);
 
 }  // namespace rekon::mapper_bench

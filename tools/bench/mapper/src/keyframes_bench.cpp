@@ -191,7 +191,7 @@ int benchKeyframesCommand(int argc, char** argv) {
   const Config config = Config::load(args.has("config") ? args.get("config") : "", args.all("set"));
   setupLogging("bench", config.getString("log.level"));
   const std::string out_dir = args.get("out");
-  makeOutputFolder(out_dir);
+  createOutputFolder(out_dir);
 
   mapper::MapperParams base = mapper::MapperParams::fromConfig(config);
   base.cpu_time_counters = !args.flagSet("wall");

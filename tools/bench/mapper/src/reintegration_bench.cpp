@@ -227,7 +227,7 @@ int benchReintegrationCommand(int argc, char** argv) {
   const Config config = Config::load(args.has("config") ? args.get("config") : "", args.all("set"));
   setupLogging("bench", config.getString("log.level"));
   const std::string out_dir = args.get("out");
-  makeOutputFolder(out_dir);
+  createOutputFolder(out_dir);
   const fs::path dataset(args.get("dataset"));
   const std::string source_file = args.has("trajectory") ? args.get("trajectory") : (dataset / "drifted_trajectory.txt").string();
   const std::string target_file = args.has("target") ? args.get("target") : (dataset / "groundtruth.txt").string();
