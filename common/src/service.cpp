@@ -26,17 +26,17 @@ namespace {
 std::atomic<bool> g_signal_stop{false};
 void onSignal(int) { g_signal_stop.store(true); }
 
-std::string hostName() {
-  char buf[256] = {0};
-  gethostname(buf, sizeof(buf) - 1);
-  return buf;
-}
-
 int64_t nowMicros() {
   return std::chrono::duration_cast<std::chrono::microseconds>(std::chrono::system_clock::now().time_since_epoch()).count();
 }
 
 }  // namespace
+
+std::string hostName() {
+  char buf[256] = {0};
+  gethostname(buf, sizeof(buf) - 1);
+  return buf;
+}
 
 double peakRssMb() {
   rusage usage{};

@@ -21,5 +21,8 @@ int odometryCommand(int argc, char** argv);
 // `rekon keyframes --list | --export DIR | --remove [--segment NAME]`: the
 // mapper's shared-memory keyframe store, read from another process.
 int keyframesCommand(int argc, char** argv);
+// `rekon cameras`: the connected RGB-D cameras (driver, URI, serial, modes);
+// exit 1 when there is none.
+int camerasCommand(int argc, char** argv);
 
 }  // namespace rekon

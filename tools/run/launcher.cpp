@@ -62,7 +62,7 @@ constexpr int kStopGraceS = 10;
 // Stopping order: upstream first, so that downstream services still receive
 // what the upstream ones send while finishing.
 int stopRank(const std::string& service) {
-  static const std::vector<std::string> order = {"player", "replay", "tracker", "optimiser", "mapper"};
+  static const std::vector<std::string> order = {"camera", "player", "replay", "tracker", "optimiser", "mapper"};
   const auto it = std::find(order.begin(), order.end(), service);
   return static_cast<int>(it - order.begin());
 }
@@ -95,17 +95,30 @@ struct RunPlan {
   std::vector<ChildProcess> children;
 };
 
-// The services of run.services that this build has, the player among them.
-std::vector<std::string> servicesToRun(const Config& config, const std::string& bin) {
+// The frame source of a run: the player (--dataset) or the camera (--camera).
+std::string frameSource(const RunOptions& opt) { return opt.camera.empty() ? "player" : "camera"; }
+
+// The services of run.services that this build has, the frame source among
+// them: with --camera, rekon-camera takes the player's place.
+std::vector<std::string> servicesToRun(const Config& config, const std::string& bin, const std::string& source) {
   std::vector<std::string> services;
-  for (const auto& s : config.getStringList("run.services")) {
+  for (auto s : config.getStringList("run.services")) {
+    if (s == "player") s = source;
     if (fs::exists(bin + "/rekon-" + s)) services.push_back(s);
     else spdlog::warn("rekon-{} is not part of this build; running without it", s);
   }
-  if (std::find(services.begin(), services.end(), "player") == services.end()) {
-    throw Error("run.services has no player; rekon run needs a frame source");
+  if (std::find(services.begin(), services.end(), source) == services.end()) {
+    throw Error("run.services has no player, or rekon-" + source + " is not built; rekon run needs a frame source");
   }
   return services;
+}
+
+// A camera run: the device, its calibration and the recording folder go into
+// the effective config (config.yaml says what the run used).
+void configureCamera(Config& config, const RunOptions& opt) {
+  config.set("camera.device", opt.camera);
+  if (!opt.calibration.empty()) config.set("camera.calibration", fs::absolute(opt.calibration).string());
+  if (!opt.record.empty()) config.set("camera.record", fs::absolute(opt.record).string());
 }
 
 RunPlan planRun(const RunOptions& opt) {
@@ -121,19 +134,24 @@ RunPlan planRun(const RunOptions& opt) {
   config.set("mapper.store_segment", plan.keyframe_store);
   std::tie(plan.restartable, plan.max_restarts) = restartPolicy(config);
 
-  std::vector<std::string> services = servicesToRun(config, bin);
-  // The player waits only for consumers that this run starts.
+  const std::string source = frameSource(opt);
+  std::vector<std::string> services = servicesToRun(config, bin, source);
+  if (!opt.camera.empty()) configureCamera(config, opt);
+  // Behind a source that cannot wait, a busy mapper drops frames rather than
+  // holding the tracker's next frames back.
+  if (!opt.camera.empty() || config.getString("player.pacing") == "live") config.set("mapper.when_full", "drop");
+  // The frame source waits only for consumers that this run starts.
   std::string wait_for;
-  for (const auto& s : config.getStringList("player.wait_for")) {
+  for (const auto& s : config.getStringList(source + ".wait_for")) {
     if (std::find(services.begin(), services.end(), s) != services.end()) wait_for += (wait_for.empty() ? "" : ", ") + s;
   }
-  config.set("player.wait_for", "[" + wait_for + "]");
+  config.set(source + ".wait_for", "[" + wait_for + "]");
   const std::string config_path = plan.out + "/config.yaml";
   config.save(config_path);
   // The report and the evaluation find the dataset (and its ground truth) from here.
-  std::ofstream(plan.out + "/dataset.txt") << fs::canonical(opt.dataset).string() << "\n";
+  if (!opt.dataset.empty()) std::ofstream(plan.out + "/dataset.txt") << fs::canonical(opt.dataset).string() << "\n";
 
-  std::stable_partition(services.begin(), services.end(), [](const std::string& s) { return s != "player"; });
+  std::stable_partition(services.begin(), services.end(), [&](const std::string& s) { return s != source; });
   for (const auto& s : services) {
     std::vector<std::string> args = {"--config", config_path, "--out", plan.out};
     if (s == "player") args.insert(args.end(), {"--dataset", opt.dataset});
@@ -185,7 +203,7 @@ class Supervisor {
       spdlog::warn("interrupted: stopping every service (outputs so far are kept)");
       stopping_ = true;
     }
-    if (player_done_ && !stopping_ && Clock::now() > *player_done_ + std::chrono::duration_cast<Clock::duration>(
+    if (source_done_ && !stopping_ && Clock::now() > *source_done_ + std::chrono::duration_cast<Clock::duration>(
                                                                            std::chrono::duration<double>(shutdown_timeout_))) {
       fail("services did not finish within run.shutdown_timeout_s = " + std::to_string(int(shutdown_timeout_)) +
            " s after the end of the data");
@@ -208,9 +226,9 @@ class Supervisor {
   // restartable service is restarted while it has restarts left; any other
   // death stops the run.
   void onEnded(ChildProcess& c, int status, bool& any_running) {
-    if (c.name() == "player" && status == 0 && !player_done_) {
-      player_done_ = Clock::now();
-      spdlog::info("the player has finished; waiting for the services to finish");
+    if ((c.name() == "player" || c.name() == "camera") && status == 0 && !source_done_) {
+      source_done_ = Clock::now();
+      spdlog::info("rekon-{} has finished; waiting for the services to finish", c.name());
     }
     if (status == 0 || stopping_ || g_interrupted.load()) return;
     const std::string how = "rekon-" + c.name() + " " + describeExit(status);
@@ -268,7 +286,7 @@ class Supervisor {
   std::vector<size_t> stop_order_;
   std::vector<std::optional<Clock::time_point>> terminated_at_;
   std::vector<bool> killed_;
-  std::optional<Clock::time_point> player_done_;
+  std::optional<Clock::time_point> source_done_;
   bool stopping_ = false;
   std::string failure_;
   std::ofstream rss_;
@@ -287,7 +305,7 @@ void writeRunStats(const RunPlan& plan, double wall) {
     if (!fs::exists(path)) continue;
     try {
       const YAML::Node node = YAML::LoadFile(path);
-      if (c.name() == "player") {
+      if (c.name() == "player" || c.name() == "camera") {
         frames = node["frames"].as<long long>(0);
         sequence_seconds = node["sequence_seconds"].as<double>(0.0);
       }
@@ -302,9 +320,23 @@ void writeRunStats(const RunPlan& plan, double wall) {
     if (c.restarts() > 0) restarts.set(c.name(), static_cast<long long>(c.restarts()));
   }
   stats.setRaw("restarts", restarts.str(0));
-  if (sequence_seconds > 0) stats.set("realtime_factor", sequence_seconds / wall);
+  // A camera runs at its own rate: a realtime factor says nothing there.
+  if (sequence_seconds > 0 && !fs::exists(plan.out + "/camera_stats.json")) stats.set("realtime_factor", sequence_seconds / wall);
   for (const auto& [name, json] : per_service) stats.setRaw(name, json);
   stats.save(plan.out + "/stats.json");
+}
+
+// The camera's one line when it lost its device mid-run ("" otherwise).
+std::string cameraLost(const std::string& out) {
+  const std::string path = out + "/camera_stats.json";
+  if (!fs::exists(path)) return "";
+  try {
+    const std::string end = YAML::LoadFile(path)["end"].as<std::string>("");
+    const std::string prefix = "device lost: ";
+    return end.rfind(prefix, 0) == 0 ? end.substr(prefix.size()) : "";
+  } catch (const YAML::Exception&) {
+    return "";
+  }
 }
 
 void logOutputs(const std::string& out) {
@@ -344,20 +376,41 @@ int launch(const RunOptions& opt) {
     spdlog::error("{}", supervisor.failure());  // again as the last line
     return 1;
   }
+  if (const std::string lost = cameraLost(plan.out); !lost.empty()) {
+    spdlog::error("the run ended early: {}", lost);  // outputs up to then are written
+    return 1;
+  }
   return g_interrupted.load() ? 130 : 0;
 }
 
 int runCommand(int argc, char** argv) {
-  ArgParser args("rekon run", "Runs the whole pipeline (every service as its own process) on a dataset.");
-  args.option("dataset", "TUM RGB-D folder with camera.yaml (required)")
+  ArgParser args("rekon run", "Runs the whole pipeline (every service as its own process) on a dataset or a live camera.");
+  args.option("dataset", "TUM RGB-D folder with camera.yaml (this or --camera)")
+      .option("camera", "a live camera instead of a dataset: openni2[:URI|FILE.oni] or freenect[:INDEX] (rekon cameras)")
+      .option("calibration", "with --camera: camera.yaml for the device (default: what the device reports)")
+      .option("record", "with --camera: also record every captured frame into this new folder (a TUM dataset)")
       .option("out", "output folder (required)")
       .option("config", "YAML config laid over config/default.yaml")
       .repeated("set", "override one config key, e.g. --set mapper.voxel_size=0.02")
       .flag("report", "also write report.html (mesh views, trajectory, timing, stats) into --out");
   if (!args.parse(argc, argv)) return 0;
-  if (args.get("dataset").empty() || args.get("out").empty()) throw Error("--dataset and --out are required; see rekon run --help");
-  if (!fs::is_directory(args.get("dataset"))) throw Error(args.get("dataset") + ": dataset folder not found");
-  return launch({args.get("dataset"), args.get("out"), args.get("config"), args.all("set"), args.flagSet("report")});
+  RunOptions opt;
+  opt.dataset = args.get("dataset");
+  opt.camera = args.get("camera");
+  opt.calibration = args.get("calibration");
+  opt.record = args.get("record");
+  opt.out = args.get("out");
+  opt.config_file = args.get("config");
+  opt.sets = args.all("set");
+  opt.report = args.flagSet("report");
+  if (opt.dataset.empty() == opt.camera.empty() || opt.out.empty()) {
+    throw Error("rekon run needs --out and one of --dataset DIR or --camera DEVICE; see rekon run --help");
+  }
+  if (!opt.dataset.empty() && !fs::is_directory(opt.dataset)) throw Error(opt.dataset + ": dataset folder not found");
+  if (opt.camera.empty() && !(opt.calibration.empty() && opt.record.empty())) {
+    throw Error("--calibration and --record go with --camera (a dataset has its own camera.yaml)");
+  }
+  return launch(opt);
 }
 
 int demoCommand(int argc, char** argv) {
@@ -377,7 +430,12 @@ int demoCommand(int argc, char** argv) {
     spdlog::info("demo: generating the synthetic room into {} (once)", data.string());
     synth::writeSequence(scene, data.string());
   }
-  const int rc = launch({data.string(), out.string(), "", args.all("set"), true});
+  RunOptions opt;
+  opt.dataset = data.string();
+  opt.out = out.string();
+  opt.sets = args.all("set");
+  opt.report = true;
+  const int rc = launch(opt);
   if (rc == 0 && fs::exists(out / "trajectory.txt")) {
     spdlog::info("compare with the ground truth: tools/rekon eval traj {} {}", (data / "groundtruth.txt").string(),
                  (out / "trajectory.txt").string());

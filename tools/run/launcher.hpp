@@ -8,7 +8,9 @@
 namespace rekon {
 
 struct RunOptions {
-  std::string dataset, out, config_file;
+  std::string dataset;                   // a TUM dataset (the player), or
+  std::string camera, calibration, record;  // a live camera (rekon-camera), see rekon run --help
+  std::string out, config_file;
   std::vector<std::string> sets;
   bool report = false;  // also write report.html
 };
@@ -17,7 +19,7 @@ struct RunOptions {
 // code: 0, 1 after a failure (named in the last log line), 130 when interrupted.
 int launch(const RunOptions& options);
 
-// `rekon run --dataset DIR --out DIR [--config FILE] [--set key=value ...]`
+// `rekon run --dataset DIR|--camera DEVICE --out DIR [--config FILE] [--set key=value ...]`
 int runCommand(int argc, char** argv);
 // `rekon demo [--out DIR]`: the whole pipeline on the built-in default scene.
 int demoCommand(int argc, char** argv);

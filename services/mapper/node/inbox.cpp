@@ -10,7 +10,8 @@
 
 namespace rekon::mapper {
 
-Inbox::Inbox(ServiceContext& ctx, size_t max_queued_frames) : ctx_(ctx), max_queued_(max_queued_frames) {}
+Inbox::Inbox(ServiceContext& ctx, size_t max_queued_frames, bool drop_when_full)
+    : ctx_(ctx), max_queued_(max_queued_frames), drop_when_full_(drop_when_full) {}
 
 void Inbox::subscribe() {
   Bus& bus = ctx_.bus();
@@ -45,7 +46,11 @@ void Inbox::onFrame(const rekon_msgs::frame_t& msg) {
   bool ack_now = true;
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    if (frame) {
+    if (frame && drop_when_full_ && queuedFrames() >= max_queued_) {
+      ++counts_.dropped_frames;
+      ++counts_.dropped_when_full;
+      dropped_when_full_.insert(msg.frame_id);  // its tracked frame is not a second drop
+    } else if (frame) {
       // A tracked frame older than this image whose image never came (dropped by the transport) never will.
       while (!tracked_.empty() && tracked_.begin()->first < msg.frame_id) {
         last_resolved_ = std::max(last_resolved_, tracked_.begin()->first);
@@ -71,6 +76,13 @@ void Inbox::onTrackedFrame(const rekon_msgs::tracked_frame_t& msg) {
   std::lock_guard<std::mutex> lock(mutex_);
   if (!pose) {
     spdlog::error("tracked frame {}: invalid pose_in_keyframe; dropped", msg.frame_id);
+    last_resolved_ = std::max(last_resolved_, msg.frame_id);
+    return;
+  }
+  // Tracked frames come in order: the images dropped when full up to this one are settled.
+  const bool image_dropped = dropped_when_full_.erase(msg.frame_id) > 0;
+  dropped_when_full_.erase(dropped_when_full_.begin(), dropped_when_full_.lower_bound(msg.frame_id));
+  if (image_dropped) {
     last_resolved_ = std::max(last_resolved_, msg.frame_id);
     return;
   }

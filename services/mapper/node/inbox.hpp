@@ -12,6 +12,7 @@
 #include <map>
 #include <mutex>
 #include <optional>
+#include <set>
 #include <string>
 #include <utility>
 #include <variant>
@@ -60,6 +61,9 @@ using Work = std::variant<FrameWork, KeyframeWork, GraphWork, BaselineWork>;
 // What the inbox counted, for the stats.
 struct InboxCounts {
   int64_t dropped_frames = 0;
+  // Of those, dropped on arrival because max_queued_frames were held
+  // (mapper.when_full: drop, behind a live source).
+  int64_t dropped_when_full = 0;
   // Copies of a frame already here (the player sends its newest frame again
   // while acknowledgements stall): neither stored nor counted as dropped.
   int64_t frames_received_again = 0;
@@ -70,7 +74,9 @@ class Inbox {
  public:
   static constexpr int64_t kNoEndYet = -2;
 
-  Inbox(ServiceContext& ctx, size_t max_queued_frames);
+  // `drop_when_full`: beyond max_queued_frames a frame is acknowledged and
+  // dropped (a live source cannot wait), instead of its acknowledgement held.
+  Inbox(ServiceContext& ctx, size_t max_queued_frames, bool drop_when_full);
   // Call after the StopThreadsOnExit that guards everything the handlers use.
   void subscribe();
 
@@ -119,6 +125,8 @@ class Inbox {
 
   ServiceContext& ctx_;
   const size_t max_queued_;
+  const bool drop_when_full_;
+  std::set<int64_t> dropped_when_full_;  // images dropped on arrival whose tracked frame has not come yet
   GraphUpdateFilter filter_;  // each update carries every pose: only the newest matters
   FrameReceiver receiver_;
 

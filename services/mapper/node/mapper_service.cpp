@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "inbox.hpp"
+#include "rekon/common/error.hpp"
 #include "mapping_worker.hpp"
 #include "outputs.hpp"
 #include "rekon/common/error.hpp"
@@ -23,6 +24,7 @@ namespace {
 struct Settings {
   MapperParams params;
   size_t max_queued_frames;
+  bool drop_when_full;
   std::chrono::duration<double> progress_every;
   bool wait_for_optimiser;  // the final pass after the optimiser's done_t, not after the last frame
   // mesh_uncorrected.ply: every KF keyframe at the pose of its first
@@ -38,11 +40,13 @@ Settings readSettings(const ServiceContext& ctx) {
   const Config& config = ctx.config();
   const MapperParams params = MapperParams::fromConfig(config);
   const size_t max_queued = static_cast<size_t>(std::max(1, config.getInt("mapper.max_queued_frames")));
+  const std::string when_full = config.getString("mapper.when_full");
+  if (when_full != "hold" && when_full != "drop") throw Error("mapper.when_full '" + when_full + "' must be hold or drop");
   const bool write_uncorrected = config.getBool("mapper.write_uncorrected_mesh");
   const auto progress_every = std::chrono::duration<double>(config.getDouble("mapper.progress_interval_s"));
   const bool wait_for_optimiser =
       config.getBool("mapper.wait_for_optimiser") && contains(config.getStringList("run.services"), "optimiser");
-  return {params, max_queued, progress_every, wait_for_optimiser,
+  return {params, max_queued, when_full == "drop", progress_every, wait_for_optimiser,
           write_uncorrected && params.mode != ReintegrationMode::kNone && !ctx.outDir().empty()};
 }
 
@@ -94,7 +98,7 @@ void serveTheStream(ServiceContext& ctx, Inbox& inbox, const Settings& settings,
 void runMapperService(ServiceContext& ctx) {
   const Settings settings = readSettings(ctx);
   Mapper mapper(settings.params);
-  Inbox inbox(ctx, settings.max_queued_frames);
+  Inbox inbox(ctx, settings.max_queued_frames, settings.drop_when_full);
   MappingWorker worker(ctx, mapper, inbox);
   StopThreadsOnExit stop_threads(ctx);  // before the state above dies: the bus handlers use it
   inbox.subscribe();

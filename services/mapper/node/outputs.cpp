@@ -73,6 +73,7 @@ void recordStats(ServiceContext& ctx, const Mapper& mapper, const MapperParams& 
       .set("frames_fused", static_cast<long long>(c.frames))
       .set("frames_skipped", static_cast<long long>(c.skipped_frames))
       .set("frames_dropped", static_cast<long long>(inbox.dropped_frames))
+      .set("frames_dropped_when_full", static_cast<long long>(inbox.dropped_when_full))
       .set("frames_received_again", static_cast<long long>(inbox.frames_received_again))
       .set("kf_keyframes", static_cast<long long>(c.kf_keyframes))
       .set("integrations", static_cast<long long>(c.integrations))

@@ -8,10 +8,9 @@
 #include <optional>
 #include <thread>
 
-#include "consumer_watch.hpp"
 #include "rekon/common/dataset.hpp"
 #include "rekon/common/error.hpp"
-#include "rekon/common/frame_transport.hpp"
+#include "rekon/common/frame_source.hpp"
 #include "rekon_msgs/end_of_stream_t.hpp"
 
 namespace rekon {
@@ -35,12 +34,6 @@ double sequenceSeconds(const TumDataset& dataset, size_t first, size_t n) {
   return span + span / static_cast<double>(n - 1);
 }
 
-std::string thisHost() {
-  char buf[256] = {0};
-  gethostname(buf, sizeof(buf) - 1);
-  return buf;
-}
-
 TumDataset openDataset(const PlayerParams& params) {
   DatasetOptions options;
   options.max_frames = params.max_frames > 0 ? params.first_frame + params.max_frames : 0;
@@ -51,14 +44,6 @@ TumDataset openDataset(const PlayerParams& params) {
                 std::to_string(dataset.size()) + " frames of " + params.dataset);
   }
   return dataset;
-}
-
-// transport.mode auto: shared memory when every consumer is on this host.
-TransportMode chooseTransport(const PlayerParams& params, ConsumerWatch& watch) {
-  if (params.transport_mode != "auto") return parseTransportMode(params.transport_mode);
-  const bool local = !params.wait_for.empty() && watch.allOnHost(params.wait_for, thisHost());
-  spdlog::info("transport auto: {}", local ? "shm (every consumer is on this host)" : "inline LCM");
-  return local ? TransportMode::kShm : TransportMode::kLcm;
 }
 
 // One playback of a dataset: sends frames [first, end) paced by the
@@ -76,8 +61,8 @@ class Player {
   }
 
   void run() {
-    waitForConsumers();
-    mode_ = chooseTransport(params_, watch_);
+    waitForConsumers(ctx_, watch_, params_.wait_for, params_.wait_timeout_s, "player.wait_for");
+    mode_ = chooseTransport(params_.transport_mode, params_.wait_for, watch_);
     sender_.emplace(ctx_.bus(), mode_, params_.segment, FrameRingLayout{params_.slots, params_.max_width, params_.max_height});
     // Keep at most slots-1 frames unacknowledged so the ring never overwrites
     // a frame a consumer has not read; inline frames (~0.5 MB each) keep two
@@ -85,23 +70,14 @@ class Player {
     in_flight_ = mode_ == TransportMode::kShm ? sender_->slots() - 1 : 2;
     ctx_.setState("playing");
     start_ = last_report_ = Clock::now();
-    playToEnd(first_);
+    if (params_.live) playLive();
+    else playToEnd(first_);
     reportPlayed();
     linger();
     ctx_.stats().set("frames_sent_again", static_cast<long long>(resent_)).set("rewinds", static_cast<long long>(rewinds_));
   }
 
  private:
-  void waitForConsumers() {
-    if (params_.wait_for.empty()) return;
-    ctx_.setState("waiting for consumers");
-    const auto missing = watch_.waitForHeartbeats(params_.wait_for, params_.wait_timeout_s, ctx_);
-    if (!missing.empty()) {
-      throw Error("no heartbeat from rekon-" + missing.front() + " within " + std::to_string(int(params_.wait_timeout_s)) +
-                  " s; start it, or remove it from player.wait_for");
-    }
-  }
-
   void sendFrame(int64_t id) {
     const size_t i = static_cast<size_t>(id);
     const EncodedFrame encoded = dataset_.loadEncoded(i);
@@ -176,9 +152,17 @@ class Player {
     }
   }
 
-  // Sends frames [from, to): paced by acknowledgements, or by the recorded rate.
+  // Sleeps until frame `id`'s recorded time (divided by the rate) after the start.
+  void sleepUntilRecorded(int64_t id) const {
+    const double at_s =
+        (dataset_.timestamp(static_cast<size_t>(id)) - dataset_.timestamp(static_cast<size_t>(first_))) / params_.rate;
+    std::this_thread::sleep_until(start_ + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(at_s)));
+  }
+
+  // Sends frames [from, to): paced by acknowledgements, and by the recorded
+  // rate when one is set (never ahead of it, but behind it when the
+  // consumers are slower).
   void play(int64_t from, int64_t to) {
-    const double t0 = dataset_.timestamp(static_cast<size_t>(first_));
     for (int64_t id = from; id < to && !ctx_.stopRequested();) {
       const int64_t rewound = handleRestarts(id);
       if (rewound != id) {
@@ -186,12 +170,9 @@ class Player {
         continue;
       }
       const bool replaying = id <= newest_sent_;
-      if (params_.rate > 0 && !replaying) {
-        const double at_s = (dataset_.timestamp(static_cast<size_t>(id)) - t0) / params_.rate;
-        std::this_thread::sleep_until(start_ + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(at_s)));
-      } else if (acked_pacing_ && !waitForAcks(id - in_flight_)) {
-        continue;  // a consumer restarted: handled at the top
-      }
+      if (params_.rate > 0 && !replaying) sleepUntilRecorded(id);
+      // (Frames before the first one were never sent: nothing to wait for.)
+      if (acked_pacing_ && id - in_flight_ >= first_ && !waitForAcks(id - in_flight_)) continue;  // a restart: see the top
       sendFrame(id);
       ctx_.setLastFrame(id);
       if (replaying) ++resent_;
@@ -199,6 +180,29 @@ class Player {
       ++id;
       reportProgress(id);
     }
+  }
+
+  // pacing: live: each frame at its recorded time, never waiting for the
+  // consumers: a frame they are not ready for is dropped (the newest wins),
+  // as from a camera. A restarted consumer goes on from the next frame.
+  void playLive() {
+    LiveOutlet outlet(ctx_, *sender_, watch_, params_.wait_for, params_.live_in_flight);
+    for (int64_t id = first_; id < end_ && !ctx_.stopRequested(); ++id) {
+      sleepUntilRecorded(id);
+      const size_t i = static_cast<size_t>(id);
+      outlet.offer(dataset_.decode(i, dataset_.loadEncoded(i)), dataset_.intrinsics());
+      ++sent_;
+      reportProgress(id + 1);
+    }
+    outlet.finish(params_.wait_timeout_s);
+    outlet.writeStats(ctx_.stats());
+    const LiveOutlet::Counts c = outlet.counts();
+    spdlog::info("live pacing: {} frames sent, {} dropped (the consumers were not ready)", c.sent, c.dropped);
+    newest_sent_ = c.newest_sent;
+    eos_.last_frame_id = newest_sent_;
+    eos_.frames = c.sent;
+    eos_.duration_s = sequenceSeconds(dataset_, static_cast<size_t>(first_), static_cast<size_t>(sent_));
+    announceEndOfStream(ctx_.bus(), eos_);
   }
 
   void reportProgress(int64_t next) {
@@ -224,11 +228,7 @@ class Player {
     eos_.last_frame_id = newest_sent_;
     eos_.frames = sent_;
     eos_.duration_s = sequenceSeconds(dataset_, static_cast<size_t>(first_), static_cast<size_t>(sent_));
-    // Repeated: an end-of-stream lost on the wire must not leave a consumer waiting.
-    for (int k = 0; k < 3; ++k) {
-      ctx_.bus().publish(channel::kEndOfStream, eos_);
-      std::this_thread::sleep_for(std::chrono::milliseconds(50));
-    }
+    announceEndOfStream(ctx_.bus(), eos_);
   }
 
   void reportPlayed() {
@@ -248,7 +248,7 @@ class Player {
   void linger() {
     ctx_.setState("lingering");
     while (acked_pacing_ && !ctx_.stopRequested() && !peers_.finished(params_.wait_for, PeerWatch::kSilenceS)) {
-      const int64_t next = handleRestarts(end_);
+      const int64_t next = params_.live ? end_ : handleRestarts(end_);  // a live source does not rewind
       if (next != end_) playToEnd(next);
       std::this_thread::sleep_for(std::chrono::milliseconds(50));
     }
@@ -290,6 +290,12 @@ PlayerParams PlayerParams::fromConfig(const Config& config, const std::string& d
   p.max_frames = config.getInt("player.max_frames");
   p.first_frame = config.getInt("player.first_frame");
   p.camera = config.getString("player.camera");
+  const std::string pacing = config.getString("player.pacing");
+  if (pacing != "wait" && pacing != "live") throw Error("player.pacing '" + pacing + "' must be \"wait\" or \"live\"");
+  p.live = pacing == "live";
+  if (p.live && p.rate <= 0) throw Error("player.pacing live needs player.rate set to a multiple of the recorded rate (e.g. 1), not \"max\"");
+  p.live_in_flight = config.getInt("transport.live_in_flight");
+  if (p.live_in_flight < 1) throw Error("transport.live_in_flight must be 1 or more");
   p.transport_mode = config.getString("transport.mode");
   p.segment = config.getString("transport.segment");
   p.slots = config.getInt("transport.slots");

@@ -70,6 +70,7 @@ TrackResult Tracker::track(const RgbdFrame& frame, const Intrinsics& k) {
   if (!keyframe_) {
     if (trackable) {
       keyframe_ = makeKeyframe(frame, Pose::Identity());
+      last_good_timestamp_ = frame.timestamp;
       r.state = TrackingState::Ok;
       r.new_keyframe = true;
       r.keyframe_id = keyframe_->id;
@@ -81,7 +82,7 @@ TrackResult Tracker::track(const RgbdFrame& frame, const Intrinsics& k) {
 
   AlignResult aligned;
   if (trackable) {
-    const Pose prediction = last_in_keyframe_ * velocity_;
+    const Pose prediction = last_in_keyframe_ * predictedMotion(frame.timestamp);
     aligned = aligner_.align(keyframe_->reference, current_, prediction);
     reportAlignment(aligned, r);
     reason = alignmentLostReason(aligned, prediction);
@@ -91,6 +92,19 @@ TrackResult Tracker::track(const RgbdFrame& frame, const Intrinsics& k) {
   else
     followAlignment(frame, aligned, r);
   return r;
+}
+
+Pose Tracker::predictedMotion(double timestamp) const {
+  // `periods`: this gap in units of the one velocity_ was measured over.
+  // Within a factor of 1.5 of it is timestamp jitter: velocity_ as it is, as
+  // for every frame of a recording without drops. Beyond 8 the extrapolation
+  // is no better than a guess.
+  constexpr double kJitter = 1.5, kMaxPeriods = 8.0;
+  if (!(velocity_dt_ > 0)) return velocity_;
+  const double periods = (timestamp - last_good_timestamp_) / velocity_dt_;
+  if (!(periods > 0)) return Pose::Identity();
+  if (periods < kJitter && periods > 1.0 / kJitter) return velocity_;
+  return expSe3(std::min(periods, kMaxPeriods) * logSe3(velocity_));
 }
 
 LostReason Tracker::untrackableReason() const {
@@ -126,6 +140,7 @@ LostReason Tracker::alignmentLostReason(const AlignResult& aligned, const Pose& 
 void Tracker::markLost(const RgbdFrame& frame, LostReason reason, bool trackable, TrackResult& r) {
   ++lost_in_a_row_;
   velocity_ = Pose::Identity();
+  velocity_dt_ = 0.0;
   r.state = TrackingState::Lost;
   r.lost_reason = reason;
   spdlog::debug("frame {}: lost ({})", frame.id, toString(reason));
@@ -134,6 +149,7 @@ void Tracker::markLost(const RgbdFrame& frame, LostReason reason, bool trackable
     // long: restart from this frame at the last good pose.
     spdlog::warn("frame {}: lost for {} frames, new keyframe at the last good pose", frame.id, lost_in_a_row_);
     keyframe_ = makeKeyframe(frame, keyframe_->pose_world * last_in_keyframe_);
+    last_good_timestamp_ = frame.timestamp;
     lost_in_a_row_ = 0;
     r.new_keyframe = true;
     r.keyframe_reset = true;
@@ -149,6 +165,8 @@ void Tracker::markLost(const RgbdFrame& frame, LostReason reason, bool trackable
 void Tracker::followAlignment(const RgbdFrame& frame, const AlignResult& aligned, TrackResult& r) {
   lost_in_a_row_ = 0;
   velocity_ = last_in_keyframe_.inverse() * aligned.pose;
+  velocity_dt_ = frame.timestamp - last_good_timestamp_;
+  last_good_timestamp_ = frame.timestamp;
   r.state = TrackingState::Ok;
   if (!reference_entropy_) reference_entropy_ = aligned.entropy;
   r.entropy_ratio = aligned.entropy / *reference_entropy_;

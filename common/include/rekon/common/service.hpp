@@ -126,6 +126,9 @@ int runInContext(ServiceContext& ctx, const std::function<void(ServiceContext&)>
 int runService(int argc, char** argv, const std::string& name, const std::string& summary,
                const std::function<void(ArgParser&)>& add_options, const std::function<void(ServiceContext&)>& body);
 
+// This machine's host name (as heartbeats carry it).
+std::string hostName();
+
 // Peak resident set size of this process in MiB.
 double peakRssMb();
 

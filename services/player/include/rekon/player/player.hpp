@@ -1,7 +1,10 @@
 #pragma once
 // The dataset player: announces every frame of a TUM RGB-D dataset on the bus,
-// at the recorded rate, a multiple of it, or as fast as its consumers
-// acknowledge (`rate: max`, back-pressure, never a dropped frame).
+// as fast as its consumers acknowledge (`rate: max`), or at a multiple of the
+// recorded rate. With `pacing: wait` no frame is ever dropped (the player
+// falls behind the clock when its consumers are slower); with `pacing: live`
+// it never waits and drops what the consumers are not ready for, newest
+// first, exactly as a camera would.
 #include <string>
 #include <vector>
 
@@ -12,6 +15,8 @@ namespace rekon {
 struct PlayerParams {
   std::string dataset;
   double rate = 0.0;  // multiple of the recorded rate; 0 = max (acknowledged)
+  bool live = false;  // pacing: live (needs rate > 0)
+  int live_in_flight = 2;
   std::vector<std::string> wait_for;
   double wait_timeout_s = 60.0;
   int max_frames = 0;

@@ -109,6 +109,11 @@ class Tracker {
   void markLost(const RgbdFrame& frame, LostReason reason, bool trackable, TrackResult& r);
   // A good frame: its pose, or a new keyframe with its odometry constraint when one is due.
   void followAlignment(const RgbdFrame& frame, const AlignResult& aligned, TrackResult& r);
+  // The motion expected from the last good frame to a frame taken at
+  // `timestamp`: velocity_, scaled to the time between them when frames were
+  // dropped in between (a live source drops frames; the motion grows with
+  // the gap). Regular frames get velocity_ itself.
+  Pose predictedMotion(double timestamp) const;
 
   TrackerParams params_;
   DenseAligner aligner_;
@@ -117,6 +122,8 @@ class Tracker {
   int64_t next_keyframe_id_ = 0;
   Pose last_in_keyframe_ = Pose::Identity();  // last good frame, relative to keyframe_
   Pose velocity_ = Pose::Identity();          // motion between the last two good frames
+  double velocity_dt_ = 0.0;                  // seconds between them (0: no velocity)
+  double last_good_timestamp_ = 0.0;
   std::optional<double> reference_entropy_;   // H(kf, kf+1)
   int lost_in_a_row_ = 0;
 };

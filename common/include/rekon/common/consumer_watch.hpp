@@ -1,7 +1,8 @@
 #pragma once
-// What the player hears from its consumers over the bus: who is alive where
-// (and under which pid: a new one is a restart), how far each has
-// acknowledged, and where a restarted one wants its frames to resume.
+// What a frame source (the player, a camera) hears from its consumers over
+// the bus: who is alive where (and under which pid: a new one is a restart),
+// how far each has acknowledged, and where a restarted one wants its frames
+// to resume.
 #include <algorithm>
 #include <chrono>
 #include <condition_variable>

@@ -1,0 +1,243 @@
+#include "rekon/common/frame_source.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <array>
+#include <chrono>
+#include <condition_variable>
+#include <deque>
+#include <map>
+#include <mutex>
+#include <optional>
+#include <thread>
+
+#include "rekon/common/error.hpp"
+#include "rekon_msgs/tracked_frame_t.hpp"
+
+namespace rekon {
+
+void waitForConsumers(ServiceContext& ctx, ConsumerWatch& watch, const std::vector<std::string>& consumers,
+                      double timeout_s, const std::string& wait_for_key) {
+  if (consumers.empty()) return;
+  ctx.setState("waiting for consumers");
+  const auto missing = watch.waitForHeartbeats(consumers, timeout_s, ctx);
+  if (!missing.empty()) {
+    throw Error("no heartbeat from rekon-" + missing.front() + " within " + std::to_string(int(timeout_s)) +
+                " s; start it, or remove it from " + wait_for_key);
+  }
+}
+
+TransportMode chooseTransport(const std::string& mode, const std::vector<std::string>& consumers, ConsumerWatch& watch) {
+  if (mode != "auto") return parseTransportMode(mode);
+  const bool local = !consumers.empty() && watch.allOnHost(consumers, hostName());
+  spdlog::info("transport auto: {}", local ? "shm (every consumer is on this host)" : "inline LCM");
+  return local ? TransportMode::kShm : TransportMode::kLcm;
+}
+
+void announceEndOfStream(Bus& bus, const rekon_msgs::end_of_stream_t& eos) {
+  for (int k = 0; k < 3; ++k) {
+    bus.publish(channel::kEndOfStream, eos);
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+}
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+// Without any acknowledgement for this long the newest sent frame goes out
+// again (as the player does): a frame or its acknowledgements were lost.
+constexpr double kResendAfterS = 1.0;
+
+// Capture-to-pose latencies in 1 ms bins up to 10 s (the last bin holds
+// anything longer): fixed memory however long a session runs.
+class LatencyHistogram {
+ public:
+  void add(double ms) {
+    const size_t bin = ms <= 0 ? 0 : std::min(bins_.size() - 1, static_cast<size_t>(ms));
+    ++bins_[bin];
+    ++count_;
+  }
+  int64_t count() const { return count_; }
+  // The upper edge of the bin holding the q-quantile, in ms.
+  double quantile(double q) const {
+    const auto rank = static_cast<int64_t>(q * static_cast<double>(count_ - 1));
+    int64_t seen = 0;
+    for (size_t b = 0; b < bins_.size(); ++b) {
+      seen += bins_[b];
+      if (seen > rank) return static_cast<double>(b + 1);
+    }
+    return static_cast<double>(bins_.size());
+  }
+
+ private:
+  std::array<int64_t, 10000> bins_{};
+  int64_t count_ = 0;
+};
+
+}  // namespace
+
+struct LiveOutlet::State {
+  ServiceContext& ctx;
+  FrameSender& sender;
+  ConsumerWatch& watch;
+  const std::vector<std::string> consumers;
+  const size_t in_flight;
+
+  mutable std::mutex mutex;
+  std::condition_variable wake;
+  std::optional<RgbdFrame> waiting;
+  Intrinsics k;
+  bool stopping = false;
+  Counts counts;
+  std::deque<int64_t> unacked;                  // ids sent, oldest first, not yet known to be acknowledged
+  std::map<int64_t, Clock::time_point> capture;  // capture time of each frame sent and not yet tracked
+  LatencyHistogram latency;
+  std::thread thread;  // the sender; touches `sender` and `watch` outside the lock
+
+  State(ServiceContext& c, FrameSender& s, ConsumerWatch& w, std::vector<std::string> names, int n)
+      : ctx(c), sender(s), watch(w), consumers(std::move(names)), in_flight(static_cast<size_t>(std::max(1, n))) {}
+
+  void onTracked(const rekon_msgs::tracked_frame_t& msg) {
+    std::lock_guard<std::mutex> lock(mutex);
+    const auto it = capture.find(msg.frame_id);
+    if (it != capture.end()) latency.add(std::chrono::duration<double, std::milli>(Clock::now() - it->second).count());
+    capture.erase(capture.begin(), capture.upper_bound(msg.frame_id));
+  }
+
+  // True when fewer than in_flight sent frames are unacknowledged; waits (a
+  // while) for an acknowledgement otherwise, sending the newest frame again
+  // when they stall.
+  bool room(const std::optional<RgbdFrame>& newest_sent) {
+    int64_t oldest_in_window;
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      if (unacked.size() < in_flight) return true;
+      oldest_in_window = unacked[unacked.size() - in_flight];
+    }
+    switch (watch.waitForAck(consumers, oldest_in_window, kResendAfterS, ctx)) {
+      case ConsumerWatch::Wait::kAcked: {
+        std::lock_guard<std::mutex> lock(mutex);
+        while (!unacked.empty() && unacked.front() <= oldest_in_window) unacked.pop_front();
+        return unacked.size() < in_flight;
+      }
+      case ConsumerWatch::Wait::kRestarted:
+        // A live source cannot rewind: a restarted consumer goes on from the next frame.
+        for (const auto& service : watch.takeRestarts()) {
+          spdlog::warn("rekon-{} restarted: it continues from the next frame (a live source cannot send old ones)",
+                       service);
+          watch.setAcked(service, counts.newest_sent);
+        }
+        return false;
+      case ConsumerWatch::Wait::kStalled:
+        if (newest_sent) {
+          spdlog::debug("no acknowledgement for {:.0f} s: sending frame {} again", kResendAfterS, newest_sent->id);
+          sender.send(*newest_sent, k);
+        }
+        return false;
+      case ConsumerWatch::Wait::kStopped:
+        return false;
+    }
+    return false;
+  }
+
+  void run() {
+    std::optional<RgbdFrame> newest_sent;
+    while (true) {
+      {
+        std::unique_lock<std::mutex> lock(mutex);
+        wake.wait(lock, [&] { return waiting.has_value() || stopping; });
+        if (!waiting || ctx.stopRequested()) return;
+      }
+      if (!room(newest_sent)) continue;  // the waiting frame may have been replaced meanwhile
+      Intrinsics frame_k;
+      {
+        std::lock_guard<std::mutex> lock(mutex);
+        newest_sent = std::move(*waiting);
+        waiting.reset();
+        frame_k = k;
+      }
+      sender.send(*newest_sent, frame_k);
+      ctx.setLastFrame(newest_sent->id);
+      std::lock_guard<std::mutex> lock(mutex);
+      unacked.push_back(newest_sent->id);
+      ++counts.sent;
+      counts.newest_sent = newest_sent->id;
+    }
+  }
+};
+
+LiveOutlet::LiveOutlet(ServiceContext& ctx, FrameSender& sender, ConsumerWatch& watch,
+                       std::vector<std::string> consumers, int in_flight)
+    : state_(std::make_shared<State>(ctx, sender, watch, std::move(consumers), in_flight)) {
+  std::weak_ptr<State> weak = state_;
+  ctx.bus().subscribe<rekon_msgs::tracked_frame_t>(channel::kTrackedFrames, [weak](const rekon_msgs::tracked_frame_t& m) {
+    if (auto state = weak.lock()) state->onTracked(m);
+  });
+  state_->thread = std::thread([s = state_.get()] { s->run(); });
+}
+
+LiveOutlet::~LiveOutlet() {
+  {
+    std::lock_guard<std::mutex> lock(state_->mutex);
+    state_->stopping = true;
+    state_->waiting.reset();
+  }
+  state_->wake.notify_all();
+  if (state_->thread.joinable()) state_->thread.join();
+}
+
+void LiveOutlet::offer(RgbdFrame frame, const Intrinsics& k, double age_s) {
+  const auto captured = Clock::now() - std::chrono::duration_cast<Clock::duration>(
+                                           std::chrono::duration<double>(std::clamp(age_s, 0.0, 10.0)));
+  {
+    std::lock_guard<std::mutex> lock(state_->mutex);
+    if (state_->waiting) ++state_->counts.dropped;
+    ++state_->counts.offered;
+    state_->capture[frame.id] = captured;
+    if (state_->capture.size() > 4096) state_->capture.erase(state_->capture.begin());  // poses that never came
+    state_->waiting = std::move(frame);
+    state_->k = k;
+  }
+  state_->wake.notify_all();
+}
+
+void LiveOutlet::finish(double timeout_s) {
+  // Let the sender pass on the frame still waiting, if the consumers take it.
+  const auto deadline = Clock::now() + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(timeout_s));
+  auto waiting = [&] {
+    std::lock_guard<std::mutex> lock(state_->mutex);
+    return state_->waiting.has_value();
+  };
+  while (waiting() && Clock::now() < deadline && !state_->ctx.stopRequested()) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  {
+    std::lock_guard<std::mutex> lock(state_->mutex);
+    if (state_->waiting) ++state_->counts.dropped;
+    state_->waiting.reset();
+    state_->stopping = true;
+  }
+  state_->wake.notify_all();
+  if (state_->thread.joinable()) state_->thread.join();
+  const int64_t last = counts().newest_sent;
+  const double left_s = std::chrono::duration<double>(deadline - Clock::now()).count();
+  if (last >= 0 && left_s > 0) state_->watch.waitForAck(state_->consumers, last, left_s, state_->ctx);
+}
+
+LiveOutlet::Counts LiveOutlet::counts() const {
+  std::lock_guard<std::mutex> lock(state_->mutex);
+  return state_->counts;
+}
+
+void LiveOutlet::writeStats(JsonObject& stats) const {
+  std::lock_guard<std::mutex> lock(state_->mutex);
+  const Counts& c = state_->counts;
+  stats.set("frames_captured", static_cast<long long>(c.offered))
+      .set("frames_sent", static_cast<long long>(c.sent))
+      .set("frames_dropped", static_cast<long long>(c.dropped));
+  const LatencyHistogram& h = state_->latency;
+  stats.set("latency_samples", static_cast<long long>(h.count()));
+  if (h.count() > 0) stats.set("latency_ms_p50", h.quantile(0.5)).set("latency_ms_p95", h.quantile(0.95));
+}
+
+}  // namespace rekon

@@ -1,0 +1,153 @@
+#include "camera_service.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <chrono>
+#include <optional>
+
+#include "rekon/camera/recorder.hpp"
+#include "rekon/common/error.hpp"
+#include "rekon/common/frame_source.hpp"
+
+namespace rekon::camera {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double wallSeconds() {
+  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+}
+
+// How a capture ended: "" for the end of a recording or a stop, else the
+// one line that says what happened to the device and what to do.
+struct CaptureEnd {
+  std::string lost;
+  int64_t frames = 0;
+  double first_timestamp = 0, last_timestamp = 0;
+};
+
+// Takes frames from the device until it ends, is lost, max_frames are
+// captured, or the run stops; every frame goes to the recorder and the outlet.
+CaptureEnd capture(ServiceContext& ctx, CameraSource& source, LiveOutlet& outlet, Recorder* recorder, int max_frames) {
+  CaptureEnd end;
+  const Intrinsics k = source.intrinsics();
+  auto last_report = Clock::now();
+  const auto start = last_report;
+  while (!ctx.stopRequested() && (max_frames <= 0 || end.frames < max_frames)) {
+    Capture c = source.next(0.5);
+    if (c.status == Capture::Status::kTimeout) continue;
+    if (c.status == Capture::Status::kEnded) {
+      spdlog::info("the recording has ended after {} frames", end.frames);
+      break;
+    }
+    if (c.status == Capture::Status::kLost) {
+      spdlog::error("{}", c.reason);
+      end.lost = c.reason;
+      break;
+    }
+    c.frame.id = end.frames++;
+    if (end.frames == 1) end.first_timestamp = c.frame.timestamp;
+    end.last_timestamp = c.frame.timestamp;
+    if (recorder) recorder->push(c.frame);
+    outlet.offer(std::move(c.frame), k, wallSeconds() - end.last_timestamp);
+    if (std::chrono::duration<double>(Clock::now() - last_report).count() > 2.0) {
+      last_report = Clock::now();
+      const auto n = outlet.counts();
+      spdlog::info("captured {} frames ({:.1f} frames/s), sent {}, dropped {}", n.offered,
+                   static_cast<double>(n.offered) / std::chrono::duration<double>(last_report - start).count(), n.sent,
+                   n.dropped);
+    }
+  }
+  return end;
+}
+
+void writeStats(ServiceContext& ctx, const CameraParams& params, const CaptureEnd& end, const LiveOutlet& outlet,
+                const Recorder* recorder, TransportMode mode) {
+  JsonObject& stats = ctx.stats();
+  outlet.writeStats(stats);
+  const LiveOutlet::Counts c = outlet.counts();
+  const double span = end.frames > 1 ? (end.last_timestamp - end.first_timestamp) * static_cast<double>(end.frames) /
+                                           static_cast<double>(end.frames - 1)
+                                     : 0.0;
+  stats.set("device", params.device)
+      .set("frames", static_cast<long long>(c.sent))
+      .set("sequence_seconds", span)
+      .set("transport", mode == TransportMode::kShm ? "shm" : "lcm")
+      .set("end", end.lost.empty() ? "end of stream" : "device lost: " + end.lost);
+  if (recorder) {
+    stats.set("record_folder", params.record)
+        .set("frames_recorded", static_cast<long long>(recorder->written()))
+        .set("record_dropped", static_cast<long long>(recorder->dropped()))
+        .set("record_failed", static_cast<long long>(recorder->failed()));
+  }
+}
+
+}  // namespace
+
+CameraParams CameraParams::fromConfig(const Config& config) {
+  CameraParams p;
+  p.device = config.getString("camera.device");
+  if (p.device.empty()) {
+    throw Error("no camera given: set camera.device (rekon-camera --device openni2[:URI] or freenect[:INDEX]); "
+                "rekon cameras lists what is connected");
+  }
+  const std::string calibration = config.getString("camera.calibration");
+  if (!calibration.empty()) p.source.calibration_file = calibration;
+  p.source.width = config.getInt("camera.width");
+  p.source.height = config.getInt("camera.height");
+  p.source.fps = config.getInt("camera.fps");
+  p.record = config.getString("camera.record");
+  p.record_queue = config.getInt("camera.record_queue");
+  p.wait_for = config.getStringList("camera.wait_for");
+  p.wait_timeout_s = config.getDouble("camera.wait_timeout_s");
+  p.max_frames = config.getInt("camera.max_frames");
+  p.transport_mode = config.getString("transport.mode");
+  p.segment = config.getString("transport.segment");
+  p.slots = config.getInt("transport.slots");
+  p.max_width = config.getInt("transport.max_width");
+  p.max_height = config.getInt("transport.max_height");
+  p.in_flight = config.getInt("transport.live_in_flight");
+  if (p.transport_mode != "auto") parseTransportMode(p.transport_mode);
+  if (p.in_flight < 1) throw Error("transport.live_in_flight must be 1 or more");
+  if (p.record_queue < 1) throw Error("camera.record_queue must be 1 or more (frames)");
+  return p;
+}
+
+void runCamera(ServiceContext& ctx, const CameraParams& params) {
+  ConsumerWatch watch(ctx.bus());
+  PeerWatch peers(ctx.bus());
+  StopThreadsOnExit stop_threads(ctx);  // after `watch` and `peers`: their handlers run on the bus thread
+  // The device opens once its consumers listen: a camera cannot be paused,
+  // so frames captured before would only be dropped.
+  waitForConsumers(ctx, watch, params.wait_for, params.wait_timeout_s, "camera.wait_for");
+  const std::unique_ptr<CameraSource> source = openCamera(params.device, params.source);
+  const Intrinsics k = source->intrinsics();
+  spdlog::info("camera {}: {}", params.device, source->describe());
+  if (!ctx.outDir().empty()) saveIntrinsics(k, ctx.outDir() + "/camera.yaml");  // the calibration in effect
+  std::optional<Recorder> recorder;
+  if (!params.record.empty()) recorder.emplace(params.record, k, params.record_queue);
+
+  const TransportMode mode = chooseTransport(params.transport_mode, params.wait_for, watch);
+  FrameSender sender(ctx.bus(), mode, params.segment, FrameRingLayout{params.slots, params.max_width, params.max_height});
+  LiveOutlet outlet(ctx, sender, watch, params.wait_for, params.in_flight);
+  ctx.setState("capturing");
+  const CaptureEnd end = capture(ctx, *source, outlet, recorder ? &*recorder : nullptr, params.max_frames);
+  outlet.finish(params.wait_timeout_s);
+  if (recorder) recorder->close();
+  writeStats(ctx, params, end, outlet, recorder ? &*recorder : nullptr, mode);
+  const LiveOutlet::Counts c = outlet.counts();
+  spdlog::info("captured {} frames: {} sent, {} dropped (the consumers were not ready){}", c.offered, c.sent, c.dropped,
+               recorder ? fmt::format(", {} recorded, {} not recorded (the disk did not keep up)", recorder->written(),
+                                      recorder->dropped() + recorder->failed())
+                        : "");
+  rekon_msgs::end_of_stream_t eos{};
+  eos.last_frame_id = c.newest_sent;
+  eos.frames = c.sent;
+  eos.duration_s = end.last_timestamp - end.first_timestamp;
+  announceEndOfStream(ctx.bus(), eos);
+  // The frame ring lives as long as the sender: stay until the consumers are done with it.
+  ctx.setState("lingering");
+  peers.waitUntilFinished(params.wait_for, PeerWatch::kSilenceS, ctx);
+}
+
+}  // namespace rekon::camera
