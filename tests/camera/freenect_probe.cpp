@@ -1,4 +1,4 @@
-// freenect_probe --out DIR [--calibration FILE] [--index 0]: opens a Kinect
+// freenect_probe --out DIR [--calibration FILE] [--index 0] | --list: opens a Kinect
 // through openFreenect and takes every frame until the source ends, is
 // lost, or --max-frames; writes depth/NNNNNN.png (mm), rgb/NNNNNN.png and
 // frames.txt ("index timestamp"), and prints what happened. The freenect
@@ -52,8 +52,17 @@ int main(int argc, char** argv) {
         .option("index", "device index", "0")
         .option("calibration", "camera.yaml", "")
         .option("max-frames", "stop after this many (0 = no limit)", "0")
-        .option("give-up", "seconds without a frame before giving up", "20");
+        .option("give-up", "seconds without a frame before giving up", "20")
+        .flag("list", "print what listFreenect sees (camera=URI|NAME|SERIAL|MODE;MODE...) instead");
     if (!args.parse(argc, argv)) return 0;
+    if (args.flagSet("list")) {
+      for (const auto& info : rekon::camera::listFreenect()) {
+        std::string modes;
+        for (const auto& mode : info.modes) modes += (modes.empty() ? "" : ";") + mode;
+        std::printf("camera=%s|%s|%s|%s\n", info.uri.c_str(), info.name.c_str(), info.serial.c_str(), modes.c_str());
+      }
+      return 0;
+    }
     rekon::camera::SourceOptions options;
     if (!args.get("calibration").empty()) options.calibration_file = args.get("calibration");
     const auto source = rekon::camera::openFreenect(args.get("index"), options);

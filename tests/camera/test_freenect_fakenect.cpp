@@ -49,9 +49,13 @@ class Fakenect : public ::testing::Test {
 
   static std::string room() { return *room_ / "room"; }
 
-  // rekon-fakenect-write with `args`; its exit status, output in `out`.
+  // rekon-fakenect-write with `args`; its exit status, output in `out`. The
+  // source keeps only the newest frame (a camera cannot wait), so tests that
+  // count frames play at half speed (--slowdown 2): 66 ms per frame for the
+  // probe's few milliseconds, on a loaded machine too.
   static int writeRecording(const std::string& args, std::string* out = nullptr) {
-    return test::runCommand(test::binDir() + "/rekon-fakenect-write --dataset " + room() + " " + args, out);
+    const std::string slowdown = args.find("--slowdown") == std::string::npos ? " --slowdown 2" : "";
+    return test::runCommand(test::binDir() + "/rekon-fakenect-write --dataset " + room() + slowdown + " " + args, out);
   }
 
   // freenect_probe under fakenect playing `recording`: its key=value lines.
@@ -307,6 +311,15 @@ TEST_F(Fakenect, WithoutCalibrationTheNominalKinectIsUsedWithAWarning) {
   EXPECT_EQ(result.at("frames"), "3");
   EXPECT_EQ(result.at("intrinsics"), "640 480 525.000 525.000 319.500 239.500 1000.0");
   EXPECT_NE(log.find("no --calibration: using the nominal Kinect v1"), std::string::npos) << log;
+}
+
+TEST_F(Fakenect, ListShowsTheRecordingAsOneDeviceWithItsModes) {
+  ASSERT_EQ(writeRecording("--frames 1 --out " + (dir_ / "rec")), 0);
+  const auto result = probe(dir_ / "rec", "--list");
+  REKON_SKIP_WITHOUT_DRIVER();
+  // Debian's fakenect has one device, no serials, one depth and one color mode.
+  EXPECT_EQ(result.at("camera"),
+            "0|fakenect recording " + (dir_ / "rec") + "||depth 640x480@30 11-bit;color 640x480@30 rgb");
 }
 
 TEST_F(Fakenect, RealLibraryWithoutAKinectIsOneLine) {

@@ -377,7 +377,9 @@ void FreenectSource::onVideo(freenect_device* device, void* data, uint32_t times
 
 // Pairs in arrival order: a frame once both a new depth and a new color have
 // come since the last one. The device timestamps have no documented unit, so
-// they are only logged; frames carry the host's clock.
+// they are only logged; frames carry the host's clock. Kept short: fakenect
+// adds the time spent in a callback to every recorded gap, and a real device's
+// USB transfers wait for it; the one copy is out of the library's buffer.
 void FreenectSource::arrived(bool depth, const void* data, uint32_t device_timestamp) {
   spdlog::trace("{}: {} device timestamp {}", name_, depth ? "depth" : "color", device_timestamp);
   std::vector<uint8_t>& buffer = depth ? staging_.depth : staging_.color;
@@ -392,7 +394,8 @@ void FreenectSource::arrived(bool depth, const void* data, uint32_t device_times
     std::lock_guard<std::mutex> lock(mutex_);
     if (ready_) ++replaced_;
     ++pairs_;
-    ready_ = staging_;
+    if (!ready_) ready_.emplace();
+    std::swap(*ready_, staging_);  // staging_ keeps the replaced buffers, or none
     last_pair_ = SteadyClock::now();
     any_pair_ = true;
   }

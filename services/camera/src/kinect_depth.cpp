@@ -231,9 +231,11 @@ cv::Mat DepthWarp::apply(const cv::Mat& depth_m) const {
       const float px = z[u] * ray[u][0] + translation_.x(), py = z[u] * ray[u][1] + translation_.y();
       const float pz = z[u] * ray[u][2] + translation_.z();
       if (!(pz > 0.0f)) continue;
-      const float x = fx * px / pz + cx, y = fy * py / pz + cy;
+      const float inverse_z = 1.0f / pz;
+      const float x = fx * px * inverse_z + cx, y = fy * py * inverse_z + cy;
       if (!(x >= -0.5f && x < max_x && y >= -0.5f && y < max_y)) continue;
-      float& target = out.at<float>(static_cast<int>(std::floor(y + 0.5f)), static_cast<int>(std::floor(x + 0.5f)));
+      // x + 0.5 >= 0 here, so truncation is floor: the nearest column.
+      float& target = out.at<float>(static_cast<int>(y + 0.5f), static_cast<int>(x + 0.5f));
       if (target == 0.0f || pz < target) target = pz;
     }
   }
@@ -247,8 +249,8 @@ cv::Mat toMillimetres(const cv::Mat& depth_m) {
     const float* in = depth_m.ptr<float>(v);
     uint16_t* o = out.ptr<uint16_t>(v);
     for (int u = 0; u < depth_m.cols; ++u) {
-      const double mm = std::round(static_cast<double>(in[u]) * 1000.0);
-      o[u] = mm > 0.0 && mm <= 65535.0 ? static_cast<uint16_t>(mm) : 0;
+      const double mm = static_cast<double>(in[u]) * 1000.0 + 0.5;  // rounded by the truncation below
+      o[u] = mm >= 1.0 && mm < 65536.0 ? static_cast<uint16_t>(mm) : 0;
     }
   }
   return out;
