@@ -279,11 +279,17 @@ void FreenectSource::chooseDepth(const SourceOptions& options) {
   if (options.calibration_file) {
     calibration = loadKinectCalibration(*options.calibration_file);
     source = "calibration " + *options.calibration_file;
+    if (registered_ && !calibration.aligned) {
+      spdlog::info("{}: libfreenect registers the depth; the depth-camera keys of {} are not used", name_,
+                   *options.calibration_file);
+    }
   } else {
     spdlog::warn(
-        "{}: no --calibration: using the nominal Kinect v1 {} (see kinect_depth.hpp); calibrate the camera "
-        "and pass --calibration camera.yaml for accurate maps",
-        name_, registered_ ? "color intrinsics fx=fy=525 cx=319.5 cy=239.5" : "color and IR intrinsics");
+        "{}: no --calibration: using the nominal Kinect v1 ({}); calibrate the camera and pass --calibration "
+        "camera.yaml for accurate maps",
+        name_,
+        registered_ ? "color fx=fy=525 cx=319.5 cy=239.5"
+                    : "color fx=fy=525, IR fx=fy=580, color camera 2.5 cm right of the IR camera");
   }
   if (calibration.color.width != kWidth || calibration.color.height != kHeight) {
     throw Error(source + ": the camera is " + std::to_string(calibration.color.width) + "x" +
@@ -352,8 +358,8 @@ void FreenectSource::eventLoop() {
 // not read an entry that was whole when the recording was checked.
 std::string FreenectSource::stoppedReason(int rc) const {
   if (recording_) {
-    return "fakenect recording " + recording_->dir + ": fakenect stopped after " + std::to_string(events_ - 1) + " of " +
-           std::to_string(recording_->playable) + " entries (was the recording changed while it played?)";
+    return "fakenect recording " + recording_->dir + ": fakenect stopped after " + std::to_string(events_ - 1) +
+           " of " + std::to_string(recording_->playable) + " entries (was the recording changed while it played?)";
   }
   return name_ + ": the Kinect stopped responding (libfreenect error " + std::to_string(rc) + "); " + kNoDeviceHint;
 }
