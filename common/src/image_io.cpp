@@ -55,7 +55,61 @@ void requireCompletePng(const uint8_t* data, size_t size, const std::string& wha
 struct ImageHeader {
   bool png = false;
   uint32_t width = 0, height = 0;
+  // Binary Netpbm (P5 grey, P6 RGB), as rekon-camera records (uncompressed:
+  // a 30 Hz camera is written in a few ms per frame, PNG takes ~10x longer).
+  bool netpbm = false;
+  int channels = 0;
+  uint32_t maxval = 0;
+  size_t offset = 0;  // of the samples
 };
+
+// "P5|P6 W H MAXVAL" (comments from '#' to the end of a line), one
+// whitespace byte, then exactly W*H*channels samples of 1 or 2 (big-endian)
+// bytes: a file cut short is rejected as truncated.
+ImageHeader readNetpbm(const uint8_t* data, size_t size, const std::string& what) {
+  ImageHeader h;
+  h.netpbm = true;
+  h.channels = data[1] == '6' ? 3 : 1;
+  size_t pos = 2;
+  uint64_t values[3] = {0, 0, 0};
+  for (uint64_t& v : values) {
+    while (pos < size && (std::isspace(data[pos]) || data[pos] == '#')) {
+      if (data[pos] == '#') while (pos < size && data[pos] != '\n') ++pos;
+      else ++pos;
+    }
+    const size_t start = pos;
+    while (pos < size && std::isdigit(data[pos]) && pos - start < 9) v = v * 10 + (data[pos++] - '0');
+    if (pos == start || pos >= size || !std::isspace(data[pos])) {
+      throw Error(what + ": Netpbm header is not 'P5|P6 width height maxval' (corrupt or truncated); replace the file");
+    }
+  }
+  h.width = static_cast<uint32_t>(values[0]);
+  h.height = static_cast<uint32_t>(values[1]);
+  h.maxval = static_cast<uint32_t>(values[2]);
+  h.offset = pos + 1;
+  if (h.maxval == 0 || h.maxval > 65535) throw Error(what + ": Netpbm maxval must be 1..65535; replace the file");
+  const uint64_t bytes = uint64_t{h.width} * h.height * static_cast<uint64_t>(h.channels) * (h.maxval > 255 ? 2 : 1);
+  if (size - h.offset < bytes) throw Error(what + ": Netpbm image ends before its last pixel (truncated); replace the file");
+  return h;
+}
+
+// The samples of a Netpbm image whose header passed readNetpbm: 16-bit grey
+// (big-endian on disk) or 8-bit RGB, the latter turned into BGR.
+cv::Mat decodeNetpbm(const uint8_t* data, const ImageHeader& h) {
+  const int rows = static_cast<int>(h.height), cols = static_cast<int>(h.width);
+  if (h.channels == 1) {
+    cv::Mat m(rows, cols, CV_16UC1);
+    const uint8_t* p = data + h.offset;
+    for (int y = 0; y < rows; ++y) {
+      auto* row = m.ptr<uint16_t>(y);
+      for (int x = 0; x < cols; ++x, p += 2) row[x] = static_cast<uint16_t>((p[0] << 8) | p[1]);
+    }
+    return m;
+  }
+  cv::Mat bgr;
+  cv::cvtColor(cv::Mat(rows, cols, CV_8UC3, const_cast<uint8_t*>(data + h.offset)), bgr, cv::COLOR_RGB2BGR);
+  return bgr;
+}
 
 ImageHeader readHeader(const uint8_t* data, size_t size, const std::string& what) {
   static const uint8_t kPngSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
@@ -102,7 +156,8 @@ ImageHeader readHeader(const uint8_t* data, size_t size, const std::string& what
     }
     throw Error(what + ": JPEG without a readable frame header (corrupt or truncated); replace the file");
   }
-  throw Error(what + ": neither PNG nor JPEG data (corrupt, truncated or another format); replace the file");
+  if (size >= 3 && data[0] == 'P' && (data[1] == '5' || data[1] == '6')) return readNetpbm(data, size, what);
+  throw Error(what + ": neither PNG, JPEG nor binary PGM/PPM data (corrupt, truncated or another format); replace the file");
 }
 
 void requireDeclaredSize(const ImageHeader& h, int width, int height, const std::string& what) {
@@ -136,6 +191,13 @@ std::vector<uint8_t> readFileBytes(const std::string& path) {
 cv::Mat decodeDepthPng(const uint8_t* data, size_t size, int width, int height, const std::string& what) {
   if (size == 0) throw Error(what + ": empty image data; the file or message is truncated");
   const ImageHeader h = readHeader(data, size, what);
+  if (h.netpbm) {
+    requireDeclaredSize(h, width, height, what);
+    if (h.channels != 1 || h.maxval <= 255) {
+      throw Error(what + ": depth must be 16-bit single-channel (PNG or P5 PGM with maxval 65535); convert the depth image");
+    }
+    return decodeNetpbm(data, h);
+  }
   if (!h.png) throw Error(what + ": depth must be a 16-bit single-channel PNG, found a JPEG; convert the depth image");
   requireDeclaredSize(h, width, height, what);
   requireCompletePng(data, size, what);
@@ -152,6 +214,10 @@ cv::Mat decodeColor(const uint8_t* data, size_t size, int width, int height, con
   if (size == 0) throw Error(what + ": empty image data; the file or message is truncated");
   const ImageHeader h = readHeader(data, size, what);
   requireDeclaredSize(h, width, height, what);
+  if (h.netpbm) {
+    if (h.channels != 3 || h.maxval != 255) throw Error(what + ": color must be 8-bit RGB (P6 PPM with maxval 255); convert the color image");
+    return decodeNetpbm(data, h);
+  }
   if (h.png) requireCompletePng(data, size, what);
   cv::Mat m = decode(data, size, cv::IMREAD_COLOR, what);
   if (m.type() != CV_8UC3) throw Error(what + ": color must be 8-bit; convert the color image");
@@ -190,6 +256,33 @@ void writeImage(const std::string& path, const cv::Mat& image) {
     ok = false;
   }
   if (!ok) throw Error(path + ": cannot write image; check the output folder and the file extension");
+}
+
+void writeNetpbm(const std::string& path, const cv::Mat& image) {
+  const bool depth = image.type() == CV_16UC1;
+  if (!depth && image.type() != CV_8UC3) throw Error(path + ": only 16-bit depth or 8-bit BGR images are written as Netpbm");
+  std::vector<uint8_t> samples(image.total() * image.elemSize());
+  uint8_t* p = samples.data();
+  for (int y = 0; y < image.rows; ++y) {
+    if (depth) {
+      const auto* row = image.ptr<uint16_t>(y);
+      for (int x = 0; x < image.cols; ++x, p += 2) {
+        p[0] = static_cast<uint8_t>(row[x] >> 8);
+        p[1] = static_cast<uint8_t>(row[x] & 0xff);
+      }
+    } else {
+      const auto* row = image.ptr<uint8_t>(y);
+      for (int x = 0; x < image.cols; ++x, p += 3) {
+        p[0] = row[3 * x + 2];
+        p[1] = row[3 * x + 1];
+        p[2] = row[3 * x];
+      }
+    }
+  }
+  std::ofstream out(path, std::ios::binary);
+  out << (depth ? "P5\n" : "P6\n") << image.cols << " " << image.rows << "\n" << (depth ? 65535 : 255) << "\n";
+  out.write(reinterpret_cast<const char*>(samples.data()), static_cast<std::streamsize>(samples.size()));
+  if (!out.flush()) throw Error(path + ": cannot write the image (disk full or not writable?)");
 }
 
 }  // namespace rekon

@@ -9,6 +9,7 @@
 
 #include "rekon/common/error.hpp"
 #include "rekon/common/image_io.hpp"
+#include "test_support.hpp"
 
 namespace {
 
@@ -91,9 +92,49 @@ TEST(ImageIo, HugeDeclaredSizeIsRejectedFromTheHeader) {
 TEST(ImageIo, OtherFormatsAndGarbageAreNamed) {
   std::vector<uint8_t> bmp;
   cv::imencode(".bmp", colorImage(), bmp);
-  EXPECT_NE(colorError(bmp).find("neither PNG nor JPEG"), std::string::npos) << colorError(bmp);
-  EXPECT_NE(colorError({1, 2, 3}).find("neither PNG nor JPEG"), std::string::npos);
+  EXPECT_NE(colorError(bmp).find("neither PNG, JPEG nor binary PGM/PPM"), std::string::npos) << colorError(bmp);
+  EXPECT_NE(colorError({1, 2, 3}).find("neither PNG, JPEG nor binary PGM/PPM"), std::string::npos);
   EXPECT_NE(colorError({}).find("empty image data"), std::string::npos);
+}
+
+// rekon-camera records uncompressed PGM depth and PPM color: written and read
+// back bit for bit, and a cut, mislabelled or hostile Netpbm file is one line.
+std::vector<uint8_t> netpbmBytes(const cv::Mat& image) {
+  rekon::test::TempDir dir;
+  const std::string path = dir / "image.pnm";
+  rekon::writeNetpbm(path, image);
+  return rekon::readFileBytes(path);
+}
+
+TEST(ImageIo, NetpbmRoundTripsBitForBit) {
+  const cv::Mat depth_in = depthImage(), color_in = colorImage();
+  const auto pgm = netpbmBytes(depth_in);
+  const auto ppm = netpbmBytes(color_in);
+  ASSERT_EQ(std::string(pgm.begin(), pgm.begin() + 2), "P5");
+  ASSERT_EQ(std::string(ppm.begin(), ppm.begin() + 2), "P6");
+  const cv::Mat depth = rekon::decodeDepthPng(pgm.data(), pgm.size(), kWidth, kHeight, "pgm");
+  const cv::Mat color = rekon::decodeColor(ppm.data(), ppm.size(), kWidth, kHeight, "ppm");
+  EXPECT_EQ(cv::norm(depth, depth_in, cv::NORM_INF), 0.0);
+  EXPECT_EQ(cv::norm(color, color_in, cv::NORM_INF), 0.0);
+  // A comment in the header, as other writers put one there.
+  std::string text(ppm.begin(), ppm.end());
+  text.insert(3, "# written elsewhere\n");
+  EXPECT_EQ(colorError(std::vector<uint8_t>(text.begin(), text.end())), "");
+}
+
+TEST(ImageIo, BadNetpbmIsOneLine) {
+  auto pgm = netpbmBytes(depthImage());
+  pgm.pop_back();
+  EXPECT_NE(depthError(pgm).find("truncated"), std::string::npos) << depthError(pgm);
+  EXPECT_NE(depthError(netpbmBytes(colorImage())).find("16-bit single-channel"), std::string::npos);
+  EXPECT_NE(colorError(netpbmBytes(depthImage())).find("8-bit RGB"), std::string::npos);
+  // A hostile header is rejected by its size before anything is allocated.
+  const std::string huge = "P6\n999999999 999999999\n255\n";
+  EXPECT_NE(colorError(std::vector<uint8_t>(huge.begin(), huge.end())).find("truncated"), std::string::npos);
+  const std::string garbage = "P5 32 x4 65535\n";
+  EXPECT_NE(depthError(std::vector<uint8_t>(garbage.begin(), garbage.end())).find("Netpbm header"), std::string::npos);
+  const std::string zero = "P5 32 24 0\n";
+  EXPECT_NE(depthError(std::vector<uint8_t>(zero.begin(), zero.end())).find("maxval"), std::string::npos);
 }
 
 TEST(ImageIo, DepthMustBeA16BitPng) {

@@ -23,6 +23,7 @@ double wallSeconds() {
 struct CaptureEnd {
   std::string lost;
   int64_t frames = 0;
+  int64_t replaced_in_driver = 0;
   double first_timestamp = 0, last_timestamp = 0;
 };
 
@@ -58,6 +59,7 @@ CaptureEnd capture(ServiceContext& ctx, CameraSource& source, LiveOutlet& outlet
                    n.dropped);
     }
   }
+  end.replaced_in_driver = source.framesReplaced();
   return end;
 }
 
@@ -66,6 +68,10 @@ void writeStats(ServiceContext& ctx, const CameraParams& params, const CaptureEn
   JsonObject& stats = ctx.stats();
   outlet.writeStats(stats);
   const LiveOutlet::Counts c = outlet.counts();
+  // The driver's own drops (newest wins there too) count as captured and dropped.
+  stats.set("frames_captured", static_cast<long long>(c.offered + end.replaced_in_driver))
+      .set("frames_dropped", static_cast<long long>(c.dropped + end.replaced_in_driver))
+      .set("frames_replaced_in_driver", static_cast<long long>(end.replaced_in_driver));
   const double span = end.frames > 1 ? (end.last_timestamp - end.first_timestamp) * static_cast<double>(end.frames) /
                                            static_cast<double>(end.frames - 1)
                                      : 0.0;

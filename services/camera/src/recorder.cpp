@@ -7,19 +7,15 @@
 #include <filesystem>
 #include <fstream>
 #include <mutex>
-#include <opencv2/imgcodecs.hpp>
 #include <thread>
 
 #include "rekon/common/error.hpp"
+#include "rekon/common/image_io.hpp"
 
 namespace rekon::camera {
 namespace fs = std::filesystem;
 
 namespace {
-// Fast lossless PNGs: at level 1 one 640x480 frame takes a few ms to write,
-// so a 30 Hz camera is recorded on one core.
-const std::vector<int> kPngParams = {cv::IMWRITE_PNG_COMPRESSION, 1};
-
 std::string stampName(double timestamp) {
   char buf[64];
   std::snprintf(buf, sizeof(buf), "%.6f", timestamp);
@@ -38,15 +34,20 @@ struct Recorder::State {
   int64_t written = 0, dropped = 0, failed = 0;
   std::thread thread;
 
+  // Uncompressed PPM/PGM: 4 ms per 640x480 frame here, where PNG takes
+  // 45 ms at level 0 and 94 ms at level 1 (one core of this 2-core VM);
+  // 1.5 MB per frame, 46 MB/s at 30 Hz.
   bool write(const RgbdFrame& f, std::string* error) {
-    const std::string name = stampName(f.timestamp) + ".png";
-    if (!cv::imwrite((dir / "rgb" / name).string(), f.color, kPngParams) ||
-        !cv::imwrite((dir / "depth" / name).string(), f.depth, kPngParams)) {
-      *error = "cannot write " + (dir / "rgb" / name).string() + " (disk full or not writable?)";
+    const std::string stamp = stampName(f.timestamp);
+    try {
+      writeNetpbm((dir / "rgb" / (stamp + ".ppm")).string(), f.color);
+      writeNetpbm((dir / "depth" / (stamp + ".pgm")).string(), f.depth);
+    } catch (const Error& e) {
+      *error = e.what();
       return false;
     }
-    rgb_index << stampName(f.timestamp) << " rgb/" << name << "\n" << std::flush;
-    depth_index << stampName(f.timestamp) << " depth/" << name << "\n" << std::flush;
+    rgb_index << stamp << " rgb/" << stamp << ".ppm\n" << std::flush;
+    depth_index << stamp << " depth/" << stamp << ".pgm\n" << std::flush;
     if (!rgb_index || !depth_index) {
       *error = "cannot append to " + (dir / "rgb.txt").string() + " (disk full?)";
       return false;

@@ -12,9 +12,11 @@ namespace rekon {
 // The bytes of a file; throws rekon::Error naming it when it cannot be read.
 std::vector<uint8_t> readFileBytes(const std::string& path);
 
-// 16-bit single-channel PNG depth of exactly width x height.
+// 16-bit single-channel depth (PNG, or binary PGM with maxval 65535) of
+// exactly width x height.
 cv::Mat readDepthImage(const std::string& path, int width, int height);
-// 8-bit color (PNG or JPEG; gray is expanded to BGR) of exactly width x height.
+// 8-bit color (PNG, JPEG or binary PPM; gray PNG/JPEG is expanded to BGR) of
+// exactly width x height.
 cv::Mat readColorImage(const std::string& path, int width, int height);
 
 std::vector<uint8_t> encodePng(const cv::Mat& image);
@@ -24,5 +26,8 @@ cv::Mat decodeDepthPng(const uint8_t* data, size_t size, int width, int height, 
 cv::Mat decodeColor(const uint8_t* data, size_t size, int width, int height, const std::string& what);
 
 void writeImage(const std::string& path, const cv::Mat& image);
+// Uncompressed binary Netpbm, the fastest lossless way to disk: 16-bit depth
+// (CV_16UC1) as P5 PGM, BGR color (CV_8UC3) as P6 PPM. Throws naming `path`.
+void writeNetpbm(const std::string& path, const cv::Mat& image);
 
 }  // namespace rekon

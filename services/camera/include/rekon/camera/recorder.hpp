@@ -1,5 +1,6 @@
 #pragma once
-// Records every captured frame as a TUM RGB-D dataset (rgb/ and depth/ PNGs,
+// Records every captured frame as a TUM RGB-D dataset (rgb/*.ppm and
+// depth/*.pgm, uncompressed so a 30 Hz camera fits on one core;
 // rgb.txt, depth.txt, camera.yaml), on its own thread so that capture never
 // waits for the disk: push() only queues, and a frame that finds the queue
 // full is counted as dropped, never silently lost. The index files are

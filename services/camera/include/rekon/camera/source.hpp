@@ -4,6 +4,7 @@
 // millimetres aligned to the color image, color BGR) stamped with the host's
 // clock at capture. Drivers are behind this one interface so the capture loop,
 // pacing and recording do not know which one runs.
+#include <cstdint>
 #include <memory>
 #include <optional>
 #include <string>
@@ -58,6 +59,10 @@ class CameraSource {
   virtual Intrinsics intrinsics() const = 0;
   // One line for the log: driver, device, mode, registration in use.
   virtual std::string describe() const = 0;
+  // Frames the device delivered that a newer one replaced before next()
+  // took them (a driver keeps only the newest): part of the captured and
+  // dropped counts.
+  virtual int64_t framesReplaced() const { return 0; }
 };
 
 // Opens "openni2[:URI]" or "freenect[:INDEX]" (no URI/index: the first
