@@ -6,10 +6,12 @@
 // (LD_LIBRARY_PATH) is loaded into it and not into the test.
 #include <spdlog/spdlog.h>
 
+#include <chrono>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <opencv2/imgcodecs.hpp>
+#include <thread>
 #include <vector>
 
 #include "rekon/camera/source.hpp"
@@ -53,6 +55,7 @@ int main(int argc, char** argv) {
         .option("calibration", "camera.yaml", "")
         .option("max-frames", "stop after this many (0 = no limit)", "0")
         .option("give-up", "seconds without a frame before giving up", "20")
+        .option("consume-every", "seconds to sleep after each frame (a slow consumer)", "0")
         .flag("list", "print what listFreenect sees (camera=URI|NAME|SERIAL|MODE;MODE...) instead");
     if (!args.parse(argc, argv)) return 0;
     if (args.flagSet("list")) {
@@ -72,6 +75,7 @@ int main(int argc, char** argv) {
     std::vector<rekon::RgbdFrame> frames;
     const int max_frames = args.getInt("max-frames");
     const double give_up = args.getDouble("give-up");
+    const double consume_every = args.getDouble("consume-every");
     rekon::camera::Capture capture;
     double waited = 0.0;
     while (waited < give_up && (max_frames == 0 || static_cast<int>(frames.size()) < max_frames)) {
@@ -79,6 +83,7 @@ int main(int argc, char** argv) {
       if (capture.status == rekon::camera::Capture::Status::kFrame) {
         frames.push_back(capture.frame);
         waited = 0.0;
+        std::this_thread::sleep_for(std::chrono::duration<double>(consume_every));
       } else if (capture.status == rekon::camera::Capture::Status::kTimeout) {
         waited += 0.5;
       } else {
@@ -86,8 +91,8 @@ int main(int argc, char** argv) {
       }
     }
     writeFrames(frames, args.get("out"));
-    std::printf("status=%s\nframes=%zu\nreason=%s\n", statusName(capture.status), frames.size(),
-                capture.reason.c_str());
+    std::printf("status=%s\nframes=%zu\nreplaced=%lld\nreason=%s\n", statusName(capture.status), frames.size(),
+                static_cast<long long>(source->framesReplaced()), capture.reason.c_str());
   } catch (...) {
     std::printf("error=%s\n", rekon::currentExceptionLine().c_str());
     return 3;

@@ -194,6 +194,10 @@ class FreenectSource final : public CameraSource {
   Capture next(double timeout_s) override;
   Intrinsics intrinsics() const override { return intrinsics_; }
   std::string describe() const override { return description_; }
+  int64_t framesReplaced() const override {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return replaced_;
+  }
 
  private:
   void openDevice();
@@ -223,7 +227,7 @@ class FreenectSource final : public CameraSource {
   bool new_depth_ = false, new_color_ = false;
   size_t events_ = 0;
 
-  std::mutex mutex_;
+  mutable std::mutex mutex_;
   std::condition_variable wake_;
   std::optional<RawPair> ready_;                      // newest wins: an unread pair is replaced
   Capture::Status stream_ = Capture::Status::kFrame;  // kFrame while running
