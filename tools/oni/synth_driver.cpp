@@ -169,12 +169,10 @@ class SynthStream : public oni::driver::StreamBase {
   std::thread thread_;
 };
 
-class SynthDriver;
-
 class SynthDevice : public oni::driver::DeviceBase {
  public:
-  SynthDevice(const OniDeviceInfo& info, int vanish_after, oni::driver::DriverServices& services,
-              void (*disconnect)(void*, const OniDeviceInfo&), void* driver)
+  SynthDevice(const OniDeviceInfo& info, int vanish_after, void (*disconnect)(void*, const OniDeviceInfo&),
+              void* driver)
       : info_(info), vanish_after_(vanish_after), disconnect_(disconnect), driver_(driver) {
     for (int i = 0; i < 2; ++i) {
       modes_[i] = videoModeOf(i == 0 ? ONI_SENSOR_DEPTH : ONI_SENSOR_COLOR);
@@ -182,7 +180,6 @@ class SynthDevice : public oni::driver::DeviceBase {
       sensors_[i].numSupportedVideoModes = 1;
       sensors_[i].pSupportedVideoModes = &modes_[i];
     }
-    (void)services;
   }
 
   OniStatus getSensorInfoList(OniSensorInfo** sensors, int* count) override {
@@ -246,7 +243,7 @@ class SynthDriver : public oni::driver::DriverBase {
     std::strncpy(info.vendor, "rekon", ONI_MAX_STR - 1);
     std::strncpy(info.name, "synthetic RGB-D", ONI_MAX_STR - 1);
     const int after = vanish == std::string::npos ? 0 : std::atoi(text.c_str() + vanish + 7);
-    return new SynthDevice(info, after, getServices(), &SynthDriver::disconnect, this);
+    return new SynthDevice(info, after, &SynthDriver::disconnect, this);
   }
   void deviceClose(oni::driver::DeviceBase* device) override { delete device; }
   void shutdown() override {}
