@@ -56,6 +56,18 @@ std::string jsonOf(const YAML::Node& node) {
   return "null";
 }
 
+// The last error a service logged (its one line saying what went wrong and
+// what to do), without the log's time and level prefix; "" when none.
+std::string lastErrorLine(const std::string& log_path) {
+  std::ifstream in(log_path);
+  std::string line, last;
+  while (std::getline(in, line)) {
+    const auto at = line.find("[error] ");
+    if (at != std::string::npos) last = line.substr(at + 8);
+  }
+  return last;
+}
+
 // Seconds a service gets between SIGTERM and SIGKILL when the run stops.
 constexpr int kStopGraceS = 10;
 
@@ -231,7 +243,8 @@ class Supervisor {
       spdlog::info("rekon-{} has finished; waiting for the services to finish", c.name());
     }
     if (status == 0 || stopping_ || g_interrupted.load()) return;
-    const std::string how = "rekon-" + c.name() + " " + describeExit(status);
+    const std::string error = lastErrorLine(c.logPath());
+    const std::string how = "rekon-" + c.name() + " " + describeExit(status) + (error.empty() ? "" : " (" + error + ")");
     const bool restartable = plan_.restartable.count(c.name()) > 0;
     if (restartable && c.restarts() < plan_.max_restarts) {
       spdlog::warn("{}; restarting it ({} of at most {} restarts, run.max_restarts)", how, c.restarts() + 1,
