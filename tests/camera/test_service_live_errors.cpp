@@ -138,3 +138,21 @@ TEST(LiveErrors, RecordingTruncatedMidFrameEndsTheRunCleanlyWithOutputs) {
   EXPECT_NE(camera.find("device lost"), std::string::npos) << camera;
   EXPECT_EQ(rekon::test::crashLines(out + readText(out_dir + "/camera.log")), "");
 }
+
+// `rekon cameras`: nothing attached here is exit 1 with what to do; the
+// fakenect library replaying a recording is one Kinect with its modes.
+TEST(LiveErrors, CamerasListsWhatTheDriversSee) {
+  rekon::test::TempDir dir;
+  std::string out;
+  EXPECT_EQ(runCommand(binDir() + "/rekon cameras", &out), 1) << out;
+  EXPECT_NE(out.find("no camera found"), std::string::npos) << out;
+  ASSERT_EQ(runCommand(binDir() + "/rekon synth --scene room --frames 2 --out " + (dir / "room")), 0);
+  ASSERT_EQ(runCommand(binDir() + "/rekon-fakenect-write --dataset " + (dir / "room") + " --out " + (dir / "fk")), 0);
+  EXPECT_EQ(runCommand("FAKENECT_PATH=" + (dir / "fk") + " LD_LIBRARY_PATH=/usr/lib/x86_64-linux-gnu/fakenect " + binDir() +
+                           "/rekon cameras",
+                       &out),
+            0)
+      << out;
+  EXPECT_NE(out.find("freenect:0"), std::string::npos) << out;
+  EXPECT_NE(out.find("depth 640x480@30 11-bit"), std::string::npos) << out;
+}
