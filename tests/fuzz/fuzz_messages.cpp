@@ -1,6 +1,7 @@
 // Any bytes on any channel: decoding never crashes, never leaks an exception,
 // and a decoded frame_t with inline images either yields a valid frame or is
-// dropped with a reason.
+// dropped with a reason; a decoded mesh_blocks_t either yields its blocks or
+// a rekon::Error.
 #include <cstddef>
 #include <cstdint>
 
@@ -8,6 +9,7 @@
 #include "rekon/common/error.hpp"
 #include "rekon/common/frame_transport.hpp"
 #include "rekon/common/graph_update.hpp"
+#include "rekon/common/mesh_blocks.hpp"
 #include "rekon/common/messages.hpp"
 #include "rekon_msgs/constraint_t.hpp"
 #include "rekon_msgs/done_t.hpp"
@@ -17,6 +19,8 @@
 #include "rekon_msgs/graph_update_t.hpp"
 #include "rekon_msgs/heartbeat_t.hpp"
 #include "rekon_msgs/keyframe_t.hpp"
+#include "rekon_msgs/mesh_blocks_t.hpp"
+#include "rekon_msgs/mesh_request_t.hpp"
 #include "rekon_msgs/replay_end_t.hpp"
 #include "rekon_msgs/replay_request_t.hpp"
 #include "rekon_msgs/resume_point_t.hpp"
@@ -42,7 +46,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   }();
   (void)quiet;
   if (size < 1) return 0;
-  const uint8_t kind = data[0] % 14;
+  const uint8_t kind = data[0] % 16;
   ++data;
   --size;
   switch (kind) {
@@ -77,7 +81,20 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     case 10: { rekon_msgs::done_t m; decode(data, size, &m); break; }
     case 11: { rekon_msgs::resume_point_t m; decode(data, size, &m); break; }
     case 12: { rekon_msgs::replay_request_t m; decode(data, size, &m); break; }
-    default: { rekon_msgs::replay_end_t m; decode(data, size, &m); break; }
+    case 13: { rekon_msgs::replay_end_t m; decode(data, size, &m); break; }
+    case 14: {
+      rekon_msgs::mesh_blocks_t m;
+      if (decode(data, size, &m)) {
+        try {
+          rekon::MeshMap map;
+          map.apply(m);
+          map.toMesh();
+        } catch (const rekon::Error&) {
+        }
+      }
+      break;
+    }
+    default: { rekon_msgs::mesh_request_t m; decode(data, size, &m); break; }
   }
   return 0;
 }

@@ -11,6 +11,7 @@
 #include "rekon/common/bus.hpp"
 #include "rekon/common/camera.hpp"
 #include "rekon/common/image_io.hpp"
+#include "rekon/common/mesh_blocks.hpp"
 #include "rekon/common/messages.hpp"
 #include "rekon/common/pose.hpp"
 #include "rekon_msgs/constraint_t.hpp"
@@ -21,6 +22,8 @@
 #include "rekon_msgs/graph_update_t.hpp"
 #include "rekon_msgs/heartbeat_t.hpp"
 #include "rekon_msgs/keyframe_t.hpp"
+#include "rekon_msgs/mesh_blocks_t.hpp"
+#include "rekon_msgs/mesh_request_t.hpp"
 #include "rekon_msgs/replay_end_t.hpp"
 #include "rekon_msgs/replay_request_t.hpp"
 #include "rekon_msgs/resume_point_t.hpp"
@@ -161,6 +164,19 @@ int main(int argc, char** argv) {
   replay_end.keyframes = 3;
   replay_end.graph_version = -1;
   writeMessage(messages, "seed_replay_end", 13, replay_end);
+  rekon::BlockMesh block;  // one triangle in block (1, -2, 3)
+  block.x = 1;
+  block.y = -2;
+  block.z = 3;
+  block.version = 4;
+  block.vertices = {{0.085f, -0.155f, 0.245f}, {0.09f, -0.15f, 0.245f}, {0.085f, -0.15f, 0.25f}};
+  block.colors = {{{200, 10, 10}}, {{10, 200, 10}}, {{10, 10, 200}}};
+  block.triangles = {{0, 1, 2}};
+  rekon::MeshBlocksParams mesh_params;
+  writeMessage(messages, "seed_mesh_blocks", 14, rekon::encodeMeshBlocks({block}, mesh_params, 1, false).front());
+  rekon_msgs::mesh_request_t mesh_request{};
+  mesh_request.requester = "viewer";
+  writeMessage(messages, "seed_mesh_request", 15, mesh_request);
   std::cout << "seeds in " << root.string() << "\n";
   return 0;
 }
