@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <map>
+#include <utility>
 
 #include "parallel_for.hpp"
 
@@ -89,6 +91,7 @@ TriangleTable buildTable() {
 
 constexpr int kPad = kBlockSide + 1;  // a block plus the first layer of its +x/+y/+z neighbours
 constexpr float kUnobserved = std::numeric_limits<float>::quiet_NaN();
+constexpr int kGrain = 16;  // blocks per parallelFor task
 
 struct Lookup {
   std::vector<HashEntry> entries;
@@ -157,6 +160,118 @@ void makeVertices(const Grid& g, BlockCoord c, float voxel_size, BlockVertices& 
   }
 }
 
+// A vertex as the block that owns it (index into coords) and its index there.
+struct VertexRef {
+  int32_t block;
+  int32_t index;
+};
+using TriangleRefs = std::vector<std::array<VertexRef, 3>>;
+
+struct Lattice {
+  Lookup lookup;
+  std::vector<BlockVertices> vertices;  // per block of coords: the vertices it owns
+};
+
+Lattice buildLattice(const std::vector<BlockCoord>& coords, const std::vector<const Voxel*>& blocks, float voxel_size,
+                     float truncation) {
+  Lattice lattice;
+  uint32_t size = 1;
+  while (size < 2 * coords.size() + 2) size <<= 1;
+  lattice.lookup.entries.assign(size, HashEntry{{0, 0, 0}, kEmptySlot});
+  for (size_t i = 0; i < coords.size(); ++i) {
+    uint32_t h = hashBlock(coords[i]) & (size - 1);
+    while (lattice.lookup.entries[h].slot != kEmptySlot) h = (h + 1) & (size - 1);
+    lattice.lookup.entries[h] = {coords[i], static_cast<int32_t>(i)};
+  }
+  const int n = static_cast<int>(coords.size());
+  lattice.vertices.resize(n);
+  parallelFor(n, kGrain, 0, [&](int begin, int end, int) {
+    Grid grid;
+    for (int b = begin; b < end; ++b) {
+      gatherGrid(lattice.lookup, blocks, coords[b], truncation, grid);
+      makeVertices(grid, coords[b], voxel_size, lattice.vertices[b]);
+    }
+  });
+  return lattice;
+}
+
+// The triangles of the cubes whose lower corner lies in block b; their
+// vertices are owned by b or by its +x/+y/+z neighbours.
+void blockTriangles(const Lattice& lattice, const std::vector<BlockCoord>& coords, const std::vector<const Voxel*>& blocks,
+                    int b, float truncation, Grid& grid, std::vector<int32_t>& own, TriangleRefs& out) {
+  const TriangleTable& table = triangleTable();
+  const BlockCoord c = coords[b];
+  const BlockVertices& mine = lattice.vertices[b];
+  gatherGrid(lattice.lookup, blocks, c, truncation, grid);
+  std::fill(own.begin(), own.end(), -1);
+  for (size_t i = 0; i < mine.edge.size(); ++i) own[mine.edge[i]] = static_cast<int32_t>(i);
+  int32_t neighbour[8] = {b};
+  for (int k = 1; k < 8; ++k) neighbour[k] = findBlock(lattice.lookup.view(), {c.x + (k & 1), c.y + ((k >> 1) & 1), c.z + ((k >> 2) & 1)});
+  auto vertexOf = [&](int x, int y, int z, int axis) -> VertexRef {
+    const int k = (x == kBlockSide) | ((y == kBlockSide) << 1) | ((z == kBlockSide) << 2);
+    const uint16_t edge = static_cast<uint16_t>(localIndex(x % kBlockSide, y % kBlockSide, z % kBlockSide) * 3 + axis);
+    if (k == 0) return {b, own[edge]};
+    const BlockVertices& nb = lattice.vertices[neighbour[k]];
+    const auto it = std::lower_bound(nb.edge.begin(), nb.edge.end(), edge);
+    return {neighbour[k], static_cast<int32_t>(it - nb.edge.begin())};
+  };
+  for (int z = 0; z < kBlockSide; ++z) {
+    for (int y = 0; y < kBlockSide; ++y) {
+      for (int x = 0; x < kBlockSide; ++x) {
+        int config = 0;
+        bool observed = true;
+        for (int k = 0; k < 8 && observed; ++k) {
+          const float s = grid.sdf[Grid::index(x + kCorner[k][0], y + kCorner[k][1], z + kCorner[k][2])];
+          observed = !std::isnan(s);
+          config |= (s < 0.f) << k;
+        }
+        if (!observed || config == 0 || config == 255) continue;
+        const auto& row = table[config];
+        for (int i = 0; row[i] >= 0; i += 3) {
+          std::array<VertexRef, 3> tri;
+          for (int j = 0; j < 3; ++j) {
+            const int e = row[i + j];
+            const int* o = kCorner[kEdgeCorners[e][0]];
+            tri[j] = vertexOf(x + o[0], y + o[1], z + o[2], edgeAxis(e));
+          }
+          out.push_back(tri);
+        }
+      }
+    }
+  }
+}
+
+// Block b's own mesh: every vertex it owns (in order), then those of its
+// neighbours that its triangles use.
+BlockMesh blockMesh(const Lattice& lattice, const std::vector<BlockCoord>& coords, int b, const TriangleRefs& refs) {
+  BlockMesh out;
+  out.x = coords[b].x;
+  out.y = coords[b].y;
+  out.z = coords[b].z;
+  const BlockVertices& mine = lattice.vertices[b];
+  out.vertices = mine.position;
+  out.colors = mine.color;
+  std::map<std::pair<int32_t, int32_t>, int> foreign;
+  for (const auto& tri : refs) {
+    Eigen::Vector3i t;
+    for (int j = 0; j < 3; ++j) {
+      const VertexRef r = tri[j];
+      if (r.block == b) {
+        t[j] = r.index;
+        continue;
+      }
+      const auto [it, fresh] = foreign.try_emplace({r.block, r.index}, static_cast<int>(out.vertices.size()));
+      if (fresh) {
+        out.vertices.push_back(lattice.vertices[r.block].position[r.index]);
+        out.colors.push_back(lattice.vertices[r.block].color[r.index]);
+      }
+      t[j] = it->second;
+    }
+    out.triangles.push_back(t);
+  }
+  return out;
+}
+
 }  // namespace
 
 const TriangleTable& triangleTable() {
@@ -166,80 +281,25 @@ const TriangleTable& triangleTable() {
 
 Mesh marchingCubes(const std::vector<BlockCoord>& coords, const std::vector<const Voxel*>& blocks, float voxel_size,
                    float truncation) {
-  const TriangleTable& table = triangleTable();
-  Lookup lookup;
-  uint32_t size = 1;
-  while (size < 2 * coords.size() + 2) size <<= 1;
-  lookup.entries.assign(size, HashEntry{{0, 0, 0}, kEmptySlot});
-  for (size_t i = 0; i < coords.size(); ++i) {
-    uint32_t h = hashBlock(coords[i]) & (size - 1);
-    while (lookup.entries[h].slot != kEmptySlot) h = (h + 1) & (size - 1);
-    lookup.entries[h] = {coords[i], static_cast<int32_t>(i)};
-  }
-  const int n = static_cast<int>(coords.size());
-  constexpr int kGrain = 16;
-
-  std::vector<BlockVertices> vertices(n);
-  parallelFor(n, kGrain, 0, [&](int begin, int end, int) {
-    Grid grid;
-    for (int b = begin; b < end; ++b) {
-      gatherGrid(lookup, blocks, coords[b], truncation, grid);
-      makeVertices(grid, coords[b], voxel_size, vertices[b]);
-    }
-  });
+  Lattice lattice = buildLattice(coords, blocks, voxel_size, truncation);
   int64_t total = 0;
-  for (auto& v : vertices) {
+  for (auto& v : lattice.vertices) {
     v.offset = total;
     total += static_cast<int64_t>(v.edge.size());
   }
-
+  const int n = static_cast<int>(coords.size());
   std::vector<std::vector<Eigen::Vector3i>> triangles(n);
   parallelFor(n, kGrain, 0, [&](int begin, int end, int) {
     Grid grid;
     std::vector<int32_t> own(kBlockVoxels * 3);
+    TriangleRefs refs;
     for (int b = begin; b < end; ++b) {
-      const BlockCoord c = coords[b];
-      const BlockVertices& mine = vertices[b];
-      gatherGrid(lookup, blocks, c, truncation, grid);
-      std::fill(own.begin(), own.end(), -1);
-      for (size_t i = 0; i < mine.edge.size(); ++i) own[mine.edge[i]] = static_cast<int32_t>(i);
-      const BlockVertices* neighbour[8] = {&mine};
-      for (int k = 1; k < 8; ++k) {
-        const int32_t idx = findBlock(lookup.view(), {c.x + (k & 1), c.y + ((k >> 1) & 1), c.z + ((k >> 2) & 1)});
-        neighbour[k] = idx == kEmptySlot ? nullptr : &vertices[idx];
-      }
-      auto vertexOf = [&](int x, int y, int z, int axis) -> int64_t {
-        const int k = (x == kBlockSide) | ((y == kBlockSide) << 1) | ((z == kBlockSide) << 2);
-        const uint16_t edge = static_cast<uint16_t>(localIndex(x % kBlockSide, y % kBlockSide, z % kBlockSide) * 3 + axis);
-        if (k == 0) return mine.offset + own[edge];
-        const BlockVertices* nb = neighbour[k];
-        const auto it = std::lower_bound(nb->edge.begin(), nb->edge.end(), edge);
-        return nb->offset + (it - nb->edge.begin());
-      };
-      auto& out = triangles[b];
-      for (int z = 0; z < kBlockSide; ++z) {
-        for (int y = 0; y < kBlockSide; ++y) {
-          for (int x = 0; x < kBlockSide; ++x) {
-            int config = 0;
-            bool observed = true;
-            for (int k = 0; k < 8 && observed; ++k) {
-              const float s = grid.sdf[Grid::index(x + kCorner[k][0], y + kCorner[k][1], z + kCorner[k][2])];
-              observed = !std::isnan(s);
-              config |= (s < 0.f) << k;
-            }
-            if (!observed || config == 0 || config == 255) continue;
-            const auto& row = table[config];
-            for (int i = 0; row[i] >= 0; i += 3) {
-              Eigen::Vector3i tri;
-              for (int j = 0; j < 3; ++j) {
-                const int e = row[i + j];
-                const int* o = kCorner[kEdgeCorners[e][0]];
-                tri[j] = static_cast<int>(vertexOf(x + o[0], y + o[1], z + o[2], edgeAxis(e)));
-              }
-              out.push_back(tri);
-            }
-          }
-        }
+      refs.clear();
+      blockTriangles(lattice, coords, blocks, b, truncation, grid, own, refs);
+      for (const auto& tri : refs) {
+        Eigen::Vector3i t;
+        for (int j = 0; j < 3; ++j) t[j] = static_cast<int>(lattice.vertices[tri[j].block].offset + tri[j].index);
+        triangles[b].push_back(t);
       }
     }
   });
@@ -247,7 +307,7 @@ Mesh marchingCubes(const std::vector<BlockCoord>& coords, const std::vector<cons
   Mesh mesh;
   mesh.vertices.reserve(total);
   mesh.colors.reserve(total);
-  for (const auto& v : vertices) {
+  for (const auto& v : lattice.vertices) {
     mesh.vertices.insert(mesh.vertices.end(), v.position.begin(), v.position.end());
     mesh.colors.insert(mesh.colors.end(), v.color.begin(), v.color.end());
   }
@@ -256,6 +316,23 @@ Mesh marchingCubes(const std::vector<BlockCoord>& coords, const std::vector<cons
   mesh.triangles.reserve(tri_total);
   for (const auto& t : triangles) mesh.triangles.insert(mesh.triangles.end(), t.begin(), t.end());
   return mesh;
+}
+
+std::vector<BlockMesh> marchingCubesPerBlock(const std::vector<BlockCoord>& coords, const std::vector<const Voxel*>& blocks,
+                                             int wanted, float voxel_size, float truncation) {
+  const Lattice lattice = buildLattice(coords, blocks, voxel_size, truncation);
+  std::vector<BlockMesh> out(wanted);
+  parallelFor(wanted, kGrain, 0, [&](int begin, int end, int) {
+    Grid grid;
+    std::vector<int32_t> own(kBlockVoxels * 3);
+    TriangleRefs refs;
+    for (int b = begin; b < end; ++b) {
+      refs.clear();
+      blockTriangles(lattice, coords, blocks, b, truncation, grid, own, refs);
+      out[b] = blockMesh(lattice, coords, b, refs);
+    }
+  });
+  return out;
 }
 
 }  // namespace rekon::volume

@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "rekon/common/mesh.hpp"
+#include "rekon/common/mesh_blocks.hpp"
 #include "rekon/mapper/volume/volume_kernels.hpp"
 
 namespace rekon::volume {
@@ -19,5 +20,13 @@ const TriangleTable& triangleTable();
 // blocks[i] holds kBlockVoxels voxels of block coords[i]; both from any store.
 Mesh marchingCubes(const std::vector<BlockCoord>& coords, const std::vector<const Voxel*>& blocks, float voxel_size,
                    float truncation);
+
+// The meshes of the first `wanted` blocks of coords, each on its own: the
+// triangles of the cubes whose lower corner lies in it, every vertex it owns
+// (as marchingCubes makes them, bit for bit) and then copies of the
+// neighbours' vertices those triangles use. coords must hold the +x/+y/+z
+// neighbours of the wanted blocks that exist (after them); versions are 0.
+std::vector<BlockMesh> marchingCubesPerBlock(const std::vector<BlockCoord>& coords, const std::vector<const Voxel*>& blocks,
+                                             int wanted, float voxel_size, float truncation);
 
 }  // namespace rekon::volume

@@ -131,8 +131,12 @@ void TsdfVolume::update(const cv::Mat& depth_m, const cv::Mat& color, const cv::
   const FrameUpdateReport report = backend_->updateBlocks(cam, settings, blocks, sign, empty);
   last_update_blocks_ = static_cast<int64_t>(blocks.size());
   // Integration frees fresh blocks it did not touch; de-integration every block left without weight.
-  for (size_t i = sign > 0 ? fresh_begin : 0; i < blocks.size(); ++i) {
-    if (empty[i]) releaseSlot(blocks[i].slot);
+  for (size_t i = 0; i < blocks.size(); ++i) {
+    const bool fresh = sign > 0 && i >= fresh_begin;
+    const bool freed = empty[i] && (fresh || sign < 0);
+    if (freed) releaseSlot(blocks[i].slot);
+    // Integration changed a block's voxels when it updated one (a fresh block freed at once never had a mesh).
+    if (sign < 0 || !empty[i]) touched_.insert(blocks[i].coord);
   }
   if (report.weight_overflow) {
     throw Error("volume: a voxel weight exceeded " + std::to_string(kMaxVoxelWeight) +
@@ -362,6 +366,72 @@ Mesh TsdfVolume::extractMesh() const {
     data.push_back(voxels.data());
   }
   return marchingCubes(coords, data, static_cast<float>(params_.voxel_size), static_cast<float>(params_.truncation));
+}
+
+std::vector<BlockCoord> TsdfVolume::takeMeshChanges() {
+  std::unordered_set<BlockCoord, CoordHash> changed;
+  for (const BlockCoord& c : touched_) {
+    for (int n = 0; n < 8; ++n) changed.insert({c.x - (n & 1), c.y - ((n >> 1) & 1), c.z - ((n >> 2) & 1)});
+  }
+  std::vector<BlockCoord> out;
+  out.reserve(changed.size());
+  for (const BlockCoord& c : changed) {
+    // A neighbour that does not exist has no mesh to change, unless it was freed (then it was touched itself).
+    if (tableFind(c) != kEmptySlot || host_store_.count(c) || touched_.count(c)) out.push_back(c);
+  }
+  touched_.clear();
+  return out;
+}
+
+std::vector<BlockMesh> TsdfVolume::meshBlocks(const std::vector<BlockCoord>& wanted) const {
+  // The wanted blocks that exist first, then their +x/+y/+z neighbours (whose voxels and vertices their cubes use).
+  std::vector<BlockCoord> coords;
+  std::unordered_set<BlockCoord, CoordHash> listed;
+  auto exists = [&](const BlockCoord& c) { return tableFind(c) != kEmptySlot || host_store_.count(c); };
+  for (const BlockCoord& c : wanted) {
+    if (exists(c) && listed.insert(c).second) coords.push_back(c);
+  }
+  const int present = static_cast<int>(coords.size());
+  for (int i = 0; i < present; ++i) {
+    const BlockCoord c = coords[i];
+    for (int n = 1; n < 8; ++n) {
+      const BlockCoord nb{c.x + (n & 1), c.y + ((n >> 1) & 1), c.z + ((n >> 2) & 1)};
+      if (exists(nb) && listed.insert(nb).second) coords.push_back(nb);
+    }
+  }
+  std::vector<const Voxel*> data;
+  std::vector<Voxel> copied;
+  voxelPointers(coords, data, copied);
+  std::vector<BlockMesh> meshes = marchingCubesPerBlock(coords, data, present, static_cast<float>(params_.voxel_size),
+                                                        static_cast<float>(params_.truncation));
+  for (const BlockCoord& c : wanted) {
+    if (!listed.count(c)) meshes.push_back(BlockMesh{c.x, c.y, c.z, 0, {}, {}, {}});
+  }
+  return meshes;
+}
+
+void TsdfVolume::voxelPointers(const std::vector<BlockCoord>& coords, std::vector<const Voxel*>& data,
+                               std::vector<Voxel>& copied) const {
+  const Voxel* pool = backend_->hostPool();
+  std::vector<int32_t> slots;
+  for (const BlockCoord& c : coords) {
+    const int32_t slot = tableFind(c);
+    if (slot != kEmptySlot) slots.push_back(slot);
+  }
+  if (pool == nullptr) {
+    copied.resize(slots.size() * kBlockVoxels);
+    backend_->readBlocks(slots, copied.data());
+  }
+  size_t active = 0;
+  for (const BlockCoord& c : coords) {
+    const int32_t slot = tableFind(c);
+    if (slot == kEmptySlot) {
+      data.push_back(host_store_.at(c).data());
+    } else {
+      data.push_back(pool ? pool + static_cast<size_t>(slot) * kBlockVoxels : copied.data() + active * kBlockVoxels);
+      ++active;
+    }
+  }
 }
 
 RaycastImages TsdfVolume::raycast(const Intrinsics& k, const Pose& camera_to_world) const {

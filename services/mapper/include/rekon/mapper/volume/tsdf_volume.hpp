@@ -9,10 +9,12 @@
 #include <memory>
 #include <string>
 #include <unordered_map>
+#include <unordered_set>
 #include <vector>
 
 #include "rekon/common/camera.hpp"
 #include "rekon/common/mesh.hpp"
+#include "rekon/common/mesh_blocks.hpp"
 #include "rekon/common/pose.hpp"
 #include "rekon/mapper/volume/volume_backend.hpp"
 
@@ -93,6 +95,15 @@ class TsdfVolume {
   // Marching cubes over active and host blocks; vertices are shared along
   // voxel edges, colors are RGB.
   Mesh extractMesh() const;
+  // Blocks whose mesh may have changed since the last call: (de-)integration
+  // changes a block's voxels, and with them its own mesh and those of its
+  // -x/-y/-z neighbours (their cubes reach into its first layer); blocks
+  // freed are included (their mesh is now empty). Streaming changes no mesh.
+  std::vector<BlockCoord> takeMeshChanges();
+  // Each block's mesh on its own (marchingCubesPerBlock: its vertices equal
+  // extractMesh()'s); a block that is not allocated gets an empty mesh.
+  // Versions are left 0 for the caller.
+  std::vector<BlockMesh> meshBlocks(const std::vector<BlockCoord>& coords) const;
   // Ray casts the active blocks (stream around the camera first).
   RaycastImages raycast(const Intrinsics& k, const Pose& camera_to_world) const;
 
@@ -123,6 +134,8 @@ class TsdfVolume {
   void tableErase(const BlockCoord& coord);
   int32_t tableFind(const BlockCoord& coord) const;
   void streamIn(const std::vector<BlockCoord>& coords, std::vector<int32_t>& slots);
+  // Voxels of each block of coords (active or host; every one must exist), copied when the pool is not on the host.
+  void voxelPointers(const std::vector<BlockCoord>& coords, std::vector<const Voxel*>& data, std::vector<Voxel>& copied) const;
 
   VolumeParams params_;
   std::unique_ptr<VolumeBackend> backend_;
@@ -140,6 +153,7 @@ class TsdfVolume {
   int64_t streamed_in_ = 0;
   int64_t last_update_blocks_ = 0;
   HostStore host_store_;
+  std::unordered_set<BlockCoord, CoordHash> touched_;  // voxels changed since takeMeshChanges()
   // The host store's blocks by coarse cell (kCellBlocks^3 blocks), so that
   // stream-in visits only the cells the sphere overlaps, not the whole store.
   static constexpr int kCellBlocks = 8;
