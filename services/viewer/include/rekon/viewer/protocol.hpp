@@ -1,0 +1,39 @@
+#pragma once
+// The viewer's WebSocket protocol (services/viewer/web/app.js decodes it).
+//
+// Binary message: one voxel block's surface, little-endian, so that the page
+// wraps typed arrays around it without copying:
+//   offset 0   uint32  magic 0x31424B52 ("RKB1")
+//          4   int32   bx, by, bz (block coordinates)
+//          16  float64 version
+//          24  uint32  vertices n, triangles t (both 0: the block was removed)
+//          32  float32 positions[3n] (world, metres)
+//              uint8   colors[3n] (RGB), zero padding to a multiple of 4 bytes
+//              uint32  indices[3t] (into this block's vertices)
+// Text messages: JSON objects with a "type": "camera" (newest pose),
+// "trajectory" (every camera position), "keyframes", "edges" (loop closures
+// between keyframe ids), "status" (every service's heartbeat and stats),
+// "counts" (the server's block, vertex and triangle totals).
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <string_view>
+
+#include "rekon/viewer/viewer_state.hpp"
+
+namespace rekon::viewer {
+
+inline constexpr uint32_t kBlockMagic = 0x31424B52;
+inline constexpr size_t kBlockHeaderBytes = 32;
+
+std::string encodeBlockMessage(const BlockMesh& block);
+// nullopt for anything that is not a well-formed block message (sizes, magic, index range).
+std::optional<BlockMesh> decodeBlockMessage(std::string_view bytes);
+
+// The Update key of a block ("b X Y Z").
+std::string blockUpdateKey(const BlockKey& key);
+
+// A mesh as binary little-endian PLY bytes, exactly what rekon::writePly writes to a file.
+std::string plyBytes(const Mesh& mesh);
+
+}  // namespace rekon::viewer

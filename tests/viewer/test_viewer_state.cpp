@@ -1,0 +1,143 @@
+// The viewer's state and protocol without a server: block versions, removals,
+// poses through keyframes and graph updates, the binary block message and
+// the PLY download.
+#include <gtest/gtest.h>
+
+#include <cstring>
+#include <fstream>
+#include <map>
+#include <tuple>
+#include <sstream>
+
+#include "rekon/common/mesh.hpp"
+#include "rekon/viewer/protocol.hpp"
+#include "rekon/viewer/viewer_state.hpp"
+#include "test_support.hpp"
+#include "viewer_test_support.hpp"
+
+namespace rekon::viewer {
+namespace {
+
+using test::syntheticBlock;
+
+TEST(ViewerProtocol, BlockMessageRoundTripsBitForBit) {
+  const BlockMesh b = syntheticBlock({3, -2, 7}, 42, 5);
+  const std::string bytes = encodeBlockMessage(b);
+  // 32 header + 7 vertices * 12 + 21 color bytes padded to 24 + 5 triangles * 12
+  EXPECT_EQ(bytes.size(), 32u + 84u + 24u + 60u);
+  const auto back = decodeBlockMessage(bytes);
+  ASSERT_TRUE(back);
+  EXPECT_EQ(std::make_tuple(back->x, back->y, back->z), std::make_tuple(3, -2, 7));
+  EXPECT_EQ(back->version, 42);
+  EXPECT_EQ(back->vertices, b.vertices);
+  EXPECT_EQ(back->colors, b.colors);
+  EXPECT_EQ(back->triangles, b.triangles);
+}
+
+TEST(ViewerProtocol, MalformedBlockMessagesAreRejected) {
+  const std::string good = encodeBlockMessage(syntheticBlock({0, 0, 0}, 1, 4));
+  EXPECT_FALSE(decodeBlockMessage(good.substr(0, 31)));               // shorter than the header
+  EXPECT_FALSE(decodeBlockMessage(good.substr(0, good.size() - 1)));  // truncated
+  EXPECT_FALSE(decodeBlockMessage(good + "x"));                        // trailing byte
+  std::string bad_magic = good;
+  bad_magic[0] = 'X';
+  EXPECT_FALSE(decodeBlockMessage(bad_magic));
+  std::string bad_index = good;
+  const uint32_t huge = 1000;
+  std::memcpy(bad_index.data() + bad_index.size() - 4, &huge, 4);  // an index past the block's vertices
+  EXPECT_FALSE(decodeBlockMessage(bad_index));
+  std::string absurd = good;
+  const uint32_t n = 0xFFFFFFFF;
+  std::memcpy(absurd.data() + 24, &n, 4);  // a vertex count that would overflow the size check
+  EXPECT_FALSE(decodeBlockMessage(absurd));
+}
+
+TEST(ViewerProtocol, PlyBytesAreWhatWritePlyWrites) {
+  ViewerState state;
+  for (int i = 0; i < 3; ++i) state.applyBlock(syntheticBlock({i, 0, 0}, 1, 6));
+  const Mesh mesh = state.mesh();
+  EXPECT_EQ(mesh.vertices.size(), 3u * 8u);
+  EXPECT_EQ(mesh.triangles.size(), 3u * 6u);
+  rekon::test::TempDir dir;
+  writePly(mesh, dir / "ref.ply");
+  EXPECT_EQ(plyBytes(mesh), rekon::test::readText(dir / "ref.ply"));
+  std::ofstream(dir / "served.ply", std::ios::binary) << plyBytes(mesh);
+  const Mesh back = readPly(dir / "served.ply");
+  EXPECT_EQ(back.vertices.size(), mesh.vertices.size());
+  EXPECT_EQ(back.triangles.back(), mesh.triangles.back());  // indices offset per block
+}
+
+TEST(ViewerState, NewerVersionsReplaceOlderAreIgnoredEmptyRemoves) {
+  ViewerState state;
+  std::vector<Update> heard;
+  state.setListener([&](const Update& u) { heard.push_back(u); });
+  state.applyBlock(syntheticBlock({1, 1, 1}, 5, 10));
+  state.applyBlock(syntheticBlock({1, 1, 1}, 4, 3));  // older: ignored
+  EXPECT_EQ(state.counts().triangles, 10u);
+  state.applyBlock(syntheticBlock({1, 1, 1}, 6, 3));
+  EXPECT_EQ(state.counts().triangles, 3u);
+  EXPECT_EQ(state.counts().blocks, 1u);
+  BlockMesh removal;
+  removal.x = removal.y = removal.z = 1;
+  removal.version = 7;
+  state.applyBlock(removal);
+  EXPECT_EQ(state.counts().blocks, 0u);
+  EXPECT_EQ(state.counts().vertices, 0u);
+  state.applyBlock(syntheticBlock({1, 1, 1}, 6, 3));  // older than the removal: stays removed
+  EXPECT_EQ(state.counts().blocks, 0u);
+  ASSERT_EQ(heard.size(), 3u);  // v5, v6, the removal
+  EXPECT_TRUE(heard[2].binary);
+  EXPECT_EQ(heard[2].key, "b 1 1 1");
+  EXPECT_EQ(decodeBlockMessage(*heard[2].payload)->vertices.size(), 0u);
+}
+
+TEST(ViewerState, FullSnapshotRemovesBlocksItDoesNotName) {
+  ViewerState state;
+  for (int i = 0; i < 5; ++i) state.applyBlock(syntheticBlock({i, 0, 0}, 1));
+  state.startFullSnapshot();
+  state.applyBlocks({syntheticBlock({0, 0, 0}, 1), syntheticBlock({1, 0, 0}, 2), syntheticBlock({9, 0, 0}, 1)});
+  EXPECT_EQ(state.counts().blocks, 6u);  // nothing removed before the snapshot is complete
+  state.endFullSnapshot();
+  EXPECT_EQ(state.counts().blocks, 3u);  // 0, 1 and 9; 2, 3 and 4 are gone
+  EXPECT_EQ(state.mesh().triangles.size(), 3u * 20u);
+}
+
+TEST(ViewerState, CameraIsPlacedThroughItsKeyframeAndMovesWithGraphUpdates) {
+  ViewerState state;
+  std::map<std::string, std::string> last;
+  state.setListener([&](const Update& u) { last[u.key] = *u.payload; });
+  Pose in_kf = Pose::Identity();
+  in_kf.translation() = Eigen::Vector3d(0, 0, 1);
+  state.addTrackedFrame(0, 9, in_kf, false);  // keyframe 9 unknown: nothing to place
+  EXPECT_EQ(state.counts().camera_frame, -1);
+  Pose kf = Pose::Identity();
+  kf.translation() = Eigen::Vector3d(1, 0, 0);
+  state.addKeyframe(9, kf);
+  state.addTrackedFrame(1, 9, in_kf, false);
+  EXPECT_NE(last["camera"].find("[1.0000,0.0000,1.0000,"), std::string::npos) << last["camera"];
+  kf.translation() = Eigen::Vector3d(2, 0, 0);
+  state.applyGraph({{9, kf}});
+  EXPECT_NE(last["camera"].find("[2.0000,0.0000,1.0000,"), std::string::npos) << last["camera"];
+  EXPECT_NE(last["trajectory"].find("[2.0000,0.0000,1.0000]"), std::string::npos) << last["trajectory"];
+  state.addLoopEdge(9, 3);
+  EXPECT_NE(last["edges"].find("[9,3]"), std::string::npos);
+}
+
+TEST(ViewerState, SnapshotHasEveryBlockAndTheStatus) {
+  ViewerState state;
+  for (int i = 0; i < 40; ++i) state.applyBlock(syntheticBlock({i, 0, 0}, 1));
+  state.heartbeat("mapper", 12, "host", "running", 77);
+  state.stats("mapper", R"({"reintegrations": 3})");
+  int blocks = 0;
+  bool status = false;
+  for (const Update& u : state.snapshot()) {
+    blocks += u.binary;
+    if (u.key == "status") status = u.payload->find(R"("last_frame":77)") != std::string::npos;
+  }
+  EXPECT_EQ(blocks, 40);
+  EXPECT_TRUE(status);
+  EXPECT_NE(state.stateJson().find(R"("blocks":40)"), std::string::npos) << state.stateJson();
+}
+
+}  // namespace
+}  // namespace rekon::viewer
