@@ -20,6 +20,7 @@
 #include <optional>
 #include <thread>
 
+#include "rekon/camera/device_clock.hpp"
 #include "rekon/camera/kinect_depth.hpp"
 #include "rekon/camera/source.hpp"
 #include "rekon/common/error.hpp"
@@ -199,6 +200,7 @@ class OpenNI2Source : public CameraSource {
   bool pair_by_index_ = true;
   int mismatches_ = 0;
   long long frames_ = 0;
+  DeviceClock clock_;  // device timestamps onto the host clock
   std::chrono::steady_clock::time_point last_frame_;
   std::optional<Capture> finished_;
 };
@@ -479,7 +481,10 @@ Capture OpenNI2Source::makeFrame(const openni::VideoFrameRef& depth, const openn
                                               "; rekon needs one size (choose a mode both offer)");
   Capture capture;
   capture.status = Capture::Status::kFrame;
-  capture.frame.timestamp = wallClockSeconds();
+  // The device's exposure time (µs) on the host clock: as steady as the
+  // device's, where the arrival time carries USB and scheduling jitter.
+  capture.frame.timestamp =
+      clock_.stamp(static_cast<double>(std::max(depth.getTimestamp(), color.getTimestamp())) * 1e-6, wallClockSeconds());
   const cv::Mat depth_mm(depth.getHeight(), depth.getWidth(), CV_16UC1, const_cast<void*>(depth.getData()),
                          static_cast<size_t>(depth.getStrideInBytes()));
   if (software_registration_) {
