@@ -22,6 +22,7 @@ const std::vector<Command>& commands() {
       {"synth", "write a synthetic RGB-D sequence with exact ground truth", &synth::synthCommand},
       {"run", "run the whole pipeline on a dataset or a live camera (every service as its own process)", &runCommand},
       {"cameras", "list the connected RGB-D cameras (OpenNI2, libfreenect) and their modes", &camerasCommand},
+      {"view", "serve a live web page of the run on the bus (mesh, camera, keyframes, status); prints its URL", &viewCommand},
       {"demo", "run the whole pipeline on the built-in default scene", &demoCommand},
       {"keyframes", "list or export the KF keyframes in the mapper's shared-memory keyframe store", &keyframesCommand},
       {"listen", "receive frames from the bus as a consumer and log their hashes", &listenMain},

@@ -24,5 +24,8 @@ int keyframesCommand(int argc, char** argv);
 // `rekon cameras`: the connected RGB-D cameras (driver, URI, serial, modes);
 // exit 1 when there is none.
 int camerasCommand(int argc, char** argv);
+// `rekon view [--port N] [--bind ADDR] [--config FILE] [--set key=value]`:
+// rekon-viewer (the live web page of whatever runs on the bus) in the foreground.
+int viewCommand(int argc, char** argv);
 
 }  // namespace rekon

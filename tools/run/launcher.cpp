@@ -68,13 +68,16 @@ std::string lastErrorLine(const std::string& log_path) {
   return last;
 }
 
+// rekon run --view's optional service: it only listens, and its end never ends the run.
+constexpr const char* kViewer = "viewer";
+
 // Seconds a service gets between SIGTERM and SIGKILL when the run stops.
 constexpr int kStopGraceS = 10;
 
 // Stopping order: upstream first, so that downstream services still receive
 // what the upstream ones send while finishing.
 int stopRank(const std::string& service) {
-  static const std::vector<std::string> order = {"camera", "player", "replay", "tracker", "optimiser", "mapper"};
+  static const std::vector<std::string> order = {"camera", "player", "replay", "tracker", "optimiser", "mapper", "viewer"};
   const auto it = std::find(order.begin(), order.end(), service);
   return static_cast<int>(it - order.begin());
 }
@@ -164,6 +167,11 @@ RunPlan planRun(const RunOptions& opt) {
   if (!opt.dataset.empty()) std::ofstream(plan.out + "/dataset.txt") << fs::canonical(opt.dataset).string() << "\n";
 
   std::stable_partition(services.begin(), services.end(), [&](const std::string& s) { return s != source; });
+  // The viewer only listens: started first, it sees the run from its first message.
+  if (opt.view) {
+    if (fs::exists(bin + "/rekon-viewer")) services.insert(services.begin(), "viewer");
+    else spdlog::warn("rekon-viewer is not part of this build; running without the viewer");
+  }
   for (const auto& s : services) {
     std::vector<std::string> args = {"--config", config_path, "--out", plan.out};
     if (s == "player") args.insert(args.end(), {"--dataset", opt.dataset});
@@ -204,12 +212,19 @@ class Supervisor {
 
   // One look at every child; false once none runs any more.
   bool step() {
-    bool any_running = false;
+    bool any_running = false, any_service_running = false;
     for (auto& c : plan_.children) {
-      if (const auto status = c.poll()) onEnded(c, *status, any_running);
-      else any_running = true;
+      if (const auto status = c.poll()) {
+        onEnded(c, *status, any_running);
+      } else {
+        any_running = true;
+        any_service_running |= c.name() != kViewer;
+      }
     }
     if (!any_running) return false;
+    printViewerUrl();
+    // The viewer serves as long as the run lasts: once every service has ended, it is stopped too.
+    if (!any_service_running) stopping_ = true;
     sampleRss();
     if (g_interrupted.load() && !stopping_) {
       spdlog::warn("interrupted: stopping every service (outputs so far are kept)");
@@ -244,6 +259,11 @@ class Supervisor {
     }
     if (status == 0 || stopping_ || g_interrupted.load()) return;
     const std::string error = lastErrorLine(c.logPath());
+    if (c.name() == kViewer) {  // a page nobody can open is no reason to stop a run
+      spdlog::warn("rekon-viewer {}{}; the run goes on without it (see {})", describeExit(status),
+                   error.empty() ? "" : " (" + error + ")", c.logPath());
+      return;
+    }
     const std::string how = "rekon-" + c.name() + " " + describeExit(status) + (error.empty() ? "" : " (" + error + ")");
     const bool restartable = plan_.restartable.count(c.name()) > 0;
     if (restartable && c.restarts() < plan_.max_restarts) {
@@ -263,6 +283,23 @@ class Supervisor {
     }
     fail(how + (restartable ? " (restarted " + std::to_string(c.restarts()) + " times already)" : "") +
          "; the run was stopped, outputs so far are in " + plan_.out + "; see " + c.logPath());
+  }
+
+  // The viewer's URL (it chooses the port when viewer.port is 0), once, from its log.
+  void printViewerUrl() {
+    if (viewer_url_printed_) return;
+    for (const auto& c : plan_.children) {
+      if (c.name() != kViewer) continue;
+      std::ifstream in(c.logPath());
+      std::string line;
+      while (std::getline(in, line)) {
+        const auto at = line.find("viewer: http");
+        if (at == std::string::npos) continue;
+        spdlog::info("{}", line.substr(at));
+        viewer_url_printed_ = true;
+        return;
+      }
+    }
   }
 
   // Once a second: every running child's RSS into rss.csv.
@@ -301,6 +338,7 @@ class Supervisor {
   std::vector<bool> killed_;
   std::optional<Clock::time_point> source_done_;
   bool stopping_ = false;
+  bool viewer_url_printed_ = false;
   std::string failure_;
   std::ofstream rss_;
   Clock::time_point next_rss_ = Clock::now();
@@ -405,7 +443,8 @@ int runCommand(int argc, char** argv) {
       .option("out", "output folder (required)")
       .option("config", "YAML config laid over config/default.yaml")
       .repeated("set", "override one config key, e.g. --set mapper.voxel_size=0.02")
-      .flag("report", "also write report.html (mesh views, trajectory, timing, stats) into --out");
+      .flag("report", "also write report.html (mesh views, trajectory, timing, stats) into --out")
+      .flag("view", "also start rekon-viewer, a live web page of the run (viewer.* keys; its URL is printed)");
   if (!args.parse(argc, argv)) return 0;
   RunOptions opt;
   opt.dataset = args.get("dataset");
@@ -416,6 +455,7 @@ int runCommand(int argc, char** argv) {
   opt.config_file = args.get("config");
   opt.sets = args.all("set");
   opt.report = args.flagSet("report");
+  opt.view = args.flagSet("view");
   if (opt.dataset.empty() == opt.camera.empty() || opt.out.empty()) {
     throw Error("rekon run needs --out and one of --dataset DIR or --camera DEVICE; see rekon run --help");
   }

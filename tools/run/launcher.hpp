@@ -13,6 +13,7 @@ struct RunOptions {
   std::string out, config_file;
   std::vector<std::string> sets;
   bool report = false;  // also write report.html
+  bool view = false;    // also start rekon-viewer (a live web page of the run; its URL is printed)
 };
 
 // Runs the pipeline to the end of the data (or Ctrl-C); returns the exit
