@@ -18,7 +18,9 @@ camera.up.set(0, -1, 0);  // camera frames: y points down in the images, so "up"
 camera.position.set(0, -1, -3);
 const controls = new THREE.OrbitControls(camera, renderer.domElement);
 let userMoved = false;
+let dirty = true;  // drawn only when something changed: a large map costs nothing while it stands still
 controls.addEventListener('start', () => { userMoved = true; });
+controls.addEventListener('change', () => { dirty = true; });
 scene.add(new THREE.AmbientLight(0xffffff, 0.55));
 const sun = new THREE.DirectionalLight(0xffffff, 0.6);
 sun.position.set(1, -2, -1.5);
@@ -87,6 +89,7 @@ function endHighlights(now) {
     if (m.userData.until && now > m.userData.until) {
       m.material = meshMaterial;
       m.userData.until = 0;
+      dirty = true;
     }
   }
 }
@@ -221,6 +224,7 @@ function fitView() {
   camera.far = radius * 20;
   camera.updateProjectionMatrix();
   controls.update();
+  dirty = true;
 }
 
 document.getElementById('fit').addEventListener('click', () => { userMoved = false; fitView(); });
@@ -228,7 +232,9 @@ document.getElementById('fit').addEventListener('click', () => { userMoved = fal
 function follow() {
   if (!document.getElementById('follow').checked || !cameraPosition) return;
   const offset = camera.position.clone().sub(controls.target);
+  if (controls.target.equals(cameraPosition)) return;
   controls.target.copy(cameraPosition);
+  dirty = true;
   camera.position.copy(cameraPosition).add(offset);
 }
 
@@ -237,6 +243,7 @@ function resize() {
   renderer.setSize(w, h);
   camera.aspect = w / Math.max(1, h);
   camera.updateProjectionMatrix();
+  dirty = true;
 }
 window.addEventListener('resize', resize);
 resize();
@@ -250,7 +257,8 @@ function frame(now) {
   }
   follow();
   controls.update();
-  renderer.render(scene, camera);
+  if (dirty) renderer.render(scene, camera);
+  dirty = false;
   requestAnimationFrame(frame);
 }
 requestAnimationFrame(frame);
@@ -276,6 +284,7 @@ function connect() {
     } else {
       applyBlock(e.data);
     }
+    dirty = true;
     drawCounts();
   };
   ws.onclose = () => {
