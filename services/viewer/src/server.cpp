@@ -373,7 +373,8 @@ Server::Server(ViewerState& state, const ServerOptions& options) : impl_(std::ma
   if (!ec) m.acceptor.bind(endpoint, ec);
   if (!ec) m.acceptor.listen(net::socket_base::max_listen_connections, ec);
   if (ec) {
-    throw Error(fmt::format("viewer: cannot listen on {}:{} ({}); choose another viewer.port (0: any free port)",
+    throw Error(fmt::format("viewer: cannot listen on {}:{} ({}); viewer.bind must be an address of this host and "
+                            "viewer.port a free port (0: any free port)",
                             options.bind, options.port, ec.message()));
   }
   m.port = m.acceptor.local_endpoint().port();
