@@ -138,8 +138,8 @@ TEST(HostileBus, ServicesDropEveryHostileMessageAndThenMapAValidSequence) {
       absurd,                                                   // array length 2^31-1
       encode(graph, kSchemaVersion + 41),                       // unknown schema version
   };
-  const char* channels[] = {channel::kFrames, channel::kTrackedFrames, channel::kKeyframes, channel::kConstraints,
-                            channel::kGraphUpdates};
+  const char* channels[] = {channel::kFrames,       channel::kTrackedFrames, channel::kKeyframes,
+                            channel::kConstraints,  channel::kGraphUpdates,  channel::kMeshRequest};
   for (const char* c : channels)
     for (const auto& bytes : undecodable) publishRaw(c, bytes);
 
@@ -239,9 +239,9 @@ TEST(HostileBus, ServicesDropEveryHostileMessageAndThenMapAValidSequence) {
 
   // Undecodable messages are counted by every service subscribed to the channel:
   // tracker FRAMES + GRAPH_UPDATES, optimiser TRACKED_FRAMES + KEYFRAMES +
-  // CONSTRAINTS, mapper FRAMES + TRACKED_FRAMES + KEYFRAMES + GRAPH_UPDATES.
+  // CONSTRAINTS, mapper FRAMES + TRACKED_FRAMES + KEYFRAMES + GRAPH_UPDATES + MESH_REQUEST.
   const int per_channel = static_cast<int>(undecodable.size());
-  const std::map<std::string, int> malformed = {{"tracker", 2 * per_channel}, {"optimiser", 3 * per_channel}, {"mapper", 4 * per_channel}};
+  const std::map<std::string, int> malformed = {{"tracker", 2 * per_channel}, {"optimiser", 3 * per_channel}, {"mapper", 5 * per_channel}};
   for (const auto& [name, expected] : malformed) {
     const std::string stats = readText(dir / ("out/" + name + "_stats.json"));
     EXPECT_NE(stats.find("\"malformed_messages\": " + std::to_string(expected)), std::string::npos) << name << ": " << stats;

@@ -178,6 +178,11 @@ std::optional<Work> Inbox::next() {
   return w;
 }
 
+bool Inbox::waitForWork(std::chrono::milliseconds timeout) {
+  std::unique_lock<std::mutex> lock(mutex_);
+  return work_ready_.wait_for(lock, timeout, [&] { return stop_worker_ || !queue_.empty(); });
+}
+
 void Inbox::finished(bool was_frame, const MapperCounters& progress) {
   std::vector<int64_t> release;
   {

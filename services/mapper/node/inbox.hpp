@@ -6,6 +6,7 @@
 // one replaces one still queued) are queued as they come; the end of the
 // stream and done_t decide when the stream is over. The bus thread, the
 // worker and the service's main loop share it behind one mutex.
+#include <chrono>
 #include <condition_variable>
 #include <cstdint>
 #include <deque>
@@ -83,6 +84,9 @@ class Inbox {
   // The worker's side. The next piece of work (waits for one); nullopt once
   // stopped with nothing left.
   std::optional<Work> next();
+  // False when `timeout` passed with no work and no stop (the worker's idle
+  // moments: the mesh publisher sends what the budget held back).
+  bool waitForWork(std::chrono::milliseconds timeout);
   // After each piece of work: the worker's counters for the progress log, and
   // the acknowledgements held back that may go now.
   void finished(bool was_frame, const MapperCounters& progress);

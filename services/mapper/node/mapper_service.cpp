@@ -12,6 +12,7 @@
 #include "inbox.hpp"
 #include "rekon/common/error.hpp"
 #include "mapping_worker.hpp"
+#include "mesh_publisher.hpp"
 #include "outputs.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/common/messages.hpp"
@@ -30,6 +31,7 @@ struct Settings {
   // mesh_uncorrected.ply: every KF keyframe at the pose of its first
   // integration. With reintegration none mesh.ply already is that baseline.
   bool baseline_wanted;
+  MeshPublisherSettings mesh;
 };
 
 bool contains(const std::vector<std::string>& list, const std::string& s) {
@@ -47,7 +49,8 @@ Settings readSettings(const ServiceContext& ctx) {
   const bool wait_for_optimiser =
       config.getBool("mapper.wait_for_optimiser") && contains(config.getStringList("run.services"), "optimiser");
   return {params, max_queued, when_full == "drop", progress_every, wait_for_optimiser,
-          write_uncorrected && params.mode != ReintegrationMode::kNone && !ctx.outDir().empty()};
+          write_uncorrected && params.mode != ReintegrationMode::kNone && !ctx.outDir().empty(),
+          MeshPublisherSettings::fromConfig(config)};
 }
 
 // Where the frame source resumes for this instance: after the frames of the
@@ -99,9 +102,11 @@ void runMapperService(ServiceContext& ctx) {
   const Settings settings = readSettings(ctx);
   Mapper mapper(settings.params);
   Inbox inbox(ctx, settings.max_queued_frames, settings.drop_when_full);
-  MappingWorker worker(ctx, mapper, inbox);
+  MeshPublisher mesh(ctx, settings.mesh, settings.params.volume);
+  MappingWorker worker(ctx, mapper, inbox, mesh);
   StopThreadsOnExit stop_threads(ctx);  // before the state above dies: the bus handlers use it
   inbox.subscribe();
+  mesh.subscribe();
   std::thread worker_thread([&] { worker.run(); });
 
   const rekon_msgs::resume_point_t resume_point = resumePoint(ctx, mapper);
@@ -116,12 +121,13 @@ void runMapperService(ServiceContext& ctx) {
   inbox.dropUnjoinedFrames();
 
   worker.finish(clean);
+  mesh.finish(mapper);  // the last update: a subscriber's map now equals mesh.ply
   if (!ctx.outDir().empty()) {
     writeMeshAndTables(mapper, worker.frameTiming(), worker.rounds(), ctx.outDir());
     if (settings.baseline_wanted && !worker.baselineWritten()) writeUncorrectedMesh(mapper, ctx.outDir());
   }
   if (clean) publishDone(ctx, inbox.endFrame());
-  recordStats(ctx, mapper, settings.params, inbox.counts());
+  recordStats(ctx, mapper, settings.params, inbox.counts(), mesh.stats());
   if (clean) mapper.removeStore();
 }
 

@@ -6,19 +6,26 @@
 
 namespace rekon::mapper {
 
-MappingWorker::MappingWorker(ServiceContext& ctx, Mapper& mapper, Inbox& inbox)
-    : ctx_(ctx), mapper_(mapper), inbox_(inbox) {}
+MappingWorker::MappingWorker(ServiceContext& ctx, Mapper& mapper, Inbox& inbox, MeshPublisher& mesh)
+    : ctx_(ctx), mapper_(mapper), inbox_(inbox), mesh_(mesh) {}
 
 void MappingWorker::run() {
-  while (std::optional<Work> w = inbox_.next()) {
+  while (true) {
     try {
+      if (mesh_.enabled() && !inbox_.waitForWork(mesh_.idleWait())) {
+        mesh_.tick(mapper_);
+        continue;
+      }
+      std::optional<Work> w = inbox_.next();
+      if (!w) return;
       process(*w);
+      inbox_.finished(std::holds_alternative<FrameWork>(*w), mapper_.counters());
+      mesh_.tick(mapper_);
     } catch (const std::exception& e) {  // rekon::Error, or OpenCV's for a broken image
       inbox_.failed(e.what());
       ctx_.requestStop();
       return;
     }
-    inbox_.finished(std::holds_alternative<FrameWork>(*w), mapper_.counters());
   }
 }
 

@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "inbox.hpp"
+#include "mesh_publisher.hpp"
 #include "outputs.hpp"
 #include "rekon/common/service.hpp"
 #include "rekon/mapper/mapper.hpp"
@@ -18,7 +19,8 @@ namespace rekon::mapper {
 class MappingWorker {
  public:
   // BaselineWork (queued only with an output folder) writes mesh_uncorrected.ply into ctx.outDir().
-  MappingWorker(ServiceContext& ctx, Mapper& mapper, Inbox& inbox);
+  // The mesh publisher ticks after every piece of work and when idle.
+  MappingWorker(ServiceContext& ctx, Mapper& mapper, Inbox& inbox, MeshPublisher& mesh);
 
   // The thread's body: until the inbox lets it stop, or until a piece of work
   // fails (the inbox then holds the error, and a stop is requested).
@@ -39,6 +41,7 @@ class MappingWorker {
   ServiceContext& ctx_;
   Mapper& mapper_;
   Inbox& inbox_;
+  MeshPublisher& mesh_;
   std::vector<FrameTiming> frame_timing_;
   std::vector<RoundRecord> rounds_;
   std::optional<std::chrono::steady_clock::time_point> first_frame_time_;

@@ -8,6 +8,7 @@
 #include <fstream>
 #include <thread>
 
+#include "rekon/common/cpu_time.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/common/mesh.hpp"
 #include "rekon/common/messages.hpp"
@@ -64,7 +65,26 @@ void publishDone(ServiceContext& ctx, int64_t last_frame_id) {
   }
 }
 
-void recordStats(ServiceContext& ctx, const Mapper& mapper, const MapperParams& params, const InboxCounts& inbox) {
+namespace {
+
+// The map on the bus; its CPU share is of the whole mapper process so far.
+void recordMeshStats(ServiceContext& ctx, const MeshPublisherStats& mesh) {
+  const double process_ms = processCpuMs();
+  ctx.stats()
+      .set("mesh_updates", static_cast<long long>(mesh.updates))
+      .set("mesh_messages", static_cast<long long>(mesh.messages))
+      .set("mesh_full_snapshots", static_cast<long long>(mesh.full_snapshots))
+      .set("mesh_blocks_sent", static_cast<long long>(mesh.blocks_sent))
+      .set("mesh_bytes", static_cast<long long>(mesh.bytes))
+      .set("mesh_pending_blocks", static_cast<long long>(mesh.pending))
+      .set("mesh_cpu_ms", mesh.cpu_ms)
+      .set("mesh_cpu_share", process_ms > 0.0 ? mesh.cpu_ms / process_ms : 0.0);
+}
+
+}  // namespace
+
+void recordStats(ServiceContext& ctx, const Mapper& mapper, const MapperParams& params, const InboxCounts& inbox,
+                 const MeshPublisherStats& mesh) {
   const MapperCounters& c = mapper.counters();
   const volume::VolumeStats vs = mapper.volume().stats();
   const MemoryUse mem = mapper.memoryUse();
@@ -103,6 +123,7 @@ void recordStats(ServiceContext& ctx, const Mapper& mapper, const MapperParams& 
       .set("reintegration", toString(params.mode))
       .set("m", params.m)
       .set("kappa", params.fusion.kappa);
+  recordMeshStats(ctx, mesh);
   if (mem.keyframe_store_bytes >= 0) ctx.stats().set("keyframe_store_bytes", static_cast<long long>(mem.keyframe_store_bytes));
   spdlog::info("mapper: {} frames into {} KF keyframes; {} re-integrations ({} in the final pass); {} blocks",
                c.frames, c.kf_keyframes, c.reintegrations, c.final_pass_reintegrations, vs.blocks);

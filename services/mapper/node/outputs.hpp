@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "inbox.hpp"
+#include "mesh_publisher.hpp"
 #include "rekon/common/service.hpp"
 #include "rekon/mapper/mapper.hpp"
 
@@ -35,6 +36,7 @@ void writeMeshAndTables(const Mapper& mapper, const std::vector<FrameTiming>& fr
 // done_t after a clean end, so that the services downstream may finish.
 void publishDone(ServiceContext& ctx, int64_t last_frame_id);
 // ctx.stats() (written to <out>/mapper_stats.json at exit) and a summary in the log.
-void recordStats(ServiceContext& ctx, const Mapper& mapper, const MapperParams& params, const InboxCounts& inbox);
+void recordStats(ServiceContext& ctx, const Mapper& mapper, const MapperParams& params, const InboxCounts& inbox,
+                 const MeshPublisherStats& mesh);
 
 }  // namespace rekon::mapper

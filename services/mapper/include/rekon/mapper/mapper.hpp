@@ -123,6 +123,8 @@ class Mapper {
   int64_t firstMissingFrame() const;
   const MapperCounters& counters() const { return counters_; }
   Mesh extractMesh() const { return volume_->extractMesh(); }
+  // Blocks whose mesh changed since the last call (TsdfVolume::takeMeshChanges).
+  std::vector<volume::BlockCoord> takeMeshChanges() { return volume_->takeMeshChanges(); }
   // The paper's baseline: every KF keyframe integrated once at its first
   // pose, never corrected, into a fresh volume of the same settings. Equals
   // extractMesh() when no keyframe moved.

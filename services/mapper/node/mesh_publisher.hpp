@@ -1,0 +1,93 @@
+#pragma once
+// The map on the bus (issue 17): after each piece of mapping work, the
+// meshes of the voxel blocks that changed go out on MESH_BLOCKS, at most
+// mapper.mesh_rate_hz times a second and within mapper.mesh_max_bytes_per_s
+// (blocks not sent stay pending; their newest mesh goes out later). A
+// MESH_REQUEST (a viewer started late) or mapper.mesh_full_every_s brings a
+// full snapshot. Runs on the mapping worker's thread (it meshes the live
+// volume), except the request handler, which only raises a flag.
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <unordered_map>
+#include <vector>
+
+#include "rekon/common/config.hpp"
+#include "rekon/common/mesh_blocks.hpp"
+#include "rekon/common/service.hpp"
+#include "rekon/mapper/mapper.hpp"
+
+namespace rekon::mapper {
+
+struct MeshPublisherSettings {
+  static constexpr double kDefaultRateHz = 2.0;
+  static constexpr double kDefaultMaxBytesPerS = 5e5;
+  static constexpr double kFullMinIntervalS = 1.0;  // requests from many viewers at once share one snapshot
+
+  bool enabled = true;
+  double rate_hz = kDefaultRateHz;
+  double max_bytes_per_s = kDefaultMaxBytesPerS;
+  size_t max_message_bytes = MeshBlocksParams::kDefaultMaxMessageBytes;
+  double full_every_s = 0.0;  // 0: full snapshots only on request
+
+  // Throws rekon::Error naming a key out of range.
+  static MeshPublisherSettings fromConfig(const Config& config);
+};
+
+struct MeshPublisherStats {
+  int64_t updates = 0;  // updates published (each one or more messages)
+  int64_t messages = 0;
+  int64_t full_snapshots = 0;
+  int64_t blocks_sent = 0;
+  int64_t bytes = 0;     // encoded LCM bytes
+  double cpu_ms = 0.0;   // thread CPU time of change tracking, meshing, encoding, publishing
+  int64_t pending = 0;   // blocks waiting for budget when the stats were taken
+};
+
+class MeshPublisher {
+ public:
+  MeshPublisher(ServiceContext& ctx, const MeshPublisherSettings& settings, const volume::VolumeParams& volume);
+  // MESH_REQUEST: before the bus threads start.
+  void subscribe();
+
+  // On the mapping worker, after each piece of work and when idle: notes the
+  // blocks that changed and publishes when an update (or a snapshot) is due.
+  void tick(Mapper& mapper);
+  // How long the worker may sleep before tick() has something to do.
+  std::chrono::milliseconds idleWait() const;
+  // After the final pass: every pending block, regardless of rate and
+  // budget, so that a subscriber's map equals mesh.ply.
+  void finish(Mapper& mapper);
+
+  const MeshPublisherStats& stats() const { return stats_; }
+  bool enabled() const { return settings_.enabled; }
+
+ private:
+  using Clock = std::chrono::steady_clock;
+  struct CoordHash {
+    size_t operator()(const volume::BlockCoord& c) const { return volume::hashBlock(c); }
+  };
+  void update(Mapper& mapper);
+  void noteChanges(Mapper& mapper);
+  void publishDelta(Mapper& mapper, bool unlimited);
+  void publishFull(Mapper& mapper);
+  // Meshes coords, stamps their versions, encodes and publishes one update; returns its bytes.
+  int64_t publish(Mapper& mapper, const std::vector<volume::BlockCoord>& coords, bool full);
+
+  ServiceContext& ctx_;
+  MeshPublisherSettings settings_;
+  MeshBlocksParams codec_;
+  std::atomic<bool> full_requested_{false};
+  std::unordered_map<volume::BlockCoord, int64_t, CoordHash> version_;  // every block ever meshed or changed
+  std::unordered_map<volume::BlockCoord, int64_t, CoordHash> pending_;  // changed, not yet sent: its version
+  int64_t next_version_ = 1;
+  int64_t sequence_ = 0;
+  double tokens_ = 0.0;  // bytes the budget allows now (negative after a large update)
+  double bytes_per_block_ = 300.0;  // running estimate, to mesh only what the budget can send
+  Clock::time_point last_refill_ = Clock::now();
+  Clock::time_point last_update_ = Clock::time_point{};
+  Clock::time_point last_full_ = Clock::time_point{};
+  MeshPublisherStats stats_;
+};
+
+}  // namespace rekon::mapper
