@@ -1,5 +1,7 @@
 #include "rekon/common/mesh_blocks.hpp"
 
+#include <spdlog/fmt/fmt.h>
+
 #include <zlib.h>
 
 #include <cmath>
@@ -18,9 +20,7 @@ constexpr int kMaxBlockVertices = 65535;  // indices travel as uint16
 constexpr size_t kVertexBytes = 3 * 2 + 3;  // uint16 x, y, z and RGB
 constexpr size_t kTriangleBytes = 3 * 2;
 
-std::string coordText(int32_t x, int32_t y, int32_t z) {
-  return "(" + std::to_string(x) + ", " + std::to_string(y) + ", " + std::to_string(z) + ")";
-}
+std::string coordText(int32_t x, int32_t y, int32_t z) { return fmt::format("({}, {}, {})", x, y, z); }
 
 void putU16(std::vector<uint8_t>& out, uint32_t v) {
   out.push_back(static_cast<uint8_t>(v & 0xff));
