@@ -304,7 +304,9 @@ const BlockMesh* MeshMap::find(int32_t x, int32_t y, int32_t z) const {
 Mesh MeshMap::toMesh() const {
   struct KeyHash {
     size_t operator()(const std::array<int64_t, 3>& k) const {
-      return static_cast<size_t>(k[0] * 73856093LL ^ k[1] * 19349663LL ^ k[2] * 83492791LL);
+      // Unsigned: wraps where a hostile block's coordinates are huge (signed would overflow).
+      return static_cast<size_t>(static_cast<uint64_t>(k[0]) * 73856093ULL ^ static_cast<uint64_t>(k[1]) * 19349663ULL ^
+                                 static_cast<uint64_t>(k[2]) * 83492791ULL);
     }
   };
   // Vertices are identified by their quanta (recovered from float metres,
