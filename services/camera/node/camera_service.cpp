@@ -5,6 +5,7 @@
 #include <chrono>
 #include <optional>
 
+#include "rekon/camera/device_clock.hpp"
 #include "rekon/camera/recorder.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/common/frame_source.hpp"
@@ -13,10 +14,6 @@ namespace rekon::camera {
 namespace {
 
 using Clock = std::chrono::steady_clock;
-
-double wallSeconds() {
-  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
-}
 
 // How a capture ended: "" for the end of a recording or a stop, else the
 // one line that says what happened to the device and what to do.
@@ -50,7 +47,7 @@ CaptureEnd capture(ServiceContext& ctx, CameraSource& source, LiveOutlet& outlet
     if (end.frames == 1) end.first_timestamp = c.frame.timestamp;
     end.last_timestamp = c.frame.timestamp;
     if (recorder) recorder->push(c.frame);
-    outlet.offer(std::move(c.frame), k, wallSeconds() - end.last_timestamp);
+    outlet.offer(std::move(c.frame), k, hostWallSeconds() - end.last_timestamp);
     if (std::chrono::duration<double>(Clock::now() - last_report).count() > 2.0) {
       last_report = Clock::now();
       const auto n = outlet.counts();

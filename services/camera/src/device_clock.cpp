@@ -1,8 +1,13 @@
 #include "rekon/camera/device_clock.hpp"
 
 #include <algorithm>
+#include <chrono>
 
 namespace rekon::camera {
+
+double hostWallSeconds() {
+  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+}
 
 double DeviceClock::stamp(double device_s, double arrival_s) {
   const double observed = arrival_s - device_s;

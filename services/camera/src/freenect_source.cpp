@@ -20,6 +20,7 @@
 
 #include "rekon/camera/fakenect_recording.hpp"
 #include "rekon/camera/kinect_depth.hpp"
+#include "rekon/camera/device_clock.hpp"
 #include "rekon/camera/source.hpp"
 #include "rekon/common/error.hpp"
 
@@ -42,10 +43,6 @@ constexpr long kEventWaitUs = 100000;
 const char* const kNoDeviceHint = "check the USB cable/power; rekon cameras lists what is connected";
 
 using SteadyClock = std::chrono::steady_clock;
-
-double wallClockSeconds() {
-  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
-}
 
 void logFromFreenect(freenect_context*, freenect_loglevel level, const char* message) {
   std::string text(message ? message : "");
@@ -399,7 +396,7 @@ void FreenectSource::arrived(bool depth, const void* data, uint32_t device_times
   (depth ? new_depth_ : new_color_) = true;
   if (!new_depth_ || !new_color_) return;
   new_depth_ = new_color_ = false;
-  staging_.timestamp = wallClockSeconds();
+  staging_.timestamp = hostWallSeconds();
   {
     std::lock_guard<std::mutex> lock(mutex_);
     if (ready_) ++replaced_;

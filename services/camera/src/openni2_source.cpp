@@ -55,10 +55,6 @@ const char* const kOpenHint =
     "(/lib/udev/rules.d/60-libopenni2-0.rules, then replug) and a user in group plugdev; a busy one is "
     "open in another program";
 
-double wallClockSeconds() {
-  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
-}
-
 // OpenNI2's extended error folded to one line.
 std::string oniError() {
   std::string text = openni::OpenNI::getExtendedError();
@@ -484,7 +480,7 @@ Capture OpenNI2Source::makeFrame(const openni::VideoFrameRef& depth, const openn
   // The device's exposure time (µs) on the host clock: as steady as the
   // device's, where the arrival time carries USB and scheduling jitter.
   capture.frame.timestamp =
-      clock_.stamp(static_cast<double>(std::max(depth.getTimestamp(), color.getTimestamp())) * 1e-6, wallClockSeconds());
+      clock_.stamp(static_cast<double>(std::max(depth.getTimestamp(), color.getTimestamp())) * 1e-6, hostWallSeconds());
   const cv::Mat depth_mm(depth.getHeight(), depth.getWidth(), CV_16UC1, const_cast<void*>(depth.getData()),
                          static_cast<size_t>(depth.getStrideInBytes()));
   if (software_registration_) {

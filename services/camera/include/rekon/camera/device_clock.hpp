@@ -13,6 +13,10 @@
 
 namespace rekon::camera {
 
+// The host's wall clock in seconds since the epoch: what every captured
+// frame is stamped with (trajectories and recordings carry it).
+double hostWallSeconds();
+
 class DeviceClock {
  public:
   static constexpr double kMaxDriftPpm = 200.0;
