@@ -28,7 +28,7 @@ using rekon::test::runCommand;
 
 const char* kFakenectLib = "/usr/lib/x86_64-linux-gnu/fakenect";
 
-std::string inNetns() { return rekon::test::sourceDir() + "/tests/support/in_netns.sh"; }
+using rekon::test::inNetns;
 
 uint64_t colorHash(const cv::Mat& color) {
   uint64_t h = 1469598103934665603ull;
@@ -79,10 +79,7 @@ size_t writeLiveGroundTruth(const std::string& source, const std::string& record
   return matched;
 }
 
-double valueAfter(const std::string& text, const std::string& key) {
-  const auto p = text.find(key + "=");
-  return p == std::string::npos ? -1.0 : std::stod(text.substr(p + key.size() + 1));
-}
+using rekon::test::valueAfter;
 
 double ate(const std::string& gt, const std::string& trajectory) {
   std::string out;

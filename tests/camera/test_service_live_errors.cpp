@@ -24,12 +24,9 @@ using rekon::test::jsonInt;
 using rekon::test::readText;
 using rekon::test::runCommand;
 
-std::string inNetns() { return rekon::test::sourceDir() + "/tests/support/in_netns.sh"; }
+using rekon::test::inNetns;
 
-double valueAfter(const std::string& text, const std::string& key) {
-  const auto p = text.find(key + "=");
-  return p == std::string::npos ? -1.0 : std::stod(text.substr(p + key.size() + 1));
-}
+using rekon::test::valueAfter;
 
 double ateOf(const std::string& data, const std::string& run) {
   std::string out;

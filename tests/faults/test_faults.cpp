@@ -27,14 +27,9 @@ constexpr int kFrames = 90;
 constexpr int kKillAfterKeyframes = 2;
 
 std::string bin() { return rekon::test::binDir(); }
-std::string inNetns() { return rekon::test::sourceDir() + "/tests/support/in_netns.sh"; }
+using rekon::test::inNetns;
 
-std::string readFile(const std::string& path) {
-  std::ifstream in(path);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
+using rekon::test::readText;
 
 // The room and an uninterrupted run of it, made once per build of the
 // services (cached beside the binaries; a lock lets parallel tests share it).
@@ -63,11 +58,7 @@ const Baseline& baseline() {
   return b;
 }
 
-double valueAfter(const std::string& text, const std::string& key) {
-  const auto p = text.find(key + "=");
-  if (p == std::string::npos) return -1.0;
-  return std::stod(text.substr(p + key.size() + 1));
-}
+using rekon::test::valueAfter;
 
 // CORR (m) of a run's mesh against the room's exact surface, the mesh moved
 // into the ground truth's world by the ATE alignment.
@@ -104,7 +95,7 @@ size_t lineCount(const std::string& path) {
 // The run's shared-memory segments (frame ring, keyframe store) still in /dev/shm.
 std::vector<std::string> leftoverSegments(const std::string& run) {
   std::vector<std::string> left;
-  const std::string config = readFile(run + "/config.yaml");
+  const std::string config = readText(run + "/config.yaml");
   const std::regex seg(R"((?:^|\n)\s*(?:segment|store_segment):\s*"?([A-Za-z0-9_]+))");
   for (auto it = std::sregex_iterator(config.begin(), config.end(), seg); it != std::sregex_iterator(); ++it) {
     const std::string name = (*it)[1];
@@ -124,7 +115,7 @@ Faulty runKilling(const std::string& service, const std::string& out, const std:
   f.rc = runCommand(inNetns() + " " + rekon::test::sourceDir() + "/tests/faults/kill_during_run.sh " + bin() + " " + service +
                         " " + std::to_string(kKillAfterKeyframes) + " " + out + " --dataset " + baseline().data + " " + sets,
                     &f.output);
-  f.output += "\nrekon run:\n" + readFile(out + "/run.out");
+  f.output += "\nrekon run:\n" + readText(out + "/run.out");
   return f;
 }
 
@@ -134,14 +125,14 @@ TEST(Faults, KilledMapperIsRestartedAndItsMeshMatchesAnUninterruptedRun) {
   const Faulty f = runKilling("mapper", out);
   ASSERT_NE(f.output.find("killed rekon-mapper"), std::string::npos) << f.output;
   ASSERT_EQ(f.rc, 0) << f.output;
-  EXPECT_NE(readFile(out + "/stats.json").find("\"restarts\": {\"mapper\":1}"), std::string::npos) << f.output;
+  EXPECT_NE(readText(out + "/stats.json").find("\"restarts\": {\"mapper\":1}"), std::string::npos) << f.output;
   // The restarted mapper rebuilt from its store and got every later frame again.
-  EXPECT_NE(readFile(out + "/player.log").find("rekon-mapper restarted: sending frames"), std::string::npos)
-      << readFile(out + "/player.log");
+  EXPECT_NE(readText(out + "/player.log").find("rekon-mapper restarted: sending frames"), std::string::npos)
+      << readText(out + "/player.log");
   // CORR as the uninterrupted run's: measured the same to 1 nm in 4 runs (no loop closure: the
   // restarted mapper integrates the same keyframes at the same poses). 0.02 mm (1 % of CORR) leaves
   // room for another machine's timing; a keyframe lost or fused twice moves CORR by more.
-  EXPECT_NEAR(corrOf(out), corrOf(baseline().run), 0.00002) << readFile(out + "/mapper.log");
+  EXPECT_NEAR(corrOf(out), corrOf(baseline().run), 0.00002) << readText(out + "/mapper.log");
   EXPECT_EQ(leftoverSegments(out), std::vector<std::string>{});
 }
 
@@ -154,9 +145,9 @@ void expectOptimiserRebuilt(const std::string& sets) {
   const Faulty f = runKilling("optimiser", out, sets);
   ASSERT_NE(f.output.find("killed rekon-optimiser"), std::string::npos) << f.output;
   ASSERT_EQ(f.rc, 0) << f.output;
-  EXPECT_NE(readFile(out + "/stats.json").find("\"restarts\": {\"optimiser\":1}"), std::string::npos);
-  const std::string optimiser_log = readFile(out + "/optimiser.log");
-  const std::string logs = "optimiser.log:\n" + optimiser_log + "tracker.log:\n" + readFile(out + "/tracker.log");
+  EXPECT_NE(readText(out + "/stats.json").find("\"restarts\": {\"optimiser\":1}"), std::string::npos);
+  const std::string optimiser_log = readText(out + "/optimiser.log");
+  const std::string logs = "optimiser.log:\n" + optimiser_log + "tracker.log:\n" + readText(out + "/tracker.log");
   EXPECT_NE(optimiser_log.find("rebuilding from its replay"), std::string::npos) << logs;
   EXPECT_EQ(lineCount(out + "/trajectory.txt"), static_cast<size_t>(kFrames)) << logs;
   // ATE as the uninterrupted run's: measured the same to 1 nm in 5 runs of each of the two tests

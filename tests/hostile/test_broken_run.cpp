@@ -15,12 +15,7 @@ Outcome rekonRun(const std::string& dataset, const std::string& out) {
   return o;
 }
 
-std::string readFile(const std::string& path) {
-  std::ifstream in(path);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
+using rekon::test::readText;
 
 TEST(BrokenRun, ATruncatedFrameEndsWithOneLinePointingAtThePlayerLog) {
   test::TempDir dir;
@@ -35,11 +30,11 @@ TEST(BrokenRun, ATruncatedFrameEndsWithOneLinePointingAtThePlayerLog) {
     EXPECT_NE(line.find("rekon-player exited with status 1"), std::string::npos) << line;
     EXPECT_NE(line.find(dir / "out/player.log"), std::string::npos) << line;
   }
-  const auto player_errors = errorLines(readFile(dir / "out/player.log"));
-  ASSERT_EQ(player_errors.size(), 1u) << readFile(dir / "out/player.log");
+  const auto player_errors = errorLines(readText(dir / "out/player.log"));
+  ASSERT_EQ(player_errors.size(), 1u) << readText(dir / "out/player.log");
   EXPECT_NE(player_errors[0].find("depth/2.png"), std::string::npos) << player_errors[0];
   for (const char* s : {"player", "tracker", "optimiser", "mapper"}) {
-    EXPECT_EQ(test::crashLines(readFile(dir / (std::string("out/") + s + ".log"))), "") << s << ".log";
+    EXPECT_EQ(test::crashLines(readText(dir / (std::string("out/") + s + ".log"))), "") << s << ".log";
   }
 }
 
@@ -49,8 +44,8 @@ TEST(BrokenRun, AnEmptyFolderPointsAtThePlayerLogThatNamesTheMissingCameraFile) 
   const Outcome o = rekonRun(dir / "empty", dir / "out");
   EXPECT_EQ(o.status, 1) << o.output;
   EXPECT_EQ(test::crashLines(o.output), "");
-  const auto player_errors = errorLines(readFile(dir / "out/player.log"));
-  ASSERT_EQ(player_errors.size(), 1u) << readFile(dir / "out/player.log");
+  const auto player_errors = errorLines(readText(dir / "out/player.log"));
+  ASSERT_EQ(player_errors.size(), 1u) << readText(dir / "out/player.log");
   EXPECT_NE(player_errors[0].find("camera.yaml"), std::string::npos) << player_errors[0];
 }
 

@@ -23,12 +23,7 @@ namespace {
 // two runs under ThreadSanitizer.
 constexpr int kFrames = 60;
 
-std::string readFile(const std::string& path) {
-  std::ifstream in(path);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
+using rekon::test::readText;
 
 class Hosts : public ::testing::Test {
  protected:
@@ -67,9 +62,9 @@ TEST_F(Hosts, TwoHostsSendImagesInlineAndMatchTheSingleHostRun) {
   const std::string dir_one = *data_ / "one", dir_two = *data_ / "two";
 
   // auto: every consumer on the player's host -> shm; the mapper elsewhere -> inline.
-  EXPECT_NE(readFile(dir_one + "/player.log").find("transport auto: shm"), std::string::npos);
-  EXPECT_NE(readFile(dir_two + "/player.log").find("transport auto: inline LCM"), std::string::npos);
-  EXPECT_NE(readFile(dir_two + "/player.log").find("transport lcm"), std::string::npos);
+  EXPECT_NE(readText(dir_one + "/player.log").find("transport auto: shm"), std::string::npos);
+  EXPECT_NE(readText(dir_two + "/player.log").find("transport auto: inline LCM"), std::string::npos);
+  EXPECT_NE(readText(dir_two + "/player.log").find("transport lcm"), std::string::npos);
 
   // Inline images are the dataset's PNG bytes (lossless), so the tracker sees
   // the same pixels: every frame's optimised pose agrees to well under 1 mm

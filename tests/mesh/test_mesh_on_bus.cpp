@@ -18,7 +18,7 @@ namespace {
 using rekon::test::runCommand;
 
 std::string bin() { return rekon::test::binDir(); }
-std::string inNetns() { return rekon::test::sourceDir() + "/tests/support/in_netns.sh"; }
+using rekon::test::inNetns;
 
 // Quanta per metre as the mapper's encoder computes them (volume.voxel_size
 // 0.01 / 1024 per quantum): float vertices can sit exactly half way between

@@ -94,10 +94,18 @@ long long jsonInt(const std::string& json, const std::string& key) {
   return std::stoll(json.substr(at + key.size() + 3));
 }
 
+std::string inNetns() { return sourceDir() + "/tests/support/in_netns.sh"; }
+
+double valueAfter(const std::string& text, const std::string& key) {
+  const auto p = text.find(key + "=");
+  if (p == std::string::npos) return -1.0;
+  return std::stod(text.substr(p + key.size() + 1));
+}
+
 bool insideNetns() {
   static const char* kInside = "REKON_TEST_INSIDE_NETNS";
   if (std::getenv(kInside)) return true;
-  const std::string in_netns = sourceDir() + "/tests/support/in_netns.sh";
+  const std::string in_netns = inNetns();
   if (runCommand(in_netns + " true") != 0) {
     ADD_FAILURE() << "cannot create a network namespace (unshare -n); multi-process tests need root";
     return false;

@@ -45,6 +45,13 @@ std::string readText(const std::string& path);
 // The integer after "key": in a flat JSON object (a service's stats), or -1.
 long long jsonInt(const std::string& json, const std::string& key);
 
+// tests/support/in_netns.sh: prefix a command with it to run it in a private
+// network namespace (loopback multicast only).
+std::string inNetns();
+// The number after "key=" in a command's output (rekon eval prints
+// `ate_rmse_m=...`), or -1 when it is absent.
+double valueAfter(const std::string& text, const std::string& key);
+
 // Multi-process tests whose own process talks on the bus: runs the current
 // test again inside tests/support/in_netns.sh and reports its result; returns
 // true only in that inner process, which then does the work.

@@ -21,7 +21,7 @@ using rekon::test::runCommand;
 
 namespace {
 
-std::string inNetns() { return rekon::test::sourceDir() + "/tests/support/in_netns.sh"; }
+using rekon::test::inNetns;
 std::string rekonBin() { return rekon::test::binDir() + "/rekon"; }
 std::string playerBin() { return rekon::test::binDir() + "/rekon-player"; }
 
