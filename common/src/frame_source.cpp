@@ -12,6 +12,7 @@
 #include <thread>
 
 #include "rekon/common/error.hpp"
+#include "rekon/common/latency_histogram.hpp"
 #include "rekon_msgs/tracked_frame_t.hpp"
 
 namespace rekon {
@@ -47,32 +48,6 @@ using Clock = std::chrono::steady_clock;
 // Without any acknowledgement for this long the newest sent frame goes out
 // again (as the player does): a frame or its acknowledgements were lost.
 constexpr double kResendAfterS = 1.0;
-
-// Capture-to-pose latencies in 1 ms bins up to 10 s (the last bin holds
-// anything longer): fixed memory however long a session runs.
-class LatencyHistogram {
- public:
-  void add(double ms) {
-    const size_t bin = ms <= 0 ? 0 : std::min(bins_.size() - 1, static_cast<size_t>(ms));
-    ++bins_[bin];
-    ++count_;
-  }
-  int64_t count() const { return count_; }
-  // The upper edge of the bin holding the q-quantile, in ms.
-  double quantile(double q) const {
-    const auto rank = static_cast<int64_t>(q * static_cast<double>(count_ - 1));
-    int64_t seen = 0;
-    for (size_t b = 0; b < bins_.size(); ++b) {
-      seen += bins_[b];
-      if (seen > rank) return static_cast<double>(b + 1);
-    }
-    return static_cast<double>(bins_.size());
-  }
-
- private:
-  std::array<int64_t, 10000> bins_{};
-  int64_t count_ = 0;
-};
 
 }  // namespace
 
@@ -162,6 +137,7 @@ struct LiveOutlet::State {
       unacked.push_back(newest_sent->id);
       ++counts.sent;
       counts.newest_sent = newest_sent->id;
+      ctx.setLive("frames_sent", static_cast<double>(counts.sent));
     }
   }
 };
@@ -197,6 +173,8 @@ void LiveOutlet::offer(RgbdFrame frame, const Intrinsics& k, double age_s) {
     if (state_->capture.size() > 4096) state_->capture.erase(state_->capture.begin());  // poses that never came
     state_->waiting = std::move(frame);
     state_->k = k;
+    state_->ctx.setLive("frames_captured", static_cast<double>(state_->counts.offered));
+    state_->ctx.setLive("frames_dropped", static_cast<double>(state_->counts.dropped));
   }
   state_->wake.notify_all();
 }

@@ -18,6 +18,7 @@
 #include "rekon/common/memory.hpp"
 #include "rekon_msgs/done_t.hpp"
 #include "rekon_msgs/heartbeat_t.hpp"
+#include "rekon_msgs/service_stats_t.hpp"
 #include "rekon_msgs/shutdown_t.hpp"
 
 namespace rekon {
@@ -51,7 +52,23 @@ struct ServiceContext::Threads {
   std::condition_variable state_changed;  // wakes the heartbeat thread: a new state goes out at once
   std::string state = "starting";
   std::thread bus_thread, heartbeat_thread;
+  std::mutex live_mutex;
+  std::map<std::string, double> live;  // setLive's numbers
+  bool live_changed = false;
 };
+
+namespace {
+
+// A service's stats as one STATS message.
+rekon_msgs::service_stats_t statsMessage(const std::string& service, const JsonObject& json) {
+  rekon_msgs::service_stats_t m{};
+  m.service = service;
+  m.utime = nowMicros();
+  m.json = json.str(0);
+  return m;
+}
+
+}  // namespace
 
 ServiceContext::ServiceContext(std::string name, Config config, std::string out_dir, const ArgParser& args)
     : name_(std::move(name)), config_(std::move(config)), out_dir_(std::move(out_dir)), args_(args),
@@ -76,6 +93,24 @@ void ServiceContext::setState(const std::string& state) {
   threads_->state_changed.notify_all();
 }
 
+void ServiceContext::setLive(const std::string& key, double value) {
+  std::lock_guard<std::mutex> lock(threads_->live_mutex);
+  double& v = threads_->live[key];
+  threads_->live_changed |= v != value;
+  v = value;
+}
+
+void ServiceContext::publishLive() {
+  JsonObject json;
+  {
+    std::lock_guard<std::mutex> lock(threads_->live_mutex);
+    if (!threads_->live_changed) return;
+    threads_->live_changed = false;
+    for (const auto& [key, value] : threads_->live) json.set(key, value);
+  }
+  bus_->publish(channel::kStats, statsMessage(name_, json));
+}
+
 void ServiceContext::start() {
   threads_->bus_thread = std::thread([this] {
     try {
@@ -87,7 +122,12 @@ void ServiceContext::start() {
   });
   threads_->heartbeat_thread = std::thread([this] {
     const std::string host = hostName();
+    auto last_live = std::chrono::steady_clock::now();
     while (!threads_->threads_stop.load()) {
+      if (std::chrono::steady_clock::now() - last_live >= std::chrono::seconds(1)) {
+        last_live = std::chrono::steady_clock::now();
+        publishLive();
+      }
       rekon_msgs::heartbeat_t hb{};
       hb.service = name_;
       hb.pid = getpid();
@@ -122,6 +162,11 @@ void ServiceContext::writeStats() {
   stats_.set("peak_rss_mb", peakRssMb());
   if (bus_->malformedCount() > 0) stats_.set("malformed_messages", static_cast<long long>(bus_->malformedCount()));
   if (bus_->droppedCount() > 0) stats_.set("dropped_messages", static_cast<long long>(bus_->droppedCount()));
+  try {
+    bus_->publish(channel::kStats, statsMessage(name_, stats_));
+  } catch (const std::exception& e) {  // the file below matters more than the watchers
+    spdlog::warn("stats not published on the bus: {}", e.what());
+  }
   if (out_dir_.empty()) return;
   stats_.save((std::filesystem::path(out_dir_) / (name_ + "_stats.json")).string());
 }

@@ -4,8 +4,12 @@
 // <body data-*> counters, through --dump-dom) and looks at its screenshot.
 #include <gtest/gtest.h>
 
+#include <signal.h>
+#include <unistd.h>
+
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <cmath>
 #include <filesystem>
 #include <regex>
 #include <thread>
@@ -130,6 +134,19 @@ long long jsonCount(const std::string& json, const std::string& key) {
   return std::stoll(m[1]);
 }
 
+// The number after "key": in `json`; NaN when absent.
+double jsonNumber(const std::string& json, const std::string& key) {
+  std::smatch m;
+  if (!std::regex_search(json, m, std::regex("\"" + key + "\":(-?[0-9.eE+-]+)"))) return std::nan("");
+  return std::stod(m[1]);
+}
+
+// The first page's report in /state.json ("" before one came).
+std::string pageReport(const std::string& state) {
+  const size_t at = state.find("\"clients\":[{");
+  return at == std::string::npos ? "" : state.substr(at, state.find('}', at) - at + 1);
+}
+
 // The whole pipeline (rekon run --view) on 150 frames of the synthetic room,
 // played at its recorded rate (5 s) so that a browser opens mid-run,
 // with a second, standalone rekon-viewer listening from the start: a browser
@@ -208,6 +225,82 @@ TEST(ViewerBrowser, PageReachesTheMeshOfASyntheticRun) {
   std::cout << "page: " << blocks << " blocks " << vertices << " vertices " << triangles << " triangles; mesh.ply "
             << ply.vertices.size() << " vertices " << ply.triangles.size() << " triangles; drawn pixels live " << live_drawn
             << " final " << drawn << "; page loads " << loads << "\n";
+  rekon::test::waitForExit(viewer, 0.1);
+}
+
+// A correction the page must show. rekon-replay stands in for the tracker and
+// the optimiser: it replays a drifted trajectory and, after the stream, moves
+// every keyframe onto the ground truth in 4 graph updates 0.5 s apart; the
+// mapper de- and re-integrates and sends the re-meshed blocks. A browser kept
+// open the whole time (chromium holds a page while its debugging port is
+// open) reports what it holds: it must end with the viewer's blocks, the very
+// same versions (equal sums of every vertex coordinate), after replacing
+// blocks in place; and the viewer's mesh is the corrected mesh.ply, far from
+// mesh_uncorrected.ply. The page also measured its update latency, and the
+// mapper's live numbers (STATS) reached the status panel.
+TEST(ViewerBrowser, PageShowsTheCorrectionOfAGraphUpdate) {
+  if (!haveChromium()) GTEST_SKIP() << "chromium is not installed (tools/rekon deps installs it): skipping the browser test";
+  if (!rekon::test::insideNetns()) return;
+  rekon::test::TempDir dir;
+  ASSERT_EQ(runCommand("timeout 120 " + binDir() + "/rekon synth --scene room --frames 60 --drift 0.05,3 --out " +
+                       (dir / "data")), 0);
+  const pid_t viewer = rekon::test::spawnShell("exec " + binDir() + "/rekon-viewer --set viewer.port=0 --out " +
+                                               (dir / "viewer") + " > " + (dir / "viewer.log") + " 2>&1");
+  const std::string url = waitForUrl(dir / "viewer.log", 10.0);
+  ASSERT_FALSE(url.empty()) << readText(dir / "viewer.log");
+  const pid_t browser = rekon::test::spawnShell("exec " + chromium(dir / "profile", 400) + "--remote-debugging-port=0 " +
+                                                url + " > " + (dir / "chromium.log") + " 2>&1");
+  const auto start = Clock::now();
+  while (pageReport(stateJson(url)).empty() && test::secondsSince(start) < 90) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(250));
+  }
+  ASSERT_FALSE(pageReport(stateJson(url)).empty()) << "the page never reported:\n" << readText(dir / "chromium.log");
+
+  const std::string bin = binDir(), id = std::to_string(getpid());
+  const std::string pipeline =
+      bin + "/rekon-mapper --out " + (dir / "out") + " --set mapper.kappa=5 --set mapper.m=2 --set mapper.store_segment=rekon_vbt_kf_" +
+      id + " > " + (dir / "mapper.log") + " 2>&1 & m=$!; " + bin + "/rekon-replay --trajectory " +
+      (dir / "data/drifted_trajectory.txt") + " --target " + (dir / "data/groundtruth.txt") +
+      " --update-every 0 --gap-ms 500 > " + (dir / "replay.log") + " 2>&1 & r=$!; " + bin + "/rekon-player --dataset " +
+      (dir / "data") + " --set player.wait_for=[replay,mapper] --set player.wait_timeout_s=60 --set transport.segment=rekon_vbt_" +
+      id + " > " + (dir / "player.log") + " 2>&1; p=$?; wait $r; rr=$?; wait $m; mm=$?; [ $p$rr$mm = 000 ]";
+  ASSERT_EQ(runCommand("timeout 240 bash -c '" + pipeline + "'"), 0)
+      << readText(dir / "mapper.log") << readText(dir / "replay.log") << readText(dir / "player.log");
+
+  // The page takes the last blocks and reports within a few seconds.
+  std::string state, page;
+  const auto end = Clock::now();
+  do {
+    std::this_thread::sleep_for(std::chrono::milliseconds(500));
+    state = stateJson(url);
+    page = pageReport(state);
+  } while ((jsonCount(page, "blocks") != jsonCount(state, "blocks") ||
+            std::abs(jsonNumber(page, "position_sum") - jsonNumber(state, "position_sum")) > 1e-3) &&
+           test::secondsSince(end) < 60);
+  const std::string mapper_stats = readText(dir / "out/mapper_stats.json");
+  EXPECT_GT(rekon::test::jsonInt(mapper_stats, "final_pass_reintegrations"), 0) << mapper_stats;
+  EXPECT_EQ(jsonCount(page, "blocks"), jsonCount(state, "blocks")) << page << "\n" << state.substr(0, 400);
+  EXPECT_EQ(jsonCount(page, "vertices"), jsonCount(state, "vertices"));
+  EXPECT_EQ(jsonCount(page, "triangles"), jsonCount(state, "triangles"));
+  // float32 coordinates added up in double on both sides, in another order: ~1e-6 of the sum's size.
+  EXPECT_NEAR(jsonNumber(page, "position_sum"), jsonNumber(state, "position_sum"), 1e-3) << page;
+  EXPECT_GT(jsonCount(page, "updates"), 0) << page;           // blocks replaced in place while it watched
+  EXPECT_GT(jsonCount(page, "latency_samples"), 0) << page;   // and timed from the mapper's change
+  EXPECT_NE(state.find("reintegrations"), std::string::npos) << state.substr(0, 2000);  // the mapper's STATS
+
+  ASSERT_EQ(runCommand("curl -s --max-time 30 -o " + (dir / "page.ply") + " " + url + "mesh.ply"), 0);
+  std::string eval_out;
+  runCommand(bin + "/rekon eval surface " + (dir / "page.ply") + " " + (dir / "out/mesh.ply"), &eval_out);
+  const double to_corrected = rekon::test::valueAfter(eval_out, "corr_m");
+  runCommand(bin + "/rekon eval surface " + (dir / "page.ply") + " " + (dir / "out/mesh_uncorrected.ply"), &eval_out);
+  const double to_uncorrected = rekon::test::valueAfter(eval_out, "corr_m");
+  EXPECT_GE(to_corrected, 0.0);
+  EXPECT_LT(to_corrected, 5e-4);  // 89 um measured (10 um quantisation; the page's blocks keep their own vertex copies)
+  EXPECT_GT(to_uncorrected, 10 * to_corrected + 1e-3);  // 9.6 mm measured: the drift the correction removed
+  std::cout << "page " << page << "\nCORR page mesh to mesh.ply " << to_corrected << " m, to mesh_uncorrected.ply "
+            << to_uncorrected << " m\n";
+  kill(browser, SIGTERM);
+  rekon::test::waitForExit(browser, 10);
   rekon::test::waitForExit(viewer, 0.1);
 }
 

@@ -211,6 +211,25 @@ TEST_F(ViewerServer, TwentyClientsAtOnceAllGetTheFullStateThenUpdates) {
   EXPECT_EQ(server_->counts().websocket_clients, 20u);
 }
 
+// Each page's newest report is listed in /state.json's "clients"; a hostile
+// one leaves that JSON intact.
+TEST_F(ViewerServer, PageReportsAppearInTheStateAndHostileOnesAreSanitised) {
+  test::WsClient page(port_), hostile(port_);
+  ASSERT_TRUE(page.sendText(R"({"type":"report","blocks":7,"latency_ms_p95":120})"));
+  ASSERT_TRUE(hostile.sendText(R"({"type":"report","blocks":"1}]}","vertices":Infinity})"));
+  std::string state;
+  const auto start = Clock::now();
+  while (state.find(R"("blocks":7,"latency_ms_p95":120})") == std::string::npos && secondsSince(start) < 5) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    state = test::httpGet(port_, "/state.json");
+  }
+  EXPECT_NE(state.find(R"("clients":[)"), std::string::npos) << state;
+  EXPECT_NE(state.find(R"({"blocks":7,"latency_ms_p95":120})"), std::string::npos) << state;
+  EXPECT_EQ(state.find("Infinity"), std::string::npos) << state;
+  EXPECT_EQ(state.find("1}]}"), std::string::npos) << state;
+  EXPECT_EQ(state.back(), '}');
+}
+
 // A browser that never reads: its socket fills, its next write times out
 // (write_timeout_s, 1 s here) and it is dropped; the publisher never waits
 // and a reading browser gets every block's newest version meanwhile.

@@ -52,6 +52,20 @@ TEST(ViewerProtocol, MalformedBlockMessagesAreRejected) {
   EXPECT_FALSE(decodeBlockMessage(absurd));
 }
 
+// A page's report goes into /state.json as is: only the known keys with
+// finite numbers survive, so nothing a client sends can break that JSON.
+TEST(ViewerProtocol, ClientReportKeepsOnlyKnownFiniteNumbers) {
+  EXPECT_EQ(parseClientReport(R"({"type":"report","blocks":12,"vertices":300,"latency_ms_p50":41.5})"),
+            R"({"blocks":12,"vertices":300,"latency_ms_p50":41.5})");
+  EXPECT_EQ(parseClientReport(R"({"type":"hello","blocks":12})"), std::nullopt);
+  EXPECT_EQ(parseClientReport("not json at all"), std::nullopt);
+  // Strings, objects, non-finite numbers, unknown keys and injected JSON are dropped.
+  EXPECT_EQ(parseClientReport(R"({"type":"report","blocks":"12\"}],\"x\":{","vertices":1e999,"triangles":NaN,)"
+                              R"("evil":5,"updates":{"a":1},"messages":-3})"),
+            R"({"messages":-3})");
+  EXPECT_EQ(parseClientReport(R"({"type":"report","position_sum":)"), "{}");  // cut short
+}
+
 TEST(ViewerProtocol, PlyBytesAreWhatWritePlyWrites) {
   ViewerState state;
   for (int i = 0; i < 3; ++i) state.applyBlock(syntheticBlock({i, 0, 0}, 1, 6));

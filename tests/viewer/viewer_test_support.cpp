@@ -146,6 +146,13 @@ bool WsClient::readOne(double timeout_s) {
   return true;
 }
 
+bool WsClient::sendText(const std::string& text) {
+  beast::error_code ec;
+  impl_->ws.text(true);
+  impl_->ws.write(net::buffer(text), ec);
+  return !ec;
+}
+
 int64_t WsClient::version(const BlockKey& key) const {
   const auto it = impl_->versions.find(key);
   return it == impl_->versions.end() ? -1 : it->second;

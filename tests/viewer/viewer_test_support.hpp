@@ -46,6 +46,8 @@ class WsClient {
   ~WsClient();
   // Reads one message; false on close, error or timeout.
   bool readOne(double timeout_s);
+  // Sends one text message; false on error.
+  bool sendText(const std::string& text);
   int blocks() const { return blocks_; }
   int texts() const { return texts_; }
   // The newest version received of block `key` (-1: none).

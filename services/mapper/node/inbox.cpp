@@ -224,6 +224,16 @@ void Inbox::logProgress() {
                progress_.kf_keyframes, progress_.reintegrations, queuedFrames());
 }
 
+void Inbox::publishLive() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  ctx_.setLive("frames_fused", static_cast<double>(progress_.frames));
+  ctx_.setLive("kf_keyframes", static_cast<double>(progress_.kf_keyframes));
+  ctx_.setLive("reintegrations", static_cast<double>(progress_.reintegrations));
+  ctx_.setLive("queued_frames", static_cast<double>(queuedFrames()));
+  ctx_.setLive("frames_dropped", static_cast<double>(counts_.dropped_frames));
+  ctx_.setLive("frames_dropped_when_full", static_cast<double>(counts_.dropped_when_full));
+}
+
 void Inbox::drain() {
   std::unique_lock<std::mutex> lock(mutex_);
   idle_.wait(lock, [&] { return (queue_.empty() && !busy_) || !worker_error_.empty(); });

@@ -98,6 +98,8 @@ class Inbox {
   // and queue_baseline, BaselineWork is queued (once).
   bool streamOver(bool wait_for_optimiser, bool queue_baseline);
   void logProgress();
+  // The progress and queue as live numbers (ServiceContext::setLive).
+  void publishLive();
   // Waits until the worker is idle (or failed), then lets it stop.
   void drain();
 

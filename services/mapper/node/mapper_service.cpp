@@ -75,9 +75,9 @@ void announceStart(ServiceContext& ctx, const Settings& settings, const rekon_ms
                settings.wait_for_optimiser ? "final pass after the optimiser's done" : "final pass after the last frame");
 }
 
-// Until the stream is over or a stop is requested: the resume point again
-// once a second (a frame source that missed it still finds it) and the
-// progress log every mapper.progress_interval_s.
+// Until the stream is over or a stop is requested: the resume point and the
+// live numbers again once a second (a frame source that missed the point
+// still finds it) and the progress log every mapper.progress_interval_s.
 void serveTheStream(ServiceContext& ctx, Inbox& inbox, const Settings& settings,
                     const rekon_msgs::resume_point_t& resume_point) {
   auto last_resume_point = std::chrono::steady_clock::now();
@@ -87,6 +87,7 @@ void serveTheStream(ServiceContext& ctx, Inbox& inbox, const Settings& settings,
     if (std::chrono::steady_clock::now() - last_resume_point > std::chrono::seconds(1)) {
       last_resume_point = std::chrono::steady_clock::now();
       ctx.bus().publish(channel::kResumePoint, resume_point);
+      inbox.publishLive();
     }
     if (std::chrono::steady_clock::now() - last_progress > settings.progress_every) {
       last_progress = std::chrono::steady_clock::now();

@@ -21,6 +21,10 @@ constexpr std::chrono::milliseconds kPartGap{3};
 
 std::chrono::duration<double> seconds(double s) { return std::chrono::duration<double>(s); }
 
+int64_t wallMicros() {
+  return std::chrono::duration_cast<std::chrono::microseconds>(std::chrono::system_clock::now().time_since_epoch()).count();
+}
+
 }  // namespace
 
 MeshPublisherSettings MeshPublisherSettings::fromConfig(const Config& config) {
@@ -105,10 +109,15 @@ void MeshPublisher::finish(Mapper& mapper) {
                stats_.full_snapshots, stats_.blocks_sent, static_cast<double>(stats_.bytes) / 1e6, stats_.cpu_ms);
 }
 
+int64_t MeshPublisher::newVersion() {
+  last_version_ = std::max(last_version_ + 1, wallMicros());
+  return last_version_;
+}
+
 void MeshPublisher::noteChanges(Mapper& mapper) {
   const std::vector<volume::BlockCoord> changed = mapper.takeMeshChanges();
   if (changed.empty()) return;
-  const int64_t version = next_version_++;
+  const int64_t version = newVersion();
   for (const volume::BlockCoord& c : changed) {
     version_[c] = version;
     pending_[c] = version;
@@ -148,7 +157,8 @@ void MeshPublisher::publishDelta(Mapper& mapper, bool unlimited) {
 void MeshPublisher::publishFull(Mapper& mapper) {
   std::vector<volume::BlockCoord> coords = mapper.volume().blockCoords();
   pending_.clear();  // the snapshot carries every block's newest mesh
-  for (const volume::BlockCoord& c : coords) version_.try_emplace(c, next_version_ - 1);
+  const int64_t version = newVersion();  // for blocks never changed here (restored from the store)
+  for (const volume::BlockCoord& c : coords) version_.try_emplace(c, version);
   tokens_ -= static_cast<double>(publish(mapper, coords, true));
   last_full_ = Clock::now();
   ++stats_.full_snapshots;

@@ -80,7 +80,11 @@ class MeshPublisher {
   std::atomic<bool> full_requested_{false};
   std::unordered_map<volume::BlockCoord, int64_t, CoordHash> version_;  // every block ever meshed or changed
   std::unordered_map<volume::BlockCoord, int64_t, CoordHash> pending_;  // changed, not yet sent: its version
-  int64_t next_version_ = 1;
+  // Versions are the wall-clock microseconds of the change (strictly
+  // growing): a viewer measures the latency from the change to its screen,
+  // and a restarted mapper's blocks are newer than what viewers hold.
+  int64_t newVersion();
+  int64_t last_version_ = 0;
   int64_t sequence_ = 0;
   double tokens_ = 0.0;  // bytes the budget allows now (negative after a large update)
   double bytes_per_block_ = 300.0;  // running estimate, to mesh only what the budget can send

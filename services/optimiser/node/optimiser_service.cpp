@@ -27,7 +27,12 @@ void optimiseWhileStreaming(ServiceContext& ctx, Inbox& inbox, GraphWorker& work
     bool done = false;
     const bool new_edges = worker.apply(inbox.waitForGraphItems(kIdleWait, &done));
     if (done || ctx.stopRequested()) return;
-    if (new_edges) ctx.bus().publish(channel::kGraphUpdates, worker.optimise(false, inbox.lastFrameId()));
+    if (!new_edges) continue;
+    ctx.bus().publish(channel::kGraphUpdates, worker.optimise(false, inbox.lastFrameId()));
+    const PoseGraph& graph = worker.graph();
+    ctx.setLive("keyframes", static_cast<double>(graph.numKeyframes()));
+    ctx.setLive("loop_closures", static_cast<double>(graph.numLoopEdges()));
+    ctx.setLive("graph_updates", static_cast<double>(worker.optimisations()));
   }
 }
 

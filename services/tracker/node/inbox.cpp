@@ -50,6 +50,7 @@ void Inbox::onFrame(const rekon_msgs::frame_t& msg) {
       spdlog::warn("frame {} came again but was never tracked (lost on its first way); skipped", msg.frame_id);
   } else {
     tracked = worker_.track(msg);  // a frame that does not decode is acknowledged all the same: the source goes on
+    publishLive();
   }
   rekon_msgs::frame_ack_t ack{};
   ack.service = ctx_.name();
@@ -61,6 +62,14 @@ void Inbox::onFrame(const rekon_msgs::frame_t& msg) {
     ctx_.setLastFrame(msg.frame_id);
     last_handled_.store(msg.frame_id);
   }
+}
+
+void Inbox::publishLive() {
+  const TrackingCounts n = worker_.counts();
+  ctx_.setLive("frames", static_cast<double>(n.frames));
+  ctx_.setLive("lost_frames", static_cast<double>(n.lost));
+  ctx_.setLive("keyframes", static_cast<double>(n.keyframes));
+  ctx_.setLive("loop_closures_accepted", static_cast<double>(loops_.stats().accepted));
 }
 
 void Inbox::onGraphUpdate(const rekon_msgs::graph_update_t& m) {

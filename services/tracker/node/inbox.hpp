@@ -35,6 +35,7 @@ class Inbox {
  private:
   using Clock = std::chrono::steady_clock;
   void onFrame(const rekon_msgs::frame_t& msg);
+  void publishLive();  // the tracking counts (ServiceContext::setLive)
   void onGraphUpdate(const rekon_msgs::graph_update_t& m);
   void onEndOfStream(const rekon_msgs::end_of_stream_t& m);
 

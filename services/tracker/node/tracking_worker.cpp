@@ -39,6 +39,11 @@ bool TrackingWorker::track(const rekon_msgs::frame_t& msg) {
   return true;
 }
 
+TrackingCounts TrackingWorker::counts() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return totals_;
+}
+
 TrackingTotals TrackingWorker::totals() const {
   std::lock_guard<std::mutex> lock(mutex_);
   return totals_;

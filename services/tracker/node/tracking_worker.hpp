@@ -18,8 +18,11 @@
 
 namespace rekon::tracker {
 
-struct TrackingTotals {
+struct TrackingCounts {
   int64_t frames = 0, lost = 0, keyframes = 0, constraints = 0, undecodable = 0;
+};
+
+struct TrackingTotals : TrackingCounts {
   double track_cpu_s = 0.0;
   std::vector<std::pair<int64_t, double>> frame_ms;  // wall time of track() (pyramid included) per frame
   Trajectory odometry;                               // world poses by odometry alone
@@ -33,6 +36,7 @@ class TrackingWorker {
   // receiver logged why).
   bool track(const rekon_msgs::frame_t& msg);
   TrackingTotals totals() const;
+  TrackingCounts counts() const;  // cheap: no per-frame tables
 
  private:
   History& history_;

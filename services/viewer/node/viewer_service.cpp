@@ -32,7 +32,11 @@ void runViewer(ServiceContext& ctx, const ViewerParams& params) {
   server.start();
   spdlog::info("viewer: {}", server.url());
   ctx.setState("running");
-  while (!ctx.stopRequested()) std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  while (!ctx.stopRequested()) {
+    ctx.setLive("clients", static_cast<double>(server.counts().websocket_clients));
+    ctx.setLive("blocks", static_cast<double>(state.counts().blocks));
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
   ctx.setState("finishing");
   server.stop();
   const Server::Counts c = server.counts();
@@ -42,6 +46,9 @@ void runViewer(ServiceContext& ctx, const ViewerParams& params) {
       .set("vertices", s.vertices)
       .set("triangles", s.triangles)
       .set("block_updates", static_cast<long long>(s.block_updates))
+      .set("receive_latency_samples", static_cast<long long>(s.receive_latency_samples))
+      .set("receive_latency_ms_p50", s.receive_latency_ms_p50)
+      .set("receive_latency_ms_p95", s.receive_latency_ms_p95)
       .set("messages_sent", static_cast<long long>(c.messages_sent))
       .set("bytes_sent", static_cast<long long>(c.bytes_sent))
       .set("updates_coalesced", static_cast<long long>(c.updates_coalesced))

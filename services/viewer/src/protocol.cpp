@@ -2,6 +2,8 @@
 
 #include <fmt/format.h>
 
+#include <charconv>
+#include <cmath>
 #include <cstring>
 
 namespace rekon::viewer {
@@ -27,6 +29,22 @@ T get(std::string_view in, size_t at) {
 size_t messageBytes(size_t n, size_t t) { return kBlockHeaderBytes + 12 * n + padded4(3 * n) + 12 * t; }
 
 }  // namespace
+
+std::optional<std::string> parseClientReport(std::string_view text) {
+  if (text.find(R"("type":"report")") == std::string_view::npos) return std::nullopt;
+  std::string json = "{";
+  for (const char* key : kReportKeys) {
+    const std::string tag = fmt::format(R"("{}":)", key);
+    const size_t at = text.find(tag);
+    if (at == std::string_view::npos) continue;
+    const char* first = text.data() + at + tag.size();
+    double value = 0;
+    const auto [end, ec] = std::from_chars(first, text.data() + text.size(), value);
+    if (ec != std::errc{} || end == first || !std::isfinite(value)) continue;
+    json += fmt::format(R"({}"{}":{})", json.size() > 1 ? "," : "", key, value);
+  }
+  return json + "}";
+}
 
 std::string encodeBlockMessage(const BlockMesh& b) {
   const size_t n = b.vertices.size(), t = b.triangles.size();

@@ -97,6 +97,7 @@ struct Server::Impl {
 
   void accept();
   void broadcast(const Update& u);
+  std::string stateWithClients() const;
   Response route(const Request& req);
 };
 
@@ -155,11 +156,12 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
     counted_ = true;
     impl_.sessions.insert(shared_from_this());
     for (const Update& u : impl_.state.snapshot()) enqueue(u);
+    enqueue({"live", std::make_shared<const std::string>(R"({"type":"live"})"), false});
     read();
   }
 
-  // Browsers send nothing the viewer needs; reading keeps pings and closes
-  // flowing and enforces the message limit (larger, or malformed: closed).
+  // A page sends its reports (protocol.hpp); reading also keeps pings and
+  // closes flowing and enforces the message limit (larger, or malformed: closed).
   void read() {
     ws_.async_read(in_, [self = shared_from_this()](beast::error_code ec, size_t) {
       if (ec) {
@@ -167,10 +169,21 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
         self->end();
         return;
       }
+      if (self->ws_.got_text()) {
+        const auto data = self->in_.cdata();
+        const std::string_view text(static_cast<const char*>(data.data()), data.size());
+        if (auto report = parseClientReport(text)) self->report_ = std::move(*report);
+      }
       self->in_.consume(self->in_.size());
       self->read();
     });
   }
+
+ public:
+  // The page's newest report as a JSON object; "" before its first.
+  const std::string& report() const { return report_; }
+
+ private:
 
   void writeNext() {
     if (closed_ || order_.empty()) return;
@@ -228,6 +241,7 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
   std::deque<std::string> order_;
   size_t pending_bytes_ = 0;
   Update current_;
+  std::string report_;
   bool writing_ = false, closed_ = false, counted_ = false;
 };
 
@@ -320,7 +334,7 @@ Response Server::Impl::route(const Request& req) {
     res.set(http::field::content_disposition, "attachment; filename=\"mesh.ply\"");
     return res;
   }
-  if (path == "/state.json") return answer(req, http::status::ok, "application/json", state.stateJson());
+  if (path == "/state.json") return answer(req, http::status::ok, "application/json", stateWithClients());
   if (const WebAsset* a = findWebAsset(path)) return answer(req, http::status::ok, a->content_type, std::string(a->body));
   if (auto it = three_files.find(path); it != three_files.end()) {
     return answer(req, http::status::ok, it->second.content_type, it->second.body);
@@ -343,6 +357,17 @@ void Server::Impl::accept() {
     }
     accept();
   });
+}
+
+// /state.json: the ViewerState's object with "clients": every page's newest report.
+std::string Server::Impl::stateWithClients() const {
+  std::string json = state.stateJson();
+  std::string clients;
+  for (const auto& s : sessions) {
+    if (!s->report().empty()) clients += (clients.empty() ? "" : ",") + s->report();
+  }
+  json.pop_back();  // its closing brace
+  return json + ",\"clients\":[" + clients + "]}";
 }
 
 void Server::Impl::broadcast(const Update& u) {

@@ -20,6 +20,13 @@ std::string poseJson(const Pose& p) {
                      q.w());
 }
 
+// The sum of every vertex coordinate of a block, as the page sums its float32 copies.
+double positionSum(const BlockMesh& block) {
+  double sum = 0;
+  for (const Eigen::Vector3f& v : block.vertices) sum += static_cast<double>(v.x()) + v.y() + v.z();
+  return sum;
+}
+
 }  // namespace
 
 void ViewerState::setListener(std::function<void(const Update&)> f) {
@@ -42,16 +49,23 @@ void ViewerState::applyLocked(const BlockMesh& block) {
   auto& entry = blocks_[key];
   const bool known = entry.second || entry.first != 0;  // held, or removed at entry.first
   if (known && entry.first >= block.version) return;
-  auto& sizes = block_sizes_[key];
-  vertices_ -= sizes[0];
-  triangles_ -= sizes[1];
-  sizes = {block.vertices.size(), block.triangles.size()};
-  vertices_ += sizes[0];
-  triangles_ += sizes[1];
+  BlockSize& size = block_sizes_[key];
+  vertices_ -= size.vertices;
+  triangles_ -= size.triangles;
+  position_sum_ -= size.position_sum;
+  size = {block.vertices.size(), block.triangles.size(), positionSum(block)};
+  vertices_ += size.vertices;
+  triangles_ += size.triangles;
+  position_sum_ += size.position_sum;
   ++block_updates_;
+  if (!unconfirmed_ && block.version >= kMinTimeVersion) {
+    const auto now_us = std::chrono::duration_cast<std::chrono::microseconds>(
+        std::chrono::system_clock::now().time_since_epoch()).count();
+    receive_latency_.add(static_cast<double>(now_us - block.version) / 1000.0);
+  }
   mesh_map_.apply(std::vector<BlockMesh>{block});
   auto message = shared(encodeBlockMessage(block));
-  entry = {block.version, sizes[0] == 0 ? nullptr : message};
+  entry = {block.version, size.vertices == 0 ? nullptr : message};
   emit({blockUpdateKey(key), message, true});
 }
 
@@ -221,10 +235,16 @@ ViewerState::Counts ViewerState::counts() const {
   for (const auto& [key, entry] : blocks_) c.blocks += entry.second != nullptr;
   c.vertices = vertices_;
   c.triangles = triangles_;
+  c.position_sum = position_sum_;
   c.keyframes = keyframes_.size();
   c.loop_edges = loop_edges_.size();
   c.trajectory = trajectory_.size();
   c.block_updates = block_updates_;
+  c.receive_latency_samples = receive_latency_.count();
+  if (c.receive_latency_samples > 0) {
+    c.receive_latency_ms_p50 = receive_latency_.quantile(0.5);
+    c.receive_latency_ms_p95 = receive_latency_.quantile(0.95);
+  }
   c.camera_frame = camera_ ? camera_->frame_id : -1;
   return c;
 }
@@ -237,9 +257,11 @@ std::string ViewerState::stateJson() const {
     status = *statusUpdate().payload;
   }
   return fmt::format(R"({{"blocks":{},"vertices":{},"triangles":{},"block_updates":{},"keyframes":{},)"
-                     R"("loop_edges":{},"trajectory":{},"camera_frame":{},"status":{}}})",
+                     R"("loop_edges":{},"trajectory":{},"camera_frame":{},"receive_latency_samples":{},)"
+                     R"("receive_latency_ms_p50":{},"receive_latency_ms_p95":{},"position_sum":{:.6f},"status":{}}})",
                      c.blocks, c.vertices, c.triangles, c.block_updates, c.keyframes, c.loop_edges, c.trajectory,
-                     c.camera_frame, status);
+                     c.camera_frame, c.receive_latency_samples, c.receive_latency_ms_p50, c.receive_latency_ms_p95,
+                     c.position_sum, status);
 }
 
 }  // namespace rekon::viewer

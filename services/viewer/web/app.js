@@ -1,11 +1,17 @@
 // rekon's live map: a WebSocket (/ws) brings the full state, then updates
 // (services/viewer/include/rekon/viewer/protocol.hpp has the format). Blocks
 // are binary messages, everything else JSON text. Counters for tests live on
-// <body data-*>: blocks, vertices, triangles, updates (blocks replaced), messages.
+// <body data-*>: blocks, vertices, triangles, updates (blocks replaced), messages,
+// and the update latency (latency_samples, latency_ms_p50, latency_ms_p95), which
+// the page also reports to the server once a second (/state.json's "clients").
 'use strict';
 
 const HIGHLIGHT_MS = 1500;  // a corrected block glows this long, so a person sees the correction land
 const BLOCK_MAGIC = 0x31424B52;
+const MAX_LATENCY_SAMPLES = 20000;  // the newest are kept
+// A mapper's block versions are wall-clock microseconds of the change; smaller
+// ones (a test's 1, 2, 3) carry no time.
+const MIN_TIME_VERSION = 1e15;
 
 const body = document.body;
 const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
@@ -19,6 +25,15 @@ camera.position.set(0, -1, -3);
 const controls = new THREE.OrbitControls(camera, renderer.domElement);
 let userMoved = false;
 let dirty = true;  // drawn only when something changed: a large map costs nothing while it stands still
+// Changes from the server are drawn at most every MAP_REDRAW_MS, and never
+// more than 1/MAP_DRAW_SHARE of the time: a browser without a GPU (software
+// WebGL) takes ~80 ms to draw a 7000-block map, and drawing it for every
+// message would take the CPU the reconstruction needs on the same machine.
+// What the user does (orbit, pan, zoom) is drawn at once.
+const MAP_REDRAW_MS = 250;
+const MAP_DRAW_SHARE = 5;
+let mapChanged = false;
+let lastDrawn = 0, lastDrawMs = 0;
 controls.addEventListener('start', () => { userMoved = true; });
 controls.addEventListener('change', () => { dirty = true; });
 scene.add(new THREE.AmbientLight(0xffffff, 0.55));
@@ -30,7 +45,18 @@ const meshMaterial = new THREE.MeshLambertMaterial({ vertexColors: THREE.VertexC
 const highlightMaterial = new THREE.MeshLambertMaterial({ vertexColors: THREE.VertexColors, side: THREE.DoubleSide,
   emissive: 0xff7a00, emissiveIntensity: 0.6 });
 const blocks = new Map();  // "x y z" -> THREE.Mesh
-const counts = { blocks: 0, vertices: 0, triangles: 0, updates: 0, messages: 0 };
+// position_sum: every vertex coordinate added up, as the server does (/state.json):
+// equal sums mean the page holds the same versions of the blocks.
+const counts = { blocks: 0, vertices: 0, triangles: 0, updates: 0, messages: 0, position_sum: 0 };
+
+// Update latency: from a block's change in the mapper (its version) to the
+// first frame drawn with it, for blocks that arrive after the state sent on
+// connect (older ones were not changes). Same clock: the viewer on the mapper's host.
+// Where the page's own time goes (ms, since it loaded): handling messages, and drawing.
+const cost = { handle_ms: 0, draw_ms: 0 };
+let live = false;
+const drawnPending = [];  // change times (ms) of blocks applied since the last frame drawn
+const latencies = [];
 
 // ---- blocks --------------------------------------------------------------
 
@@ -44,6 +70,7 @@ function decodeBlock(buffer) {
   if (indicesAt + 12 * t !== buffer.byteLength) return null;
   return {
     key: v.getInt32(4, true) + ' ' + v.getInt32(8, true) + ' ' + v.getInt32(12, true),
+    version: v.getFloat64(16, true),
     vertices: n, triangles: t,
     positions: new Float32Array(buffer, 32, 3 * n),
     colors: new Uint8Array(buffer, colorsAt, 3 * n),
@@ -59,6 +86,7 @@ function removeBlock(key) {
   counts.blocks -= 1;
   counts.vertices -= old.userData.vertices;
   counts.triangles -= old.userData.triangles;
+  counts.position_sum -= old.userData.position_sum;
   blocks.delete(key);
   return true;
 }
@@ -67,6 +95,7 @@ function applyBlock(buffer) {
   const b = decodeBlock(buffer);
   if (!b) return;
   const replaced = removeBlock(b.key);
+  if (live && b.version >= MIN_TIME_VERSION) drawnPending.push(b.version / 1000);
   if (b.vertices === 0) return;
   const g = new THREE.BufferGeometry();
   g.setAttribute('position', new THREE.BufferAttribute(b.positions, 3));
@@ -74,12 +103,16 @@ function applyBlock(buffer) {
   g.setIndex(new THREE.BufferAttribute(b.indices, 1));
   g.computeVertexNormals();
   const m = new THREE.Mesh(g, replaced ? highlightMaterial : meshMaterial);
-  m.userData = { vertices: b.vertices, triangles: b.triangles, until: replaced ? performance.now() + HIGHLIGHT_MS : 0 };
+  let sum = 0;
+  for (const x of b.positions) sum += x;
+  m.userData = { vertices: b.vertices, triangles: b.triangles, position_sum: sum,
+    until: replaced ? performance.now() + HIGHLIGHT_MS : 0 };
   scene.add(m);
   blocks.set(b.key, m);
   counts.blocks += 1;
   counts.vertices += b.vertices;
   counts.triangles += b.triangles;
+  counts.position_sum += sum;
   if (replaced) counts.updates += 1;
   needsFit = true;
 }
@@ -89,7 +122,7 @@ function endHighlights(now) {
     if (m.userData.until && now > m.userData.until) {
       m.material = meshMaterial;
       m.userData.until = 0;
-      dirty = true;
+      mapChanged = true;
     }
   }
 }
@@ -165,7 +198,33 @@ const onText = {
     drawLoops();
   },
   status(m) { drawStatus(m.services); },
+  live() { live = true; },
 };
+
+// ---- update latency ------------------------------------------------------------
+
+function noteDrawn() {
+  if (drawnPending.length === 0) return;
+  const now = Date.now();
+  for (const changed of drawnPending) latencies.push(now - changed);
+  drawnPending.length = 0;
+  if (latencies.length > MAX_LATENCY_SAMPLES) latencies.splice(0, latencies.length - MAX_LATENCY_SAMPLES);
+}
+
+function latencyQuantile(sorted, q) {
+  return sorted.length ? sorted[Math.min(sorted.length - 1, Math.floor(q * sorted.length))] : 0;
+}
+
+// The page's counts and latency, for the DOM (tests) and the server (/state.json).
+function report() {
+  const sorted = latencies.slice().sort((a, b) => a - b);
+  return Object.assign({ type: 'report' }, counts, {
+    handle_ms: Math.round(cost.handle_ms), draw_ms: Math.round(cost.draw_ms),
+    latency_samples: sorted.length,
+    latency_ms_p50: Math.round(latencyQuantile(sorted, 0.5)),
+    latency_ms_p95: Math.round(latencyQuantile(sorted, 0.95)),
+  });
+}
 
 // ---- status panel ------------------------------------------------------------
 
@@ -173,7 +232,8 @@ const onText = {
 function notes(statsText) {
   let s;
   try { s = JSON.parse(statsText || '{}'); } catch (e) { return ''; }
-  const keys = ['reintegrations', 'frames_dropped', 'dropped_frames', 'queued_frames', 'queue_depth', 'loop_closures', 'keyframes'];
+  const keys = ['queued_frames', 'frames_dropped', 'frames_dropped_when_full', 'lost_frames', 'reintegrations',
+    'kf_keyframes', 'keyframes', 'loop_closures', 'loop_closures_accepted', 'clients'];
   return keys.filter((k) => typeof s[k] === 'number').map((k) => k.replace(/_/g, ' ') + ' ' + s[k]).join(', ');
 }
 
@@ -202,6 +262,14 @@ function drawCounts() {
   document.getElementById('counts').textContent =
     counts.blocks + ' blocks, ' + counts.vertices + ' vertices, ' + counts.triangles + ' triangles, ' +
     counts.updates + ' corrections, ' + keyframes.size + ' keyframes, ' + loopEdges.length + ' loop closures';
+}
+
+function drawLatency(r) {
+  body.dataset.latencySamples = String(r.latency_samples);
+  body.dataset.latencyMsP50 = String(r.latency_ms_p50);
+  body.dataset.latencyMsP95 = String(r.latency_ms_p95);
+  document.getElementById('latency').textContent = r.latency_samples
+    ? 'update latency ' + r.latency_ms_p50 + ' ms (p50), ' + r.latency_ms_p95 + ' ms (p95)' : '';
 }
 
 // ---- view ----------------------------------------------------------------------
@@ -257,7 +325,19 @@ function frame(now) {
   }
   follow();
   controls.update();
-  if (dirty) renderer.render(scene, camera);
+  if (mapChanged && now - lastDrawn >= Math.max(MAP_REDRAW_MS, MAP_DRAW_SHARE * lastDrawMs)) {
+    dirty = true;
+    mapChanged = false;
+  }
+  if (dirty) {
+    const t0 = performance.now();
+    renderer.render(scene, camera);
+    renderer.getContext().finish();  // the drawing's cost lands here, not in the next message
+    lastDrawMs = performance.now() - t0;
+    cost.draw_ms += lastDrawMs;
+    lastDrawn = now;
+    noteDrawn();
+  }
   dirty = false;
   requestAnimationFrame(frame);
 }
@@ -270,12 +350,14 @@ function connect() {
   const ws = new WebSocket((location.protocol === 'https:' ? 'wss://' : 'ws://') + location.host + '/ws');
   ws.binaryType = 'arraybuffer';
   ws.onopen = () => {
+    live = false;
     for (const key of [...blocks.keys()]) removeBlock(key);  // the server sends every block again
     status.textContent = 'live';
     status.className = 'ok';
     body.dataset.connected = '1';
   };
   ws.onmessage = (e) => {
+    const t0 = performance.now();
     counts.messages += 1;
     if (typeof e.data === 'string') {
       let m;
@@ -284,14 +366,22 @@ function connect() {
     } else {
       applyBlock(e.data);
     }
-    dirty = true;
+    mapChanged = true;
     drawCounts();
+    cost.handle_ms += performance.now() - t0;
   };
   ws.onclose = () => {
     status.textContent = 'disconnected; retrying';
     status.className = 'lost';
     body.dataset.connected = '0';
-    setTimeout(connect, 1000);  // the server sends the whole state again on connect
+    setTimeout(() => { socket = connect(); }, 1000);  // the server sends the whole state again on connect
   };
+  return ws;
 }
-connect();
+
+let socket = connect();
+setInterval(() => {
+  const r = report();
+  drawLatency(r);
+  if (socket.readyState === WebSocket.OPEN) socket.send(JSON.stringify(r));
+}, 1000);

@@ -1,8 +1,9 @@
 #pragma once
 // What every rekon service process shares: its command line (--config, --set,
 // --out, --help), logging, the bus with a thread that dispatches messages, a
-// heartbeat, stopping on SIGINT/SIGTERM or a shutdown message, and writing
-// its statistics (<out>/<name>_stats.json, with peak_rss_mb) at exit.
+// heartbeat, live numbers on STATS, stopping on SIGINT/SIGTERM or a shutdown
+// message, and writing its statistics (<out>/<name>_stats.json, with
+// peak_rss_mb) at exit.
 #include <atomic>
 #include <chrono>
 #include <functional>
@@ -38,7 +39,13 @@ class ServiceContext {
   void setState(const std::string& state);
   void setLastFrame(int64_t frame_id) { last_frame_ = frame_id; }
 
-  // Filled by the service; written to <out>/<name>_stats.json at exit.
+  // Live numbers for whoever watches the bus (the viewer's status panel):
+  // any thread may set them, each under the key its final stats use; the
+  // heartbeat thread publishes them all on STATS once a second when one changed.
+  void setLive(const std::string& key, double value);
+
+  // Filled by the service; written to <out>/<name>_stats.json at exit and
+  // published on STATS, so that watchers end with the final numbers.
   JsonObject& stats() { return stats_; }
   void writeStats();
 
@@ -48,6 +55,7 @@ class ServiceContext {
 
  private:
   struct Threads;
+  void publishLive();  // the heartbeat thread, once a second
   std::string name_;
   Config config_;
   std::string out_dir_;

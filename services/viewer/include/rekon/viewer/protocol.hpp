@@ -5,7 +5,7 @@
 // wraps typed arrays around it without copying:
 //   offset 0   uint32  magic 0x31424B52 ("RKB1")
 //          4   int32   bx, by, bz (block coordinates)
-//          16  float64 version
+//          16  float64 version (a mapper's: wall-clock microseconds of the change)
 //          24  uint32  vertices n, triangles t (both 0: the block was removed)
 //          32  float32 positions[3n] (world, metres)
 //              uint8   colors[3n] (RGB), zero padding to a multiple of 4 bytes
@@ -13,7 +13,12 @@
 // Text messages: JSON objects with a "type": "camera" (newest pose),
 // "trajectory" (every camera position), "keyframes", "edges" (loop closures
 // between keyframe ids), "status" (every service's heartbeat and stats),
-// "counts" (the server's block, vertex and triangle totals).
+// "counts" (the server's block, vertex and triangle totals), "live" (the
+// state sent on connect is complete: later blocks are fresh changes).
+// The page sends one text message, {"type":"report", ...} once a second: its
+// own counts and the latency from a block's change in the mapper to the first
+// frame drawn with it (/state.json lists every client's newest report).
+#include <array>
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -29,6 +34,14 @@ inline constexpr size_t kBlockHeaderBytes = 32;
 std::string encodeBlockMessage(const BlockMesh& block);
 // nullopt for anything that is not a well-formed block message (sizes, magic, index range).
 std::optional<BlockMesh> decodeBlockMessage(std::string_view bytes);
+
+// The keys a page's report may carry (numbers only; anything else is ignored).
+inline constexpr std::array<const char*, 11> kReportKeys = {
+    "blocks",          "vertices",       "triangles",      "updates",      "messages", "latency_samples",
+    "latency_ms_p50", "latency_ms_p95", "position_sum", "handle_ms",    "draw_ms"};
+// A page's report as a JSON object of the kReportKeys it has, with finite
+// numbers only; nullopt when `text` is not a report.
+std::optional<std::string> parseClientReport(std::string_view text);
 
 // The Update key of a block ("b X Y Z").
 std::string blockUpdateKey(const BlockKey& key);

@@ -18,6 +18,7 @@
 #include <utility>
 #include <vector>
 
+#include "rekon/common/latency_histogram.hpp"
 #include "rekon/common/mesh.hpp"
 #include "rekon/common/mesh_blocks.hpp"
 #include "rekon/common/pose.hpp"
@@ -42,6 +43,9 @@ class ViewerState {
   // More trajectory points than this are thinned (every second one dropped):
   // a long live session stays bounded, the path's shape stays.
   static constexpr size_t kMaxTrajectory = 20000;
+  // A mapper's block versions are wall-clock microseconds of the change;
+  // smaller ones (a test's 1, 2, 3) carry no time.
+  static constexpr int64_t kMinTimeVersion = 1'000'000'000'000'000;
 
   // `f` hears every Update, on the thread that caused it (the bus thread).
   void setListener(std::function<void(const Update&)> f);
@@ -74,6 +78,13 @@ class ViewerState {
   struct Counts {
     size_t blocks = 0, vertices = 0, triangles = 0, keyframes = 0, loop_edges = 0, trajectory = 0;
     uint64_t block_updates = 0;  // block versions applied (removals included)
+    // Every vertex coordinate of every block added up: the page adds up the
+    // same, so equal sums mean it holds the same versions of the blocks.
+    double position_sum = 0;
+    // From a block's change in the mapper (its version: wall-clock us) to
+    // its arrival here, for changes outside full snapshots.
+    int64_t receive_latency_samples = 0;
+    double receive_latency_ms_p50 = 0, receive_latency_ms_p95 = 0;
     int64_t camera_frame = -1;
   };
   Counts counts() const;
@@ -111,11 +122,17 @@ class ViewerState {
   mutable std::mutex mutex_;
   std::function<void(const Update&)> listener_;
   std::map<BlockKey, std::pair<int64_t, std::shared_ptr<const std::string>>> blocks_;  // version, message
-  std::map<BlockKey, std::array<size_t, 2>> block_sizes_;                               // vertices, triangles
+  struct BlockSize {
+    size_t vertices = 0, triangles = 0;
+    double position_sum = 0;
+  };
+  std::map<BlockKey, BlockSize> block_sizes_;
   size_t vertices_ = 0, triangles_ = 0;
+  double position_sum_ = 0;
   MeshMap mesh_map_;  // the same blocks, for the PLY download
   std::optional<std::set<BlockKey>> unconfirmed_;  // during a full snapshot: held blocks it has not named yet
   uint64_t block_updates_ = 0;
+  LatencyHistogram receive_latency_;
   std::map<int64_t, Pose> keyframes_;
   std::vector<std::pair<int64_t, int64_t>> loop_edges_;
   std::vector<TrackedFrame> trajectory_;
