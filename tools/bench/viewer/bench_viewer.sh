@@ -3,11 +3,12 @@
 #   tools/bench/viewer/bench_viewer.sh DATASET OUT [RUNS]
 # runs `rekon run` RUNS times (default 1) each way: without the viewer, with
 # a rekon-viewer listening, and with a headless chromium (software WebGL, on
-# the same cores) watching its page from the start. Prints one line per run: realtime_factor, the mapper's mesh CPU
-# share and bytes/s on the bus, the viewer's change-to-receipt latency and
-# the page's change-to-drawn latency (p50/p95, ms); OUT/browser_N/viewer.png
-# is a screenshot of the final map. Everything runs in a
-# private network namespace (tests/support/in_netns.sh): loopback only.
+# the same cores) watching its page from the start. Prints one line per run:
+# realtime_factor, the mapper's mesh CPU share and bytes/s on the bus, the
+# viewer's change-to-receipt latency and the page's change-to-drawn latency
+# (p50/p95, ms) and its own time; OUT/browser_N/viewer.png is a screenshot of
+# the final map. Everything runs in a private network namespace
+# (tests/support/in_netns.sh): loopback only.
 set -euo pipefail
 if [[ $# -lt 2 ]]; then echo "usage: $0 DATASET OUT [RUNS]" >&2; exit 2; fi
 here=$(cd "$(dirname "$0")" && pwd)
