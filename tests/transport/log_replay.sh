@@ -5,7 +5,9 @@
 #   store/   a mapper fed the logged frames and tracked poses, stopped before
 #            its final pass so that its keyframe store stays;
 #   graph/   a mapper resuming from that store, fed only the pose and graph
-#            channels (tracked frames, keyframes, graph updates, end, done).
+#            channels (tracked frames, keyframes, graph updates, end, done);
+#   mesh/    `rekon listen --mesh` fed only the map on the bus (MESH_BLOCKS)
+#            and the done messages: the mesh a viewer of the log would show.
 # Every process runs under a timeout; run it inside tests/support/in_netns.sh.
 # usage: log_replay.sh BIN_DIR DATASET OUT_DIR
 set -euo pipefail
@@ -14,7 +16,12 @@ url="udpm://239.255.76.67:7667?ttl=0&recv_buf_size=8388608"
 mkdir -p "$dir/sensor" "$dir/store" "$dir/graph"
 
 # A service has subscribed to its inputs once it logs this line.
-ready_line() { case $1 in tracker) echo "tracking levels" ;; optimiser) echo "pose graph:" ;; mapper) echo "mapper: KF strategy" ;; esac; }
+ready_line() {
+  case $1 in
+    tracker) echo "tracking levels" ;; optimiser) echo "pose graph:" ;; mapper) echo "mapper: KF strategy" ;;
+    listener) echo "listening for the mesh" ;;
+  esac
+}
 wait_ready() {  # FOLDER SERVICE...
   local folder=$1; shift
   for s in "$@"; do
@@ -57,4 +64,11 @@ start "$dir/graph" mapper --set mapper.store_segment=$store --set mapper.resume=
 wait_ready "$dir/graph" mapper
 # No images: 5x the recorded speed is easy for the mapper.
 timeout 240 lcm-logplayer --speed 5 --lcm-url="$url" -e '^REKON_(TRACKED_FRAMES|KEYFRAMES|GRAPH_UPDATES|END_OF_STREAM|DONE)$' "$dir/run.lcmlog"
+wait
+
+# The map on the bus, as the log holds it.
+mkdir -p "$dir/mesh"
+timeout 120 "$bin/rekon" listen --mesh "$dir/mesh/mesh.ply" --out "$dir/mesh" > "$dir/mesh/listener.log" 2>&1 &
+wait_ready "$dir/mesh" listener
+timeout 120 lcm-logplayer --speed 5 --lcm-url="$url" -e '^REKON_(MESH_BLOCKS|DONE)$' "$dir/run.lcmlog"
 wait

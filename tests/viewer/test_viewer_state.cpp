@@ -3,6 +3,8 @@
 // the PLY download.
 #include <gtest/gtest.h>
 
+#include <thread>
+
 #include <cstring>
 #include <fstream>
 #include <map>
@@ -151,6 +153,24 @@ TEST(ViewerState, SnapshotHasEveryBlockAndTheStatus) {
   EXPECT_EQ(blocks, 40);
   EXPECT_TRUE(status);
   EXPECT_NE(state.stateJson().find(R"("blocks":40)"), std::string::npos) << state.stateJson();
+}
+
+// A service that stops sending heartbeats is shown as gone: "exited" after
+// an orderly end, "silent" when it was running; a new heartbeat brings it back.
+TEST(ViewerState, ServicesWithoutHeartbeatsAreMarkedExitedOrSilent) {
+  ViewerState state;
+  state.heartbeat("mapper", 12, "host", "finishing", 999);
+  state.heartbeat("tracker", 13, "host", "running", 500);
+  state.stats("optimiser", R"({"keyframes": 3})");  // stats without a heartbeat: nothing to mark
+  state.markSilent(10.0);
+  EXPECT_NE(state.stateJson().find(R"("state":"finishing")"), std::string::npos);
+  std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  state.markSilent(0.01);
+  const std::string json = state.stateJson();
+  EXPECT_NE(json.find(R"("mapper":{"pid":12,"host":"host","state":"exited")"), std::string::npos) << json;
+  EXPECT_NE(json.find(R"("tracker":{"pid":13,"host":"host","state":"silent")"), std::string::npos) << json;
+  state.heartbeat("tracker", 14, "host", "running", 0);
+  EXPECT_NE(state.stateJson().find(R"("tracker":{"pid":14,"host":"host","state":"running")"), std::string::npos);
 }
 
 }  // namespace

@@ -63,6 +63,7 @@ void listenForMesh(ServiceContext& ctx, const std::string& path) {
     done_cv.notify_all();
   });
   ctx.setState("running");
+  spdlog::info("listening for the mesh on {}", channel::kMeshBlocks);
   rekon_msgs::mesh_request_t request{};
   request.requester = ctx.name();
   std::unique_lock<std::mutex> lock(mutex);

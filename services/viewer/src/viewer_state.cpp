@@ -156,7 +156,23 @@ void ViewerState::heartbeat(const std::string& service, int pid, const std::stri
   s.host = host;
   s.state = state;
   s.last_frame = last_frame;
+  s.last_heartbeat = now;
   emit(statusUpdate());
+}
+
+void ViewerState::markSilent(double silence_s) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const auto now = std::chrono::steady_clock::now();
+  bool changed = false;
+  for (auto& [name, s] : services_) {
+    if (s.pid == 0 || s.state == "exited" || s.state == "silent") continue;  // stats only, or already marked
+    if (std::chrono::duration<double>(now - s.last_heartbeat).count() <= silence_s) continue;
+    const bool ending = s.state == "finishing" || s.state == "finished" || s.state == "lingering";
+    s.state = ending ? "exited" : "silent";
+    s.frames_per_s = 0;
+    changed = true;
+  }
+  if (changed) emit(statusUpdate());
 }
 
 void ViewerState::stats(const std::string& service, const std::string& json) {

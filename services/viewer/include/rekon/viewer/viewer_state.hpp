@@ -67,6 +67,9 @@ class ViewerState {
   void addLoopEdge(int64_t from_id, int64_t to_id);
   void heartbeat(const std::string& service, int pid, const std::string& host, const std::string& state,
                  int64_t last_frame);
+  // Services without a heartbeat for `silence_s` are shown as "exited"
+  // (their last state was finishing, finished or lingering) or "silent".
+  void markSilent(double silence_s);
   // `json`: the service's stats object as it sent it (the page parses it defensively).
   void stats(const std::string& service, const std::string& json);
 
@@ -97,7 +100,7 @@ class ViewerState {
     std::string host, state, stats_json;
     int64_t last_frame = -1;
     double frames_per_s = 0;  // from the last frames of heartbeats at least kRateWindowS apart
-    std::chrono::steady_clock::time_point rate_since{};
+    std::chrono::steady_clock::time_point rate_since{}, last_heartbeat{};
     int64_t rate_frame = -1;
   };
   static constexpr double kRateWindowS = 1.0;
