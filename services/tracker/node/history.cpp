@@ -137,9 +137,11 @@ void History::markDone() {
   done_ = true;
 }
 
-void History::setMapperInstance(int instance) {
+bool History::noteMapperPid(int pid) {
   std::lock_guard<std::mutex> lock(mutex_);
-  mapper_instance_ = instance;
+  if (!mapper_pids_.insert(pid).second || mapper_pids_.size() == 1) return false;
+  ++mapper_instance_;
+  return true;
 }
 
 }  // namespace rekon::tracker

@@ -6,6 +6,7 @@
 // thread and the loop-closure worker; replays go out from the main thread.
 #include <cstdint>
 #include <map>
+#include <set>
 #include <mutex>
 #include <vector>
 
@@ -49,10 +50,12 @@ class History {
   // tracker has finished.
   void noteGraphVersion(int64_t version);
   void markDone();
-  // Which mapper instance (1, then 2... after restarts) results now go out
-  // to: a frame sent again goes out again only to a newer instance, so that a
-  // frame re-sent for a lost acknowledgement is not fused twice.
-  void setMapperInstance(int instance);
+  // A mapper process seen on the bus (its resume point, or its heartbeat
+  // once running). A pid not seen before, after the first, is a restarted
+  // mapper: a newer instance. A frame sent again goes out again only to a
+  // newer instance, so that one re-sent for a lost acknowledgement is not
+  // fused twice. True when `pid` is a new instance after the first.
+  bool noteMapperPid(int pid);
 
  private:
   Bus& bus_;
@@ -62,6 +65,7 @@ class History {
   std::map<int64_t, rekon_msgs::tracked_frame_t> tracked_;  // by frame id
   std::map<int64_t, rekon_msgs::keyframe_t> keyframe_of_frame_;
   int mapper_instance_ = 1;
+  std::set<int> mapper_pids_;
   std::map<int64_t, int> published_for_;  // the mapper instance each frame's result went out to
   int64_t graph_version_ = -1;
   bool done_ = false;

@@ -10,19 +10,28 @@
 #include "rekon/common/graph_update.hpp"
 #include "rekon/common/pose.hpp"
 #include "rekon_msgs/frame_ack_t.hpp"
+#include "rekon_msgs/heartbeat_t.hpp"
 #include "rekon_msgs/replay_request_t.hpp"
+#include "rekon_msgs/resume_point_t.hpp"
 
 namespace rekon::tracker {
 
 Inbox::Inbox(ServiceContext& ctx, TrackingWorker& worker, History& history, LoopClosureWorker& loops)
     : ctx_(ctx), worker_(worker), history_(history), loops_(loops) {}
 
-void Inbox::subscribe(PeerWatch& peers) {
+void Inbox::subscribe() {
   Bus& bus = ctx_.bus();
-  peers.onNewInstance([this](const std::string& service, int instance) {
-    if (service != "mapper") return;
-    spdlog::warn("rekon-mapper restarted (instance {}): frames sent again get their results again", instance);
-    history_.setMapperInstance(instance);
+  // A restarted mapper announces its resume point before it runs, and the
+  // player sends frames again on it: the tracker learns of the new instance
+  // from the same message, never after those frames.
+  const auto note_mapper = [this](int pid) {
+    if (history_.noteMapperPid(pid)) spdlog::warn("rekon-mapper restarted (pid {}): frames sent again get their results again", pid);
+  };
+  bus.subscribe<rekon_msgs::resume_point_t>(channel::kResumePoint, [note_mapper](const rekon_msgs::resume_point_t& m) {
+    if (m.service == "mapper") note_mapper(m.pid);
+  });
+  bus.subscribe<rekon_msgs::heartbeat_t>(channel::kHeartbeat, [note_mapper](const rekon_msgs::heartbeat_t& m) {
+    if (m.service == "mapper" && m.state == "running") note_mapper(m.pid);
   });
   bus.subscribe<rekon_msgs::replay_request_t>(channel::kReplayRequest, [this](const rekon_msgs::replay_request_t& m) {
     spdlog::info("rekon-{} (pid {}) asks for a replay", m.service, m.pid);

@@ -23,7 +23,7 @@ class Inbox {
 
   Inbox(ServiceContext& ctx, TrackingWorker& worker, History& history, LoopClosureWorker& loops);
   // Call after the StopThreadsOnExit that guards everything the handlers use.
-  void subscribe(PeerWatch& peers);
+  void subscribe();
 
   // The last frame id of the end of stream; kNoEndYet before it came.
   int64_t endFrame() const { return end_frame_.load(); }

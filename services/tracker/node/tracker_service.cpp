@@ -79,7 +79,7 @@ void runTrackerService(ServiceContext& ctx) {
   PeerWatch peers(ctx.bus());
   Inbox inbox(ctx, worker, history, loops);
   StopThreadsOnExit stop_threads(ctx);  // before the state above dies: the bus handlers use it
-  inbox.subscribe(peers);
+  inbox.subscribe();
   ctx.setState("running");
   spdlog::info("tracking levels {}..{}, keyframe criterion {}", params.aligner.coarsest_level,
                params.aligner.finest_level, params.keyframe.criterion);
