@@ -92,17 +92,7 @@ size_t lineCount(const std::string& path) {
   return n;
 }
 
-// The run's shared-memory segments (frame ring, keyframe store) still in /dev/shm.
-std::vector<std::string> leftoverSegments(const std::string& run) {
-  std::vector<std::string> left;
-  const std::string config = readText(run + "/config.yaml");
-  const std::regex seg(R"((?:^|\n)\s*(?:segment|store_segment):\s*"?([A-Za-z0-9_]+))");
-  for (auto it = std::sregex_iterator(config.begin(), config.end(), seg); it != std::sregex_iterator(); ++it) {
-    const std::string name = (*it)[1];
-    if (fs::exists("/dev/shm/" + name)) left.push_back(name);
-  }
-  return left;
-}
+using rekon::test::leftoverSegments;
 
 struct Faulty {
   int rc = -1;

@@ -6,6 +6,8 @@
 #include <unistd.h>
 
 #include <array>
+#include <cmath>
+#include <regex>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -92,6 +94,27 @@ long long jsonInt(const std::string& json, const std::string& key) {
   const auto at = json.find("\"" + key + "\":");
   if (at == std::string::npos) return -1;
   return std::stoll(json.substr(at + key.size() + 3));
+}
+
+double jsonNumber(const std::string& json, const std::string& key) {
+  const auto at = json.find("\"" + key + "\":");
+  if (at == std::string::npos) return std::nan("");
+  try {
+    return std::stod(json.substr(at + key.size() + 3));
+  } catch (const std::exception&) {
+    return std::nan("");
+  }
+}
+
+std::vector<std::string> leftoverSegments(const std::string& run_dir) {
+  std::vector<std::string> left;
+  const std::string config = readText(run_dir + "/config.yaml");
+  const std::regex seg(R"((?:^|\n)\s*(?:segment|store_segment):\s*"?([A-Za-z0-9_]+))");
+  for (auto it = std::sregex_iterator(config.begin(), config.end(), seg); it != std::sregex_iterator(); ++it) {
+    const std::string name = (*it)[1];
+    if (std::filesystem::exists("/dev/shm/" + name)) left.push_back(name);
+  }
+  return left;
 }
 
 std::string inNetns() { return sourceDir() + "/tests/support/in_netns.sh"; }

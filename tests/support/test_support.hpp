@@ -6,6 +6,7 @@
 #include <sys/types.h>
 
 #include <string>
+#include <vector>
 
 namespace rekon::test {
 
@@ -44,6 +45,11 @@ int waitForExit(pid_t pid, double seconds);
 std::string readText(const std::string& path);
 // The integer after "key": in a flat JSON object (a service's stats), or -1.
 long long jsonInt(const std::string& json, const std::string& key);
+// The number after "key": in a JSON object, or NaN.
+double jsonNumber(const std::string& json, const std::string& key);
+// The shared-memory segments of a `rekon run` folder (frame ring, keyframe
+// store, named in its config.yaml) still in /dev/shm.
+std::vector<std::string> leftoverSegments(const std::string& run_dir);
 
 // tests/support/in_netns.sh: prefix a command with it to run it in a private
 // network namespace (loopback multicast only).

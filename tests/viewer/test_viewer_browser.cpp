@@ -134,12 +134,7 @@ long long jsonCount(const std::string& json, const std::string& key) {
   return std::stoll(m[1]);
 }
 
-// The number after "key": in `json`; NaN when absent.
-double jsonNumber(const std::string& json, const std::string& key) {
-  std::smatch m;
-  if (!std::regex_search(json, m, std::regex("\"" + key + "\":(-?[0-9.eE+-]+)"))) return std::nan("");
-  return std::stod(m[1]);
-}
+using rekon::test::jsonNumber;
 
 // The first page's report in /state.json ("" before one came).
 std::string pageReport(const std::string& state) {

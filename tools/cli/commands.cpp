@@ -24,6 +24,8 @@ const std::vector<Command>& commands() {
       {"cameras", "list the connected RGB-D cameras (OpenNI2, libfreenect) and their modes", &camerasCommand},
       {"view", "serve a live web page of the run on the bus (mesh, camera, keyframes, status); prints its URL", &viewCommand},
       {"demo", "run the whole pipeline on the built-in default scene", &demoCommand},
+      {"remesh", "rebuild a session's mesh at other settings (voxel size, truncation) without re-tracking", &remeshCommand},
+      {"export", "write a session's trajectory (TUM), pose graph (g2o) and mesh (PLY)", &exportCommand},
       {"keyframes", "list or export the KF keyframes in the mapper's shared-memory keyframe store", &keyframesCommand},
       {"listen", "receive frames from the bus as a consumer and log their hashes", &listenMain},
       {"report", "self-contained report.html of a run folder: mesh views, trajectory, timing, stats", &report::reportCommand},

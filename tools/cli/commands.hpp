@@ -27,5 +27,10 @@ int camerasCommand(int argc, char** argv);
 // `rekon view [--port N] [--bind ADDR] [--config FILE] [--set key=value]`:
 // rekon-viewer (the live web page of whatever runs on the bus) in the foreground.
 int viewCommand(int argc, char** argv);
+// `rekon remesh SESSION --out MESH [--voxel V] [--truncation T] [--max-depth D]`:
+// a session's keyframes at their final poses into a fresh volume.
+int remeshCommand(int argc, char** argv);
+// `rekon export SESSION --out DIR`: trajectory.txt, keyframes.txt, graph.g2o and mesh.ply.
+int exportCommand(int argc, char** argv);
 
 }  // namespace rekon

@@ -130,6 +130,18 @@ std::vector<std::string> servicesToRun(const Config& config, const std::string& 
 
 // A camera run: the device, its calibration and the recording folder go into
 // the effective config (config.yaml says what the run used).
+// --session DIR: a new folder (a session already there is never written
+// over), with the run's effective config beside what the services write.
+void configureSession(Config& config, const RunOptions& opt) {
+  const fs::path dir = fs::absolute(opt.session);
+  if (fs::exists(dir / "session.yaml"))
+    throw Error(dir.string() + " already holds a session; give a new folder to --session (rekon remesh and rekon export read this one)");
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  if (ec) throw Error("cannot create the session folder " + dir.string() + " (" + ec.message() + ")");
+  config.set("session.dir", dir.string());
+}
+
 void configureCamera(Config& config, const RunOptions& opt) {
   config.set("camera.device", opt.camera);
   if (!opt.calibration.empty()) config.set("camera.calibration", fs::absolute(opt.calibration).string());
@@ -152,6 +164,7 @@ RunPlan planRun(const RunOptions& opt) {
   const std::string source = frameSource(opt);
   std::vector<std::string> services = servicesToRun(config, bin, source);
   if (!opt.camera.empty()) configureCamera(config, opt);
+  if (!opt.session.empty()) configureSession(config, opt);
   // Behind a source that cannot wait, a busy mapper drops frames rather than
   // holding the tracker's next frames back.
   if (!opt.camera.empty() || config.getString("player.pacing") == "live") config.set("mapper.when_full", "drop");
@@ -163,6 +176,7 @@ RunPlan planRun(const RunOptions& opt) {
   config.set(source + ".wait_for", "[" + wait_for + "]");
   const std::string config_path = plan.out + "/config.yaml";
   config.save(config_path);
+  if (!opt.session.empty()) config.save(config.getString("session.dir") + "/config.yaml");
   // The report and the evaluation find the dataset (and its ground truth) from here.
   if (!opt.dataset.empty()) std::ofstream(plan.out + "/dataset.txt") << fs::canonical(opt.dataset).string() << "\n";
 
@@ -441,6 +455,7 @@ int runCommand(int argc, char** argv) {
       .option("calibration", "with --camera: camera.yaml for the device (default: what the device reports)")
       .option("record", "with --camera: also record every captured frame into this new folder (a TUM dataset)")
       .option("out", "output folder (required)")
+      .option("session", "also keep a session in this new folder as the run goes: rekon remesh and rekon export read it")
       .option("config", "YAML config laid over config/default.yaml")
       .repeated("set", "override one config key, e.g. --set mapper.voxel_size=0.02")
       .flag("report", "also write report.html (mesh views, trajectory, timing, stats) into --out")
@@ -452,6 +467,7 @@ int runCommand(int argc, char** argv) {
   opt.calibration = args.get("calibration");
   opt.record = args.get("record");
   opt.out = args.get("out");
+  opt.session = args.get("session");
   opt.config_file = args.get("config");
   opt.sets = args.all("set");
   opt.report = args.flagSet("report");

@@ -44,6 +44,7 @@ MapperParams MapperParams::fromConfig(const Config& c) {
   p.use_store = c.getBool("mapper.use_store");
   p.resume = c.getBool("mapper.resume");
   p.store = store::StoreOptions::fromConfig(c);  // segment, size and spill folder (mapper.store_*)
+  p.session_dir = c.getString("session.dir");
   return p;
 }
 
@@ -84,6 +85,11 @@ void Mapper::restoreFromStore() {
     KeyframeRecord rec;
     rec.kf = store_->load(i);
     next_kf_id_ = std::max(next_kf_id_, rec.kf.id + 1);
+    // The old instance died between the store and the session: the session gets it now.
+    if (session_ && !session_->has(rec.kf.id)) {
+      writeAnchorPoses();
+      session_->addKeyframe(rec.kf);
+    }
     keyframes_.push_back(std::move(rec));
     if (infos[i].integrated) {
       // Straight into the volume, not through integrateKeyframe: the store
@@ -115,6 +121,22 @@ void Mapper::ensureCamera(const Intrinsics& k) {
     store_ = store::KeyframeStore::openOrCreate(params_.store, k);
     spdlog::info("keyframe store '{}' created ({} MiB)", params_.store.segment, params_.store.size_mb);
   }
+  if (!params_.session_dir.empty() && !session_) {
+    store::SessionInfo info;
+    info.camera = k;
+    info.voxel_size = params_.volume.voxel_size;
+    info.truncation = params_.volume.truncation;
+    info.max_depth = params_.volume.max_depth;
+    session_ = std::make_unique<store::SessionWriter>(params_.session_dir, info, params_.resume);
+    spdlog::info("session {}: keyframes, poses and frames are written as the run goes", params_.session_dir);
+  }
+}
+
+void Mapper::writeAnchorPoses() {
+  if (!session_) return;
+  std::map<int64_t, Pose> poses = graph_poses_;
+  poses.insert(estimates_.begin(), estimates_.end());  // a graph pose wins over the odometry estimate
+  session_->setAnchorPoses(poses);
 }
 
 void Mapper::setKeyframeEstimate(int64_t keyframe_id, const Pose& world) {
@@ -154,6 +176,7 @@ bool Mapper::addFrame(const RgbdFrame& frame, const Intrinsics& k, int64_t keyfr
     return false;
   }
   const Pose world = orthonormalised(*anchor * pose_in_keyframe);
+  if (session_) session_->addFrame({frame.id, frame.timestamp, keyframe_id, pose_in_keyframe});
   double t0 = clockMs();
   if (fuser_->startsNewKeyframe(keyframe_id, world)) {
     counters_.fuse_ms_total += clockMs() - t0;
@@ -176,6 +199,10 @@ void Mapper::closeKeyframe() {
   counters_.fuse_ms_total += clockMs() - t0;
   ++counters_.kf_keyframes;
   if (store_) store_->add(rec.kf);
+  if (session_) {
+    writeAnchorPoses();  // first: a keyframe in the session always finds its anchor
+    session_->addKeyframe(rec.kf);
+  }
   keyframes_.push_back(std::move(rec));
   const auto pose = currentPose(keyframes_.back().kf);
   if (!pose) throw Error("mapper: KF keyframe's DVO keyframe lost its pose");  // anchors are never forgotten
@@ -231,6 +258,7 @@ ReintegrationRound Mapper::applyGraphUpdate(const std::vector<std::pair<int64_t,
     if (store_) store_->setAnchorPose(id, pose);
   }
   ++counters_.graph_updates;
+  writeAnchorPoses();
   const std::vector<double> moved = movements();
   const auto chosen = selectForReintegration(params_.mode, moved, params_.m, params_.min_movement);
   const ReintegrationRound round = reintegrate(chosen);

@@ -22,7 +22,7 @@ constexpr auto kIdleWait = std::chrono::milliseconds(100);
 // Until the upstream's done (or a stop): applies what the inbox queued and,
 // when it brought new edges, optimises within the background budget and
 // publishes the graph update.
-void optimiseWhileStreaming(ServiceContext& ctx, Inbox& inbox, GraphWorker& worker) {
+void optimiseWhileStreaming(ServiceContext& ctx, Inbox& inbox, GraphWorker& worker, SessionGraph& session) {
   for (;;) {
     bool done = false;
     const bool new_edges = worker.apply(inbox.waitForGraphItems(kIdleWait, &done));
@@ -30,6 +30,7 @@ void optimiseWhileStreaming(ServiceContext& ctx, Inbox& inbox, GraphWorker& work
     if (!new_edges) continue;
     ctx.bus().publish(channel::kGraphUpdates, worker.optimise(false, inbox.lastFrameId()));
     const PoseGraph& graph = worker.graph();
+    session.afterOptimisation(graph, false);
     ctx.setLive("keyframes", static_cast<double>(graph.numKeyframes()));
     ctx.setLive("loop_closures", static_cast<double>(graph.numLoopEdges()));
     ctx.setLive("graph_updates", static_cast<double>(worker.optimisations()));
@@ -81,11 +82,13 @@ void runOptimiserService(ServiceContext& ctx) {
   GraphWorker worker(params.graph);
   ReplayClient replays(ctx, inbox);
   recoverAtStart(ctx, peers, replays, inbox, worker);
-  optimiseWhileStreaming(ctx, inbox, worker);
+  SessionGraph session(ctx.config());
+  optimiseWhileStreaming(ctx, inbox, worker, session);
 
   ctx.setState("finishing");
   fillWhatWasLost(ctx, peers, replays, inbox, worker);
   const rekon_msgs::graph_update_t final_update = worker.optimise(true, inbox.lastFrameId());
+  session.afterOptimisation(worker.graph(), true);
   const Inbox::Final final_state = inbox.takeFinal();
   worker.countRejected(final_state.rejected);
   const size_t trajectory_frames = writeTrajectoryAndTiming(ctx, worker, final_state.frames);

@@ -7,7 +7,9 @@
 #include <string>
 
 #include "rekon/common/error.hpp"
+#include "rekon/common/files.hpp"
 #include "rekon/common/pose.hpp"
+#include "rekon/optimiser/g2o.hpp"
 
 namespace rekon::optimiser {
 namespace {
@@ -52,6 +54,24 @@ void setStats(ServiceContext& ctx, const GraphWorker& worker, size_t trajectory_
   spdlog::info("{} keyframes, {} loop closures kept, {} removed, {} optimisations ({:.1f} ms mean)",
                graph.numKeyframes(), graph.numLoopEdges(), graph.loopEdgesRemoved(), worker.optimisations(),
                worker.optimiseMsMean());
+}
+
+SessionGraph::SessionGraph(const Config& config)
+    : interval_(config.getDouble("session.graph_interval_s")) {
+  const std::string dir = config.getString("session.dir");
+  if (dir.empty()) return;
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (ec) throw Error("cannot create the session folder " + dir + " (" + ec.message() + ")");
+  path_ = (std::filesystem::path(dir) / "graph.g2o").string();
+}
+
+void SessionGraph::afterOptimisation(const PoseGraph& graph, bool final) {
+  const auto now = std::chrono::steady_clock::now();
+  if (path_.empty() || (!final && now - last_ < interval_)) return;
+  last_ = now;
+  writeFileAtomically(path_, toG2o(graph));
+  if (final) spdlog::info("wrote the pose graph ({} keyframes) to {}", graph.numKeyframes(), path_);
 }
 
 }  // namespace rekon::optimiser

@@ -3,7 +3,9 @@
 // frame at its keyframe's optimised pose), <out>/optimiser_timing.csv (one
 // row per optimisation, in the report's format: tools/report run_files.hpp)
 // and its stats (written by the service context).
+#include <chrono>
 #include <cstddef>
+#include <string>
 #include <vector>
 
 #include "graph_worker.hpp"
@@ -17,5 +19,18 @@ namespace rekon::optimiser {
 size_t writeTrajectoryAndTiming(const ServiceContext& ctx, const GraphWorker& worker,
                                 const std::vector<TrackedFrame>& frames);
 void setStats(ServiceContext& ctx, const GraphWorker& worker, size_t trajectory_frames);
+
+// The pose graph in the session folder (session.dir), as graph.g2o: after an
+// optimisation at most every session.graph_interval_s, and after the final one.
+class SessionGraph {
+ public:
+  explicit SessionGraph(const Config& config);
+  void afterOptimisation(const PoseGraph& graph, bool final);
+
+ private:
+  std::string path_;  // "" without a session
+  std::chrono::duration<double> interval_;
+  std::chrono::steady_clock::time_point last_{};
+};
 
 }  // namespace rekon::optimiser

@@ -505,6 +505,14 @@ std::vector<Constraint> PoseGraph::loopEdges() const {
   return out;
 }
 
+std::vector<Constraint> PoseGraph::constraints() const {
+  std::vector<Constraint> out;
+  for (const Edge& e : edges_) {
+    if (e.kept) out.push_back(e.c);
+  }
+  return out;
+}
+
 std::vector<double> PoseGraph::loopChi2() const {
   std::vector<double> out;
   for (const Edge& e : edges_) {

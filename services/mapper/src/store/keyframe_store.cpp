@@ -67,7 +67,7 @@ struct Header {
   bip::interprocess_mutex mutex;
 };
 
-size_t imageBytes(int w, int h) { return static_cast<size_t>(w) * h * (4 + 4 + 3); }
+size_t imageBytes(int w, int h) { return keyframeImageBytes(w, h); }
 
 std::string spillDirOf(const Header& h) { return std::string(h.spill_dir, strnlen(h.spill_dir, sizeof(h.spill_dir))); }
 
@@ -86,8 +86,6 @@ void removeSpillFiles(const std::string& dir, const std::string& segment) {
 }
 
 fusion::FusedKeyframe unpack(const ShmKeyframe& k, const uint8_t* data, int width, int height) {
-  const size_t pixels = static_cast<size_t>(width) * height;
-  uint8_t* bytes = const_cast<uint8_t*>(data);  // cv::Mat wants non-const; only cloned from
   fusion::FusedKeyframe kf;
   kf.id = k.id;
   kf.anchor_keyframe_id = k.anchor;
@@ -96,9 +94,7 @@ fusion::FusedKeyframe unpack(const ShmKeyframe& k, const uint8_t* data, int widt
   kf.last_frame_id = k.last_frame;
   kf.frames = k.frames;
   kf.timestamp = k.timestamp;
-  kf.depth = cv::Mat(height, width, CV_32F, bytes).clone();
-  kf.weight = cv::Mat(height, width, CV_32F, bytes + 4 * pixels).clone();
-  kf.color = cv::Mat(height, width, CV_8UC3, bytes + 8 * pixels).clone();
+  unpackKeyframeImages(data, width, height, kf);
   return kf;
 }
 
@@ -401,10 +397,7 @@ void KeyframeStore::add(const fusion::FusedKeyframe& kf) {
     else camera = impl_->newestPosition();
     data = impl_->allocate(imageBytes(h.width, h.height), what, camera);
   }
-  const size_t pixels = static_cast<size_t>(h.width) * h.height;
-  kf.depth.copyTo(cv::Mat(h.height, h.width, CV_32F, data));
-  kf.weight.copyTo(cv::Mat(h.height, h.width, CV_32F, data + 4 * pixels));
-  kf.color.copyTo(cv::Mat(h.height, h.width, CV_8UC3, data + 8 * pixels));
+  packKeyframeImages(kf, data);
   ShmKeyframe rec{};
   rec.id = kf.id;
   rec.anchor = kf.anchor_keyframe_id;

@@ -37,6 +37,24 @@ std::string reason() { return std::strerror(errno); }
 
 }  // namespace
 
+size_t keyframeImageBytes(int width, int height) { return static_cast<size_t>(width) * height * (4 + 4 + 3); }
+
+void packKeyframeImages(const fusion::FusedKeyframe& kf, uint8_t* out) {
+  const int w = kf.depth.cols, h = kf.depth.rows;
+  const size_t pixels = static_cast<size_t>(w) * h;
+  kf.depth.copyTo(cv::Mat(h, w, CV_32F, out));
+  kf.weight.copyTo(cv::Mat(h, w, CV_32F, out + 4 * pixels));
+  kf.color.copyTo(cv::Mat(h, w, CV_8UC3, out + 8 * pixels));
+}
+
+void unpackKeyframeImages(const uint8_t* data, int width, int height, fusion::FusedKeyframe& kf) {
+  const size_t pixels = static_cast<size_t>(width) * height;
+  uint8_t* bytes = const_cast<uint8_t*>(data);  // cv::Mat wants non-const; only cloned from
+  kf.depth = cv::Mat(height, width, CV_32F, bytes).clone();
+  kf.weight = cv::Mat(height, width, CV_32F, bytes + 4 * pixels).clone();
+  kf.color = cv::Mat(height, width, CV_8UC3, bytes + 8 * pixels).clone();
+}
+
 std::string spillFilePath(const std::string& dir, const std::string& segment, int64_t id) {
   return (std::filesystem::path(dir) / (segment + "_kf_" + std::to_string(id) + ".rks")).string();
 }
@@ -81,9 +99,9 @@ void writeSpillFile(const std::string& path, int64_t id, int width, int height, 
   if (std::rename(tmp.c_str(), path.c_str()) != 0) fail("rename");
 }
 
-void readSpillFile(const std::string& path, int64_t id, int width, int height, uint8_t* payload, size_t bytes) {
-  const std::string lost = "; keyframe " + std::to_string(id) +
-                           " is lost (remove the store with rekon keyframes --remove and map again)";
+void readSpillFile(const std::string& path, int64_t id, int width, int height, uint8_t* payload, size_t bytes,
+                   const std::string& fix) {
+  const std::string lost = "; keyframe " + std::to_string(id) + " is lost (" + fix + ")";
   std::FILE* f = std::fopen(path.c_str(), "rb");
   if (f == nullptr)
     throw Error("keyframe spill file " + path + " cannot be opened (" + reason() + ")" + lost);

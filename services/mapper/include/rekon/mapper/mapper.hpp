@@ -15,6 +15,7 @@
 #include "rekon/mapper/fusion/keyframe_fusion.hpp"
 #include "rekon/mapper/reintegration.hpp"
 #include "rekon/mapper/store/keyframe_store.hpp"
+#include "rekon/mapper/store/session.hpp"
 #include "rekon/mapper/volume/tsdf_volume.hpp"
 
 namespace rekon::mapper {
@@ -38,6 +39,9 @@ struct MapperParams {
   // mapper (true), or discard it as stale (false).
   bool resume = false;
   store::StoreOptions store;
+  // session.dir: the session folder written as the run goes ("" = none;
+  // store/session.hpp). With `resume` an existing one is written on.
+  std::string session_dir;
 
   static MapperParams fromConfig(const Config& config);
 };
@@ -146,6 +150,8 @@ class Mapper {
   MapperParams params_;
   std::unique_ptr<volume::TsdfVolume> volume_;
   std::unique_ptr<store::KeyframeStore> store_;
+  std::unique_ptr<store::SessionWriter> session_;
+  void writeAnchorPoses();  // to the session, when there is one
   std::optional<Intrinsics> camera_;
   std::unique_ptr<fusion::KeyframeFuser> fuser_;
   std::map<int64_t, Pose> estimates_;    // keyframe_t

@@ -96,6 +96,8 @@ class PoseGraph {
   size_t loopEdgesRemoved() const { return loop_edges_removed_; }
   // The kept loop edges, in insertion order.
   std::vector<Constraint> loopEdges() const;
+  // Every kept edge (odometry and loop), in insertion order.
+  std::vector<Constraint> constraints() const;
   // chi2 = r^T I r of every kept loop edge at the current poses, in insertion order.
   std::vector<double> loopChi2() const;
   const PoseGraphParams& params() const { return params_; }

@@ -1,0 +1,160 @@
+// `rekon run --session` on the synthetic room, read back by `rekon remesh`
+// and `rekon export`; runs killed mid-way (the mapper alone, or everything at
+// once) leave sessions that open; a second run never writes over a session.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <regex>
+
+#include "rekon/common/mesh.hpp"
+#include "test_support.hpp"
+
+namespace {
+
+namespace fs = std::filesystem;
+using rekon::test::binDir;
+using rekon::test::readText;
+using rekon::test::runCommand;
+using rekon::test::valueAfter;
+
+constexpr int kFrames = 150;
+
+// CORR of `mesh` against `reference`; with `trajectories` ("--est-trajectory
+// EST --gt-trajectory GT") the mesh is first moved into the reference's world.
+double corr(const std::string& mesh, const std::string& reference, const std::string& trajectories = "") {
+  std::string out;
+  runCommand(binDir() + "/rekon eval surface " + mesh + " " + reference + " " + trajectories, &out);
+  return valueAfter(out, "corr_m");
+}
+
+double ate(const std::string& groundtruth, const std::string& trajectory) {
+  std::string out;
+  runCommand(binDir() + "/rekon eval traj " + groundtruth + " " + trajectory, &out);
+  return valueAfter(out, "ate_rmse_m");
+}
+
+// The room's frames and one run with --session, shared by the tests.
+class SessionRun : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    dir_ = new rekon::test::TempDir();
+    ASSERT_EQ(runCommand("timeout 120 " + binDir() + "/rekon synth --scene room --frames " + std::to_string(kFrames) +
+                         " --out " + data()), 0);
+    run_rc_ = runCommand(rekon::test::inNetns() + " timeout 240 " + binDir() + "/rekon run --dataset " + data() +
+                             " --out " + run() + " --session " + session(),
+                         &run_log_);
+  }
+  static void TearDownTestSuite() {
+    delete dir_;
+    dir_ = nullptr;
+  }
+  void SetUp() override { ASSERT_EQ(run_rc_, 0) << run_log_; }
+  static std::string data() { return *dir_ / "room"; }
+  static std::string run() { return *dir_ / "run"; }
+  static std::string session() { return *dir_ / "session"; }
+  static rekon::test::TempDir* dir_;
+  static int run_rc_;
+  static std::string run_log_;
+};
+rekon::test::TempDir* SessionRun::dir_ = nullptr;
+int SessionRun::run_rc_ = -1;
+std::string SessionRun::run_log_;
+
+// Re-meshing at the session's voxel size reproduces the run's mesh; at 5 mm
+// the mesh is ~4.7x finer. It is not closer to the truth here: the room's
+// Kinect-like noise (disparity steps of several mm at 1-3 m) is above 5 mm's
+// averaging, and CORR measured 1.42 / 1.57 / 1.64 / 1.76 mm at 20 / 10 / 7.5 /
+// 5 mm voxels. So the 5 mm mesh is bounded to 1.25x the 1 cm CORR (1.12x measured).
+TEST_F(SessionRun, RemeshReproducesTheRunsMeshAndRebuildsItAtFinerVoxels) {
+  std::string out1, out5;
+  ASSERT_EQ(runCommand(binDir() + "/rekon remesh " + session() + " --out " + (*dir_ / "remesh_1cm.ply"), &out1), 0) << out1;
+  ASSERT_EQ(runCommand(binDir() + "/rekon remesh " + session() + " --voxel 0.005 --out " + (*dir_ / "remesh_5mm.ply"), &out5), 0)
+      << out5;
+  // At the session's own settings: the run's keyframes at the run's final poses, the run's mesh.
+  // 0.103 mm measured: the run's mesh went through de- and re-integrations, the re-mesh did not.
+  const double same = corr(*dir_ / "remesh_1cm.ply", run() + "/mesh.ply");
+  EXPECT_GE(same, 0.0);
+  EXPECT_LT(same, 5e-4);
+  const std::string into_gt = "--est-trajectory " + run() + "/trajectory.txt --gt-trajectory " + data() + "/groundtruth.txt";
+  const double run_corr = corr(run() + "/mesh.ply", data() + "/mesh_gt.ply", into_gt);
+  const double fine_corr = corr(*dir_ / "remesh_5mm.ply", data() + "/mesh_gt.ply", into_gt);
+  EXPECT_GT(run_corr, 0.0);
+  EXPECT_LT(fine_corr, 1.25 * run_corr);
+  const auto triangles = [](const std::string& out) { return valueAfter(out, "triangles"); };
+  EXPECT_GT(triangles(out5), 4 * triangles(out1));  // 2544789 vs 542095 measured
+  const double run_s = rekon::test::jsonNumber(readText(run() + "/stats.json"), "wall_seconds");
+  std::cout << "CORR 1 cm run " << run_corr << " m, 5 mm re-mesh " << fine_corr << " m; re-mesh at 1 cm vs mesh.ply " << same
+            << " m; re-mesh 5 mm " << valueAfter(out5, "seconds") << " s vs run " << run_s << " s\n";
+}
+
+TEST_F(SessionRun, ExportWritesTheRunsTrajectoryItsGraphAndAMesh) {
+  std::string out;
+  ASSERT_EQ(runCommand(binDir() + "/rekon export " + session() + " --out " + (*dir_ / "export"), &out), 0) << out;
+  // The fused frames at the final graph's poses: the optimiser's trajectory.txt.
+  const double run_ate = ate(data() + "/groundtruth.txt", run() + "/trajectory.txt");
+  const double export_ate = ate(data() + "/groundtruth.txt", *dir_ / "export/trajectory.txt");
+  EXPECT_GT(run_ate, 0.0);
+  EXPECT_NEAR(export_ate, run_ate, 1e-6);
+  const std::string g2o = readText(*dir_ / "export/graph.g2o");
+  const std::regex vertex("VERTEX_SE3:QUAT");
+  const auto vertices = std::distance(std::sregex_iterator(g2o.begin(), g2o.end(), vertex), std::sregex_iterator());
+  EXPECT_EQ(vertices, rekon::test::jsonInt(readText(run() + "/optimiser_stats.json"), "keyframes"));
+  EXPECT_NE(g2o.find("EDGE_SE3:QUAT"), std::string::npos);
+  EXPECT_GT(rekon::readPly(*dir_ / "export/mesh.ply").triangles.size(), 10000u);
+  // Refused: writing into the session itself.
+  EXPECT_NE(runCommand(binDir() + "/rekon export " + session() + " --out " + session(), &out), 0);
+  EXPECT_NE(out.find("the session folder itself"), std::string::npos) << out;
+}
+
+TEST_F(SessionRun, ASecondRunNeverWritesOverTheSession) {
+  const std::string anchors = readText(session() + "/anchors.txt"), yaml = readText(session() + "/session.yaml");
+  std::string out;
+  EXPECT_NE(runCommand(binDir() + "/rekon run --dataset " + data() + " --out " + (*dir_ / "again") + " --session " + session(), &out), 0);
+  EXPECT_NE(out.find("already holds a session"), std::string::npos) << out;
+  EXPECT_EQ(readText(session() + "/anchors.txt"), anchors);
+  EXPECT_EQ(readText(session() + "/session.yaml"), yaml);
+}
+
+// tests/faults/kill_during_run.sh: SERVICE killed with SIGKILL once the
+// mapper's store holds 3 KF keyframes ("all": every process at once).
+std::string runKilling(const std::string& service, const rekon::test::TempDir& dir) {
+  EXPECT_EQ(runCommand("timeout 120 " + binDir() + "/rekon synth --scene room --frames " + std::to_string(kFrames) +
+                       " --out " + (dir / "room")), 0);
+  std::string out;
+  runCommand(rekon::test::inNetns() + " " + rekon::test::sourceDir() + "/tests/faults/kill_during_run.sh " + binDir() +
+                 " " + service + " 3 " + (dir / "run") + " --dataset " + (dir / "room") + " --session " + (dir / "session"),
+             &out);
+  return out + "\nrekon run:\n" + readText(dir / "run/run.out");
+}
+
+// Everything killed at once: the session holds the keyframes written before
+// (at least the 3 the store held, less any in flight) and re-meshes.
+TEST(SessionKilled, ARunKilledWholeLeavesASessionThatOpensAndRemeshes) {
+  rekon::test::TempDir dir;
+  const std::string log = runKilling("all", dir);
+  ASSERT_NE(log.find("killed all"), std::string::npos) << log;
+  std::string out;
+  ASSERT_EQ(runCommand(binDir() + "/rekon remesh " + (dir / "session") + " --out " + (dir / "remesh.ply"), &out), 0) << out;
+  EXPECT_GE(valueAfter(out, "keyframes"), 2) << out;
+  EXPECT_GT(rekon::readPly(dir / "remesh.ply").triangles.size(), 1000u);
+  EXPECT_EQ(runCommand(binDir() + "/rekon export " + (dir / "session") + " --out " + (dir / "export"), &out), 0) << out;
+  // A run killed whole leaves its shared memory (frame ring, keyframe store): removed here.
+  for (const std::string& segment : rekon::test::leftoverSegments(dir / "run")) {
+    runCommand(binDir() + "/rekon keyframes --remove --segment " + segment + "; rm -f /dev/shm/" + segment);
+  }
+}
+
+// The mapper killed and restarted by rekon run goes on writing the same
+// session, which then re-meshes into the run's mesh.
+TEST(SessionKilled, AMapperRestartedMidRunGoesOnWritingTheSameSession) {
+  rekon::test::TempDir dir;
+  const std::string log = runKilling("mapper", dir);
+  ASSERT_NE(log.find("killed rekon-mapper"), std::string::npos) << log;
+  std::string out;
+  ASSERT_EQ(runCommand(binDir() + "/rekon remesh " + (dir / "session") + " --out " + (dir / "remesh.ply"), &out), 0) << out;
+  const double same = corr(dir / "remesh.ply", dir / "run/mesh.ply");
+  EXPECT_GE(same, 0.0);
+  EXPECT_LT(same, 5e-4) << out;  // as an uninterrupted run's: 0.103 mm measured
+}
+
+}  // namespace
