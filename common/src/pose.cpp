@@ -1,5 +1,7 @@
 #include "rekon/common/pose.hpp"
 
+#include <fmt/format.h>
+
 #include <Eigen/SVD>
 #include <algorithm>
 #include <cmath>
@@ -8,6 +10,7 @@
 #include <sstream>
 
 #include "rekon/common/error.hpp"
+#include "rekon/common/pose_text.hpp"
 
 namespace rekon {
 
@@ -80,16 +83,17 @@ Trajectory readTumTrajectory(const std::string& path) {
   return out;
 }
 
+std::string poseText(const Pose& pose) {
+  const Eigen::Quaterniond q(pose.linear());
+  const Eigen::Vector3d t = pose.translation();
+  return fmt::format("{:.9f} {:.9f} {:.9f} {:.9f} {:.9f} {:.9f} {:.9f}", t.x(), t.y(), t.z(), q.x(), q.y(), q.z(), q.w());
+}
+
 void writeTumTrajectory(const Trajectory& trajectory, const std::string& path) {
   std::ofstream out(path);
   if (!out) throw Error(path + ": cannot write trajectory; check the output folder");
-  out << "# timestamp tx ty tz qx qy qz qw\n" << std::fixed;
-  for (const auto& s : trajectory) {
-    const Eigen::Quaterniond q(s.pose.linear());
-    const Eigen::Vector3d t = s.pose.translation();
-    out << std::setprecision(6) << s.timestamp << std::setprecision(9) << ' ' << t.x() << ' ' << t.y() << ' '
-        << t.z() << ' ' << q.x() << ' ' << q.y() << ' ' << q.z() << ' ' << q.w() << '\n';
-  }
+  out << "# timestamp tx ty tz qx qy qz qw\n" << std::fixed << std::setprecision(6);
+  for (const auto& s : trajectory) out << s.timestamp << ' ' << poseText(s.pose) << '\n';
   if (!out) throw Error(path + ": write failed; check free disk space");
 }
 

@@ -185,7 +185,7 @@ TEST(SessionFiles, PoseGraphInG2oFormat) {
   graph.addConstraint(c);
   const std::string g2o = optimiser::toG2o(graph);
   EXPECT_NE(g2o.find("VERTEX_SE3:QUAT 0 "), std::string::npos) << g2o;
-  EXPECT_NE(g2o.find("VERTEX_SE3:QUAT 1 0.5 0.1 -0.2 "), std::string::npos) << g2o;
+  EXPECT_NE(g2o.find("VERTEX_SE3:QUAT 1 0.500000000 0.100000000 -0.200000000 "), std::string::npos) << g2o;
   EXPECT_NE(g2o.find("FIX 0\n"), std::string::npos) << g2o;
   const size_t edge = g2o.find("EDGE_SE3:QUAT 0 1 ");
   ASSERT_NE(edge, std::string::npos) << g2o;

@@ -128,8 +128,6 @@ std::vector<std::string> servicesToRun(const Config& config, const std::string& 
   return services;
 }
 
-// A camera run: the device, its calibration and the recording folder go into
-// the effective config (config.yaml says what the run used).
 // --session DIR: a new folder (a session already there is never written
 // over), with the run's effective config beside what the services write.
 void configureSession(Config& config, const RunOptions& opt) {
@@ -142,6 +140,8 @@ void configureSession(Config& config, const RunOptions& opt) {
   config.set("session.dir", dir.string());
 }
 
+// A camera run: the device, its calibration and the recording folder go into
+// the effective config (config.yaml says what the run used).
 void configureCamera(Config& config, const RunOptions& opt) {
   config.set("camera.device", opt.camera);
   if (!opt.calibration.empty()) config.set("camera.calibration", fs::absolute(opt.calibration).string());

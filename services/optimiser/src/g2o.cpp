@@ -2,16 +2,9 @@
 
 #include <fmt/format.h>
 
+#include "rekon/common/pose_text.hpp"
+
 namespace rekon::optimiser {
-namespace {
-
-std::string poseText(const Pose& p) {
-  const Eigen::Vector3d t = p.translation();
-  const Eigen::Quaterniond q(p.rotation());
-  return fmt::format("{:.9g} {:.9g} {:.9g} {:.9g} {:.9g} {:.9g} {:.9g}", t.x(), t.y(), t.z(), q.x(), q.y(), q.z(), q.w());
-}
-
-}  // namespace
 
 std::string toG2o(const PoseGraph& graph) {
   std::string out;

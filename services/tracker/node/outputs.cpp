@@ -59,6 +59,13 @@ void writeOutputs(ServiceContext& ctx, const TrackingTotals& totals, int64_t fra
       .set("loop_checks_dropped", static_cast<long long>(loops.checks_dropped))
       .set("loop_check_ms_per_keyframe",
            loops.check_ms / static_cast<double>(std::max<int64_t>(loops.keyframes_checked, 1)));
+  LostIntervals lost = totals.lost_intervals;
+  lost.finish();
+  ctx.stats().set("lost_intervals_count", static_cast<long long>(lost.count())).setRaw("lost_intervals", lost.json());
+  for (const LostInterval& i : lost.intervals()) {
+    spdlog::info("lost from frame {} to {} ({} frames, {:.2f} s, {}): {}", i.first_frame, i.last_frame, i.frames, i.seconds,
+                 i.reason, i.ended);
+  }
   if (!ctx.outDir().empty()) {
     const std::string path = (std::filesystem::path(ctx.outDir()) / "odometry.txt").string();
     writeTumTrajectory(totals.odometry, path);

@@ -33,6 +33,7 @@ bool TrackingWorker::track(const rekon_msgs::frame_t& msg) {
   totals_.keyframes += r.new_keyframe;
   totals_.constraints += r.odometry.has_value();
   totals_.odometry.push_back({r.timestamp, r.pose_world});
+  totals_.lost_intervals.add(r);
   if (r.state == TrackingState::Lost) spdlog::warn("frame {}: lost ({})", r.frame_id, toString(r.lost_reason));
   history_.publishResult(r);
   if (r.new_keyframe) loops_.submit(tracker_.currentKeyframe(), r.odometry);

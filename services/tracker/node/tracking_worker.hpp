@@ -12,6 +12,7 @@
 #include "rekon/common/frame_transport.hpp"
 #include "rekon/common/pose.hpp"
 #include "rekon/tracker/loop_closure.hpp"
+#include "rekon/tracker/lost_intervals.hpp"
 #include "rekon/tracker/params.hpp"
 #include "rekon/tracker/tracker.hpp"
 #include "rekon_msgs/frame_t.hpp"
@@ -26,6 +27,7 @@ struct TrackingTotals : TrackingCounts {
   double track_cpu_s = 0.0;
   std::vector<std::pair<int64_t, double>> frame_ms;  // wall time of track() (pyramid included) per frame
   Trajectory odometry;                               // world poses by odometry alone
+  LostIntervals lost_intervals;
 };
 
 class TrackingWorker {

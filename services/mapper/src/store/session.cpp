@@ -11,6 +11,7 @@
 #include <sstream>
 
 #include "rekon/common/error.hpp"
+#include "rekon/common/pose_text.hpp"
 #include "rekon/common/files.hpp"
 #include "spill_file.hpp"
 
@@ -26,13 +27,6 @@ std::string imagesPath(const std::string& dir, int64_t id) {
   return join(keyframeDir(dir), fmt::format("kf_{:06d}.rks", id));
 }
 std::string metaPath(const std::string& dir, int64_t id) { return join(keyframeDir(dir), fmt::format("kf_{:06d}.txt", id)); }
-
-// "tx ty tz qx qy qz qw", 9 significant digits (well below a micrometre).
-std::string poseText(const Pose& p) {
-  const Eigen::Vector3d t = p.translation();
-  const Eigen::Quaterniond q(p.rotation());
-  return fmt::format("{:.9g} {:.9g} {:.9g} {:.9g} {:.9g} {:.9g} {:.9g}", t.x(), t.y(), t.z(), q.x(), q.y(), q.z(), q.w());
-}
 
 // Seven finite numbers with a unit quaternion (within 1e-6) from `in`; nullopt otherwise.
 std::optional<Pose> readPose(std::istream& in) {
