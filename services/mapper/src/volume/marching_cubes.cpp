@@ -241,6 +241,23 @@ void blockTriangles(const Lattice& lattice, const std::vector<BlockCoord>& coord
   }
 }
 
+// f(b, triangles of block b) for every b < count, on parallelFor's workers
+// (max_workers as there; each has its own scratch grid).
+template <class F>
+void forEachBlockTriangles(const Lattice& lattice, const std::vector<BlockCoord>& coords,
+                           const std::vector<const Voxel*>& blocks, int count, float truncation, int max_workers, F f) {
+  parallelFor(count, kGrain, max_workers, [&](int begin, int end, int) {
+    Grid grid;
+    std::vector<int32_t> own(kBlockVoxels * 3);
+    TriangleRefs refs;
+    for (int b = begin; b < end; ++b) {
+      refs.clear();
+      blockTriangles(lattice, coords, blocks, b, truncation, grid, own, refs);
+      f(b, refs);
+    }
+  });
+}
+
 // Block b's own mesh: every vertex it owns (in order), then those of its
 // neighbours that its triangles use.
 BlockMesh blockMesh(const Lattice& lattice, const std::vector<BlockCoord>& coords, int b, const TriangleRefs& refs) {
@@ -289,18 +306,11 @@ Mesh marchingCubes(const std::vector<BlockCoord>& coords, const std::vector<cons
   }
   const int n = static_cast<int>(coords.size());
   std::vector<std::vector<Eigen::Vector3i>> triangles(n);
-  parallelFor(n, kGrain, 0, [&](int begin, int end, int) {
-    Grid grid;
-    std::vector<int32_t> own(kBlockVoxels * 3);
-    TriangleRefs refs;
-    for (int b = begin; b < end; ++b) {
-      refs.clear();
-      blockTriangles(lattice, coords, blocks, b, truncation, grid, own, refs);
-      for (const auto& tri : refs) {
-        Eigen::Vector3i t;
-        for (int j = 0; j < 3; ++j) t[j] = static_cast<int>(lattice.vertices[tri[j].block].offset + tri[j].index);
-        triangles[b].push_back(t);
-      }
+  forEachBlockTriangles(lattice, coords, blocks, n, truncation, 0, [&](int b, const TriangleRefs& refs) {
+    for (const auto& tri : refs) {
+      Eigen::Vector3i t;
+      for (int j = 0; j < 3; ++j) t[j] = static_cast<int>(lattice.vertices[tri[j].block].offset + tri[j].index);
+      triangles[b].push_back(t);
     }
   });
 
@@ -324,16 +334,8 @@ std::vector<BlockMesh> marchingCubesPerBlock(const std::vector<BlockCoord>& coor
   // integration, and the caller's thread CPU clock measures all they cost.
   const Lattice lattice = buildLattice(coords, blocks, voxel_size, truncation, 1);
   std::vector<BlockMesh> out(wanted);
-  parallelFor(wanted, kGrain, 1, [&](int begin, int end, int) {
-    Grid grid;
-    std::vector<int32_t> own(kBlockVoxels * 3);
-    TriangleRefs refs;
-    for (int b = begin; b < end; ++b) {
-      refs.clear();
-      blockTriangles(lattice, coords, blocks, b, truncation, grid, own, refs);
-      out[b] = blockMesh(lattice, coords, b, refs);
-    }
-  });
+  forEachBlockTriangles(lattice, coords, blocks, wanted, truncation, 1,
+                        [&](int b, const TriangleRefs& refs) { out[b] = blockMesh(lattice, coords, b, refs); });
   return out;
 }
 
