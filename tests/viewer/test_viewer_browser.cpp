@@ -128,12 +128,7 @@ std::string stateJson(const std::string& url) {
   return out;
 }
 
-long long jsonCount(const std::string& json, const std::string& key) {
-  std::smatch m;
-  if (!std::regex_search(json, m, std::regex("\"" + key + "\":([0-9]+)"))) return -1;
-  return std::stoll(m[1]);
-}
-
+using rekon::test::jsonInt;
 using rekon::test::jsonNumber;
 
 // The first page's report in /state.json ("" before one came).
@@ -163,7 +158,7 @@ TEST(ViewerBrowser, PageReachesTheMeshOfASyntheticRun) {
                                             (dir / "room") + " --out " + (dir / "run") + " > " + (dir / "run.log") + " 2>&1");
   // Mid-run: once the map has blocks, a browser draws them.
   const auto start = Clock::now();
-  while (jsonCount(stateJson(url), "blocks") <= 0 && test::secondsSince(start) < 120) {
+  while (jsonInt(stateJson(url), "blocks") <= 0 && test::secondsSince(start) < 120) {
     std::this_thread::sleep_for(std::chrono::milliseconds(200));
   }
   const std::string live_shot = binDir() + "/../test_viewer_room_live.png";
@@ -187,7 +182,7 @@ TEST(ViewerBrowser, PageReachesTheMeshOfASyntheticRun) {
   // what the page counts is what it drew.
   long long blocks = -1, vertices = -1, triangles = -1;
   int loads = 0;
-  for (int budget = 60000; loads < 5 && blocks != jsonCount(state, "blocks"); budget *= 2, ++loads) {
+  for (int budget = 60000; loads < 5 && blocks != jsonInt(state, "blocks"); budget *= 2, ++loads) {
     std::string dom;
     runCommand(chromium(dir / ("profile2_" + std::to_string(loads))) + "--virtual-time-budget=" + std::to_string(budget) +
                    " --dump-dom " + url + " 2>/dev/null",
@@ -196,7 +191,7 @@ TEST(ViewerBrowser, PageReachesTheMeshOfASyntheticRun) {
     vertices = dataCounter(dom, "vertices");
     triangles = dataCounter(dom, "triangles");
   }
-  EXPECT_EQ(blocks, jsonCount(state, "blocks")) << state.substr(0, 200);
+  EXPECT_EQ(blocks, jsonInt(state, "blocks")) << state.substr(0, 200);
   EXPECT_GT(blocks, 0);
   // Triangles: 1 % for messages LCM may lose on a loaded machine (none were lost in the measured runs).
   EXPECT_NEAR(static_cast<double>(triangles), static_cast<double>(ply.triangles.size()), 0.01 * static_cast<double>(ply.triangles.size()));
@@ -269,18 +264,18 @@ TEST(ViewerBrowser, PageShowsTheCorrectionOfAGraphUpdate) {
     std::this_thread::sleep_for(std::chrono::milliseconds(500));
     state = stateJson(url);
     page = pageReport(state);
-  } while ((jsonCount(page, "blocks") != jsonCount(state, "blocks") ||
+  } while ((jsonInt(page, "blocks") != jsonInt(state, "blocks") ||
             std::abs(jsonNumber(page, "position_sum") - jsonNumber(state, "position_sum")) > 1e-3) &&
            test::secondsSince(end) < 60);
   const std::string mapper_stats = readText(dir / "out/mapper_stats.json");
   EXPECT_GT(rekon::test::jsonInt(mapper_stats, "final_pass_reintegrations"), 0) << mapper_stats;
-  EXPECT_EQ(jsonCount(page, "blocks"), jsonCount(state, "blocks")) << page << "\n" << state.substr(0, 400);
-  EXPECT_EQ(jsonCount(page, "vertices"), jsonCount(state, "vertices"));
-  EXPECT_EQ(jsonCount(page, "triangles"), jsonCount(state, "triangles"));
+  EXPECT_EQ(jsonInt(page, "blocks"), jsonInt(state, "blocks")) << page << "\n" << state.substr(0, 400);
+  EXPECT_EQ(jsonInt(page, "vertices"), jsonInt(state, "vertices"));
+  EXPECT_EQ(jsonInt(page, "triangles"), jsonInt(state, "triangles"));
   // float32 coordinates added up in double on both sides, in another order: ~1e-6 of the sum's size.
   EXPECT_NEAR(jsonNumber(page, "position_sum"), jsonNumber(state, "position_sum"), 1e-3) << page;
-  EXPECT_GT(jsonCount(page, "updates"), 0) << page;           // blocks replaced in place while it watched
-  EXPECT_GT(jsonCount(page, "latency_samples"), 0) << page;   // and timed from the mapper's change
+  EXPECT_GT(jsonInt(page, "updates"), 0) << page;           // blocks replaced in place while it watched
+  EXPECT_GT(jsonInt(page, "latency_samples"), 0) << page;   // and timed from the mapper's change
   EXPECT_NE(state.find("reintegrations"), std::string::npos) << state.substr(0, 2000);  // the mapper's STATS
 
   ASSERT_EQ(runCommand("curl -s --max-time 30 -o " + (dir / "page.ply") + " " + url + "mesh.ply"), 0);

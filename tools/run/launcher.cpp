@@ -23,6 +23,7 @@
 #include "rekon/common/json.hpp"
 #include "rekon/common/logging.hpp"
 #include "rekon/mapper/store/keyframe_store.hpp"
+#include "rekon/mapper/store/session.hpp"
 #include "rekon/report/run_report.hpp"
 #include "rekon/synth/synth.hpp"
 
@@ -132,8 +133,7 @@ std::vector<std::string> servicesToRun(const Config& config, const std::string& 
 // over), with the run's effective config beside what the services write.
 void configureSession(Config& config, const RunOptions& opt) {
   const fs::path dir = fs::absolute(opt.session);
-  if (fs::exists(dir / "session.yaml"))
-    throw Error(dir.string() + " already holds a session; give a new folder to --session (rekon remesh and rekon export read this one)");
+  store::requireNoSession(dir.string());
   std::error_code ec;
   fs::create_directories(dir, ec);
   if (ec) throw Error("cannot create the session folder " + dir.string() + " (" + ec.message() + ")");

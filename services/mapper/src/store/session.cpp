@@ -34,12 +34,9 @@ std::optional<Pose> readPose(std::istream& in) {
   for (double& x : v) {
     if (!(in >> x) || !std::isfinite(x)) return std::nullopt;
   }
-  Eigen::Quaterniond q(v[6], v[3], v[4], v[5]);
+  const Eigen::Quaterniond q(v[6], v[3], v[4], v[5]);
   if (std::abs(q.norm() - 1.0) > 1e-6) return std::nullopt;
-  Pose p = Pose::Identity();
-  p.linear() = q.normalized().toRotationMatrix();
-  p.translation() = Eigen::Vector3d(v[0], v[1], v[2]);
-  return p;
+  return poseFromQuatTrans(q, Eigen::Vector3d(v[0], v[1], v[2]));
 }
 
 std::string infoYaml(const SessionInfo& s) {
@@ -114,23 +111,23 @@ struct SessionWriter::Impl {
   std::ofstream frames;
 };
 
+void requireNoSession(const std::string& dir) {
+  if (fs::exists(infoPath(dir)))
+    throw Error(dir + " already holds a session; give a new folder to --session (rekon remesh and rekon export read this one)");
+}
+
 SessionWriter::SessionWriter(const std::string& dir, const SessionInfo& info, bool reopen)
     : impl_(std::make_unique<Impl>()) {
   impl_->dir = dir;
   impl_->info = info;
-  if (fs::exists(infoPath(dir))) {
-    if (!reopen)
-      throw Error(dir + " already holds a session; give a new folder to --session (rekon remesh and rekon export read this one)");
-    const SessionInfo old = readInfo(dir);
-    if (!sameCamera(old.camera, info.camera))
-      throw Error(dir + " holds a session of another camera; give a new folder to --session");
-  } else {
-    std::error_code ec;
-    fs::create_directories(keyframeDir(dir), ec);
-    if (ec) throw Error("cannot create the session folder " + dir + " (" + ec.message() + ")");
-    writeFileAtomically(infoPath(dir), infoYaml(info));
-  }
-  fs::create_directories(keyframeDir(dir));
+  const bool exists = fs::exists(infoPath(dir));
+  if (!reopen) requireNoSession(dir);
+  if (exists && !sameCamera(readInfo(dir).camera, info.camera))
+    throw Error(dir + " holds a session of another camera; give a new folder to --session");
+  std::error_code ec;
+  fs::create_directories(keyframeDir(dir), ec);
+  if (ec) throw Error("cannot create the session folder " + dir + " (" + ec.message() + ")");
+  if (!exists) writeFileAtomically(infoPath(dir), infoYaml(info));
   // A line cut short by a killed writer is ended, so that the next one stands alone.
   const std::string frames_path = join(dir, "frames.txt");
   if (std::ifstream old(frames_path, std::ios::ate | std::ios::binary); old && old.tellg() > 0) {

@@ -33,6 +33,10 @@ struct SessionFrame {
   Pose pose_in_keyframe = Pose::Identity();
 };
 
+// rekon::Error naming `dir` and the fix when it already holds a session
+// (rekon run checks before it starts anything; a new writer checks again).
+void requireNoSession(const std::string& dir);
+
 // The mapper's side: every call leaves the folder a session that opens.
 class SessionWriter {
  public:
