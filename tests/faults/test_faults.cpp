@@ -60,19 +60,24 @@ const Baseline& baseline() {
 
 using rekon::test::valueAfter;
 
-// CORR (m) of a run's mesh against the room's exact surface, the mesh moved
-// into the ground truth's world by the ATE alignment.
-double corrOf(const std::string& run) {
+// CORR and completeness (m) of a run's mesh against the room's exact surface,
+// the mesh moved into the ground truth's world by the ATE alignment.
+struct Surface {
+  double corr = -1, compl_ = -1;
+};
+Surface surfaceOf(const std::string& run) {
   const Baseline& b = baseline();
   std::string out;
   runCommand(bin() + "/rekon eval surface " + run + "/mesh.ply " + b.data + "/mesh_gt.ply --est-trajectory " + run +
                  "/trajectory.txt --gt-trajectory " + b.data + "/groundtruth.txt",
              &out);
-  const double corr = valueAfter(out, "corr_m");
-  EXPECT_GE(corr, 0.0) << out;
-  std::printf("CORR %s: %.6f mm\n", run.c_str(), 1e3 * corr);
-  return corr;
+  const Surface s{valueAfter(out, "corr_m"), valueAfter(out, "compl_m")};
+  EXPECT_GE(s.corr, 0.0) << out;
+  EXPECT_GE(s.compl_, 0.0) << out;
+  std::printf("CORR %s: %.6f mm, completeness %.6f mm\n", run.c_str(), 1e3 * s.corr, 1e3 * s.compl_);
+  return s;
 }
+double corrOf(const std::string& run) { return surfaceOf(run).corr; }
 
 // ATE RMSE (m) of a run's trajectory against the ground truth.
 double ateOf(const std::string& run) {
@@ -187,7 +192,11 @@ TEST(Faults, MapperKilledMoreOftenThanMaxRestartsStopsTheRun) {
 // lcm.drop_fraction drops received messages in every service: frames, acknowledgements,
 // keyframes, constraints, graph updates, done messages alike. Lost frames are neither
 // tracked nor fused, and which are lost differs from run to run, so the result differs from
-// the uninterrupted run's by up to the bounds given.
+// the uninterrupted run's. A lost first frame starts the whole run one frame later, from
+// another reference: measured with player.first_frame=1, 2, 3 (no loss), ATE 0.129, 0.124,
+// 0.121 mm and CORR 1.139, 1.140, 1.311 mm against the uninterrupted run's 0.227 and 1.668 mm.
+// Such a run is better, not wrong, so ATE and CORR are bounded from above only; completeness
+// (how much of the room the mesh covers) is bounded both ways: a map missing a part shows there.
 void expectCompletesUnderLoss(double fraction, double ate_bound_m, double corr_bound_m) {
   rekon::test::TempDir dir;
   const std::string out = dir / "run";
@@ -198,8 +207,12 @@ void expectCompletesUnderLoss(double fraction, double ate_bound_m, double corr_b
   ASSERT_EQ(rc, 0) << output;
   // A frame lost on its way to the tracker is not tracked; the rest are.
   EXPECT_GE(lineCount(out + "/trajectory.txt"), static_cast<size_t>(kFrames * (1.0 - 3 * fraction)));
-  EXPECT_NEAR(ateOf(out), ateOf(baseline().run), ate_bound_m);
-  EXPECT_NEAR(corrOf(out), corrOf(baseline().run), corr_bound_m);
+  EXPECT_LE(ateOf(out), ateOf(baseline().run) + ate_bound_m);
+  const Surface lossy = surfaceOf(out), uninterrupted = surfaceOf(baseline().run);
+  EXPECT_LE(lossy.corr, uninterrupted.corr + corr_bound_m);
+  // Completeness measured 45.68 to 45.90 mm in 13 runs at 5 % loss and from a later first
+  // frame, 45.71 mm uninterrupted: 0.19 mm at most apart; bound 0.5 mm, about 2.5x.
+  EXPECT_NEAR(lossy.compl_, uninterrupted.compl_, 0.0005);
   EXPECT_EQ(leftoverSegments(out), std::vector<std::string>{});
 }
 
@@ -208,7 +221,8 @@ void expectCompletesUnderLoss(double fraction, double ate_bound_m, double corr_b
 TEST(Faults, OnePercentMessageLossCompletesWithTheSameResult) { expectCompletesUnderLoss(0.01, 0.00005, 0.00005); }
 
 // Measured in 8 runs: ATE -0.0133 to +0.0069 mm, CORR +0.042 to +0.182 mm (more frames lost, more
-// of the surface from fewer views). Bounds about 3x and 2x the largest: 0.05 mm and 0.4 mm.
+// of the surface from fewer views); 10 more runs: ATE -0.0012 to +0.0038 mm, CORR +0.011 to
+// +0.183 mm. Bounds about 3x and 2x the largest: 0.05 mm and 0.4 mm.
 TEST(Faults, FivePercentMessageLossCompletesWithTheSameResult) { expectCompletesUnderLoss(0.05, 0.00005, 0.0004); }
 
 TEST(Faults, RestartPolicyNamingATrackerIsAnError) {
