@@ -1,7 +1,9 @@
 #include "rekon/common/camera.hpp"
 
+#include <fmt/format.h>
 #include <yaml-cpp/yaml.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cmath>
 #include <cstdlib>
@@ -24,6 +26,16 @@ void Intrinsics::validate(const std::string& source) const {
   if (!std::isfinite(cx)) bad("cx", cx, "finite");
   if (!std::isfinite(cy)) bad("cy", cy, "finite");
   if (!std::isfinite(depth_scale) || depth_scale <= 0) bad("depth_scale", depth_scale, "a positive finite number");
+}
+
+bool sameCamera(const Intrinsics& a, const Intrinsics& b) {
+  const auto close = [](double x, double y) { return std::abs(x - y) <= 1e-6 * std::max(1.0, std::abs(x)); };
+  return a.width == b.width && a.height == b.height && close(a.fx, b.fx) && close(a.fy, b.fy) && close(a.cx, b.cx) &&
+         close(a.cy, b.cy);
+}
+
+std::string describeCamera(const Intrinsics& k) {
+  return fmt::format("{}x{} fx {} fy {} cx {} cy {}", k.width, k.height, k.fx, k.fy, k.cx, k.cy);
 }
 
 Intrinsics Intrinsics::atLevel(int level) const {

@@ -36,4 +36,10 @@ void writeFileAtomically(const std::string& path, std::string_view bytes) {
   if (std::rename(tmp.c_str(), path.c_str()) != 0) fail("rename");
 }
 
+uint64_t fnv1a64(const void* bytes, size_t n, uint64_t h) {
+  const auto* p = static_cast<const uint8_t*>(bytes);
+  for (size_t i = 0; i < n; ++i) h = (h ^ p[i]) * 1099511628211ull;
+  return h;
+}
+
 }  // namespace rekon

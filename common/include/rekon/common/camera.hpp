@@ -20,6 +20,12 @@ struct Intrinsics {
   Intrinsics atLevel(int level) const;
 };
 
+// The same camera: equal size and focal lengths and principal point within
+// 1e-6 relative (a text file's rounding); the depth encoding is not compared.
+bool sameCamera(const Intrinsics& a, const Intrinsics& b);
+// "640x480 fx 525 fy 525 cx 319.5 cy 239.5", for messages.
+std::string describeCamera(const Intrinsics& k);
+
 // A camera.yaml holds `width height fx fy cx cy depth_scale` in one of two
 // forms: a mapping with those seven keys, or the seven numbers on one line
 // (`640 480 585 585 320 240 1000`). Anything else is a rekon::Error naming

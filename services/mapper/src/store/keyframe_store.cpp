@@ -98,6 +98,18 @@ fusion::FusedKeyframe unpack(const ShmKeyframe& k, const uint8_t* data, int widt
   return kf;
 }
 
+Intrinsics intrinsicsOf(const Header& h) {
+  Intrinsics k;
+  k.width = h.width;
+  k.height = h.height;
+  k.fx = h.fx;
+  k.fy = h.fy;
+  k.cx = h.cx;
+  k.cy = h.cy;
+  k.depth_scale = h.depth_scale;
+  return k;
+}
+
 }  // namespace
 
 std::string autoSpillDir(const std::string& segment) {
@@ -290,8 +302,7 @@ std::unique_ptr<KeyframeStore> KeyframeStore::openOrCreate(const StoreOptions& o
     h.cx = k.cx;
     h.cy = k.cy;
     h.depth_scale = k.depth_scale;
-  } else if (h.width != k.width || h.height != k.height || h.fx != k.fx || h.fy != k.fy || h.cx != k.cx ||
-             h.cy != k.cy) {
+  } else if (!sameCamera(intrinsicsOf(h), k)) {
     throw Error("keyframe store '" + options.segment + "' holds keyframes of another camera (" +
                 std::to_string(h.width) + "x" + std::to_string(h.height) +
                 "); remove it (rekon keyframes --remove) or set mapper.store_segment");
@@ -344,18 +355,7 @@ bool KeyframeStore::remove(const std::string& segment) {
 
 const std::string& KeyframeStore::segment() const { return impl_->name; }
 
-Intrinsics KeyframeStore::intrinsics() const {
-  const Header& h = *impl_->header;
-  Intrinsics k;
-  k.width = h.width;
-  k.height = h.height;
-  k.fx = h.fx;
-  k.fy = h.fy;
-  k.cx = h.cx;
-  k.cy = h.cy;
-  k.depth_scale = h.depth_scale;
-  return k;
-}
+Intrinsics KeyframeStore::intrinsics() const { return intrinsicsOf(*impl_->header); }
 
 size_t KeyframeStore::size() const {
   auto l = impl_->lock();

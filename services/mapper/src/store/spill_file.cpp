@@ -6,6 +6,7 @@
 #include <filesystem>
 
 #include "rekon/common/error.hpp"
+#include "rekon/common/files.hpp"
 
 namespace rekon::store {
 namespace {
@@ -24,14 +25,11 @@ struct SpillHeader {
 };
 static_assert(sizeof(SpillHeader) == 48, "the on-disk header has no padding");
 
-uint64_t fnv1a64(const uint8_t* p, size_t n) {
-  uint64_t h = 1469598103934665603ull;
-  for (size_t i = 0; i < n; ++i) {
-    h ^= p[i];
-    h *= 1099511628211ull;
-  }
-  return h;
-}
+// The format's checksum starts FNV-1a from 1469598103934665603, the offset
+// basis with its last digit missing since version 1; kept so that existing
+// spill files and sessions stay readable.
+constexpr uint64_t kChecksumSeed = 1469598103934665603ull;
+
 
 std::string reason() { return std::strerror(errno); }
 
@@ -78,7 +76,7 @@ void writeSpillFile(const std::string& path, int64_t id, int width, int height, 
   h.height = height;
   h.id = id;
   h.payload_bytes = bytes;
-  h.checksum = fnv1a64(payload, bytes);
+  h.checksum = fnv1a64(payload, bytes, kChecksumSeed);
   const std::string tmp = path + ".tmp";
   const auto fail = [&](const std::string& what) {
     const std::string why = reason();
@@ -119,7 +117,7 @@ void readSpillFile(const std::string& path, int64_t id, int width, int height, u
     throw Error("keyframe spill file " + path + " holds another keyframe or format (id " + std::to_string(h.id) + ", " +
                 std::to_string(h.width) + "x" + std::to_string(h.height) + ", version " + std::to_string(h.version) + ")" + lost);
   if (longer) throw Error("keyframe spill file " + path + " is longer than " + std::to_string(spillFileBytes(bytes)) + " bytes" + lost);
-  if (fnv1a64(payload, bytes) != h.checksum)
+  if (fnv1a64(payload, bytes, kChecksumSeed) != h.checksum)
     throw Error("keyframe spill file " + path + " is corrupt (checksum mismatch)" + lost);
 }
 
