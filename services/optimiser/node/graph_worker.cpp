@@ -9,6 +9,39 @@
 #include "rekon/optimiser/graph_messages.hpp"
 
 namespace rekon::optimiser {
+namespace {
+
+// The vertex that anchored the graph: the fixed one, else the lowest id.
+int64_t anchorOf(const G2oGraph& g2o) {
+  if (g2o.fixed) return *g2o.fixed;
+  const auto lowest = std::min_element(g2o.vertices.begin(), g2o.vertices.end(),
+                                       [](const auto& a, const auto& b) { return a.first < b.first; });
+  return lowest->first;
+}
+
+// The anchor first, so that it anchors the graph again. The edges touching it
+// last: the others link the remaining keyframes into one group that keeps its
+// poses, and the first edge to the anchor moves that group rigidly by its own
+// residual only (an optimisation takes that back). In file order, each edge
+// would move its keyframe to where the edge alone puts it, and the session's
+// optimised poses would be lost to chained odometry.
+std::vector<GraphItem> inLoadOrder(const G2oGraph& g2o) {
+  std::vector<GraphItem> items;
+  if (g2o.vertices.empty()) return items;
+  const int64_t anchor = anchorOf(g2o);
+  for (const auto& [id, pose] : g2o.vertices) {
+    if (id == anchor) items.insert(items.begin(), KeyframeIn{id, pose});
+    else items.push_back(KeyframeIn{id, pose});
+  }
+  for (const bool touching_anchor : {false, true}) {
+    for (const Constraint& c : g2o.edges) {
+      if ((c.from_id == anchor || c.to_id == anchor) == touching_anchor) items.push_back(c);
+    }
+  }
+  return items;
+}
+
+}  // namespace
 
 bool GraphWorker::addConstraint(const Constraint& c) {
   try {
@@ -59,6 +92,8 @@ bool GraphWorker::apply(const std::vector<GraphItem>& items) {
   }
   return new_edges;
 }
+
+void GraphWorker::load(const G2oGraph& g2o) { apply(inLoadOrder(g2o)); }
 
 rekon_msgs::graph_update_t GraphWorker::optimise(bool final, int64_t last_frame_id) {
   const OptimiseReport r = graph_.optimise(final);

@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "inbox.hpp"
+#include "rekon/optimiser/g2o.hpp"
 #include "rekon/optimiser/params.hpp"
 #include "rekon/optimiser/pose_graph.hpp"
 #include "rekon_msgs/graph_update_t.hpp"
@@ -29,6 +30,13 @@ class GraphWorker {
   // Adds queued keyframes and constraints in arrival order, each once; true
   // when an edge was added.
   bool apply(const std::vector<GraphItem>& items);
+  // A previous run's graph (session.continue), before anything is applied:
+  // the fixed vertex first (else the lowest id) so that it anchors the graph
+  // again, then the other vertices, then the edges (those touching the anchor
+  // last, so that the keyframes keep the session's poses), each taken as if
+  // it had arrived: the same keyframe or constraint arriving later (in a
+  // tracker's replay) is a duplicate.
+  void load(const G2oGraph& g2o);
   // Optimises (the bounded background budget, or the final one) and returns
   // the graph update, numbered with the next version.
   rekon_msgs::graph_update_t optimise(bool final, int64_t last_frame_id);

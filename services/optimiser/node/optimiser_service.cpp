@@ -3,12 +3,14 @@
 #include <spdlog/spdlog.h>
 
 #include <chrono>
+#include <optional>
 #include <thread>
 
 #include "graph_worker.hpp"
 #include "inbox.hpp"
 #include "outputs.hpp"
 #include "recovery.hpp"
+#include "rekon/optimiser/g2o.hpp"
 #include "rekon/optimiser/params.hpp"
 #include "rekon_msgs/done_t.hpp"
 #include "rekon_msgs/graph_update_t.hpp"
@@ -19,6 +21,28 @@ namespace {
 // How often the optimisation thread looks at the stop flag when idle.
 constexpr auto kIdleWait = std::chrono::milliseconds(100);
 
+// A background optimisation and its graph update, published; the session's
+// graph.g2o and the live numbers follow it.
+void optimiseAndPublish(ServiceContext& ctx, const Inbox& inbox, GraphWorker& worker, SessionGraph& session) {
+  ctx.bus().publish(channel::kGraphUpdates, worker.optimise(false, inbox.lastFrameId()));
+  const PoseGraph& graph = worker.graph();
+  session.afterOptimisation(graph, false);
+  ctx.setLive("keyframes", static_cast<double>(graph.numKeyframes()));
+  ctx.setLive("loop_closures", static_cast<double>(graph.numLoopEdges()));
+  ctx.setLive("graph_updates", static_cast<double>(worker.optimisations()));
+}
+
+// session.continue: the previous run's graph, loaded before any replay so
+// that the tracker's copies of its keyframes and constraints are duplicates,
+// and published at once so that the tracker and the mapper start from its
+// poses. A corrupt graph.g2o throws: the service exits with its line.
+void continueSession(ServiceContext& ctx, const Inbox& inbox, GraphWorker& worker, SessionGraph& session) {
+  const std::optional<G2oGraph> previous = session.previous();
+  if (!previous || previous->vertices.empty()) return;
+  worker.load(*previous);
+  optimiseAndPublish(ctx, inbox, worker, session);
+}
+
 // Until the upstream's done (or a stop): applies what the inbox queued and,
 // when it brought new edges, optimises within the background budget and
 // publishes the graph update.
@@ -27,13 +51,7 @@ void optimiseWhileStreaming(ServiceContext& ctx, Inbox& inbox, GraphWorker& work
     bool done = false;
     const bool new_edges = worker.apply(inbox.waitForGraphItems(kIdleWait, &done));
     if (done || ctx.stopRequested()) return;
-    if (!new_edges) continue;
-    ctx.bus().publish(channel::kGraphUpdates, worker.optimise(false, inbox.lastFrameId()));
-    const PoseGraph& graph = worker.graph();
-    session.afterOptimisation(graph, false);
-    ctx.setLive("keyframes", static_cast<double>(graph.numKeyframes()));
-    ctx.setLive("loop_closures", static_cast<double>(graph.numLoopEdges()));
-    ctx.setLive("graph_updates", static_cast<double>(worker.optimisations()));
+    if (new_edges) optimiseAndPublish(ctx, inbox, worker, session);
   }
 }
 
@@ -80,9 +98,10 @@ void runOptimiserService(ServiceContext& ctx) {
                params.graph.loop_outlier_chi2, params.graph.max_iterations);
 
   GraphWorker worker(params.graph);
+  SessionGraph session(ctx.config());
+  continueSession(ctx, inbox, worker, session);
   ReplayClient replays(ctx, inbox);
   recoverAtStart(ctx, peers, replays, inbox, worker);
-  SessionGraph session(ctx.config());
   optimiseWhileStreaming(ctx, inbox, worker, session);
 
   ctx.setState("finishing");

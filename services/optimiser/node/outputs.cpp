@@ -2,6 +2,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
 #include <string>
@@ -9,7 +10,6 @@
 #include "rekon/common/error.hpp"
 #include "rekon/common/files.hpp"
 #include "rekon/common/pose.hpp"
-#include "rekon/optimiser/g2o.hpp"
 
 namespace rekon::optimiser {
 namespace {
@@ -57,18 +57,40 @@ void setStats(ServiceContext& ctx, const GraphWorker& worker, size_t trajectory_
 }
 
 SessionGraph::SessionGraph(const Config& config)
-    : interval_(config.getDouble("session.graph_interval_s")) {
-  const std::string dir = config.getString("session.dir");
-  if (dir.empty()) return;
+    : dir_(config.getString("session.dir")),
+      continue_(config.getBool("session.continue")),
+      interval_(config.getDouble("session.graph_interval_s")) {
+  if (dir_.empty()) return;
   std::error_code ec;
-  std::filesystem::create_directories(dir, ec);
-  if (ec) throw Error("cannot create the session folder " + dir + " (" + ec.message() + ")");
-  path_ = (std::filesystem::path(dir) / "graph.g2o").string();
+  std::filesystem::create_directories(dir_, ec);
+  if (ec) throw Error("cannot create the session folder " + dir_ + " (" + ec.message() + ")");
+  path_ = (std::filesystem::path(dir_) / "graph.g2o").string();
+}
+
+std::optional<G2oGraph> SessionGraph::previous() {
+  if (!continue_ || path_.empty()) return std::nullopt;
+  if (!std::filesystem::exists(path_)) {
+    spdlog::warn("session {}: no graph.g2o (the run was stopped before its first optimisation); the pose graph "
+                 "starts empty",
+                 dir_);
+    return std::nullopt;
+  }
+  G2oGraph graph = readG2oFile(path_);
+  loaded_keyframes_ = graph.vertices.size();
+  loaded_edges_ = graph.edges.size();
+  const auto loops = std::count_if(graph.edges.begin(), graph.edges.end(),
+                                   [](const Constraint& c) { return c.kind == EdgeKind::Loop; });
+  spdlog::info("session {}: loaded {} keyframes, {} odometry and {} loop edges from graph.g2o", dir_,
+               graph.vertices.size(), static_cast<long>(graph.edges.size()) - loops, loops);
+  return graph;
 }
 
 void SessionGraph::afterOptimisation(const PoseGraph& graph, bool final) {
   const auto now = std::chrono::steady_clock::now();
   if (path_.empty() || (!final && now - last_ < interval_)) return;
+  // The previous run's graph alone, re-optimised: the file keeps it as it was
+  // (a continued run that adds nothing, or stops early, leaves the session untouched).
+  if (graph.numKeyframes() == loaded_keyframes_ && graph.numConstraints() == loaded_edges_) return;
   last_ = now;
   writeFileAtomically(path_, toG2o(graph));
   if (final) spdlog::info("wrote the pose graph ({} keyframes) to {}", graph.numKeyframes(), path_);

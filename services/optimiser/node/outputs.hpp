@@ -5,11 +5,13 @@
 // and its stats (written by the service context).
 #include <chrono>
 #include <cstddef>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "graph_worker.hpp"
 #include "rekon/common/service.hpp"
+#include "rekon/optimiser/g2o.hpp"
 #include "rekon/optimiser/graph_messages.hpp"
 
 namespace rekon::optimiser {
@@ -21,14 +23,23 @@ size_t writeTrajectoryAndTiming(const ServiceContext& ctx, const GraphWorker& wo
 void setStats(ServiceContext& ctx, const GraphWorker& worker, size_t trajectory_frames);
 
 // The pose graph in the session folder (session.dir), as graph.g2o: after an
-// optimisation at most every session.graph_interval_s, and after the final one.
+// optimisation at most every session.graph_interval_s, and after the final
+// one; with session.continue, the previous run's graph is read from it first
+// and the file goes on holding the whole graph (the previous run's and this one's).
 class SessionGraph {
  public:
   explicit SessionGraph(const Config& config);
+  // With session.continue, the graph the previous run left; nullopt without
+  // one (a warning when the file is missing: that run was killed before its
+  // first optimisation). rekon::Error for a corrupt or unreadable file.
+  std::optional<G2oGraph> previous();
   void afterOptimisation(const PoseGraph& graph, bool final);
 
  private:
+  std::string dir_;   // "" without a session
   std::string path_;  // "" without a session
+  bool continue_ = false;
+  size_t loaded_keyframes_ = 0, loaded_edges_ = 0;  // of previous(): a graph of just these is not written again
   std::chrono::duration<double> interval_;
   std::chrono::steady_clock::time_point last_{};
 };

@@ -50,7 +50,9 @@ void recoverAtStart(ServiceContext& ctx, const PeerWatch& peers, ReplayClient& r
   if (!tracker || tracker->instances == 0) return;
   const auto end = replays.request();
   if (!end) return;
-  if (end->graph_version >= 0) {
+  // A version the tracker saw from us (the previous run's graph, published at
+  // once with session.continue) does not make this optimiser a restart.
+  if (end->graph_version > worker.version()) {
     worker.continueVersionsAfter(end->graph_version + kRestartVersionGap);
     spdlog::warn("the tracker has seen graph version {}: this optimiser is a restart; rebuilding from its replay "
                  "({} keyframes, {} constraints, {} tracked frames)",

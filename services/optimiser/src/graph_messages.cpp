@@ -36,7 +36,7 @@ TrackedFrame trackedFrameFromMsg(const rekon_msgs::tracked_frame_t& msg) {
   if (!pose) throw Error("tracked frame " + std::to_string(msg.frame_id) + " has a non-finite or non-unit pose; dropped");
   if (!std::isfinite(msg.timestamp))
     throw Error("tracked frame " + std::to_string(msg.frame_id) + " has a non-finite timestamp; dropped");
-  return {msg.frame_id, msg.timestamp, msg.keyframe_id, *pose};
+  return {msg.frame_id, msg.timestamp, msg.keyframe_id, *pose, msg.state == rekon_msgs::tracked_frame_t::STATE_LOST};
 }
 
 rekon_msgs::graph_update_t graphUpdateMsg(const PoseGraph& graph, int64_t version, bool final_update) {
@@ -57,6 +57,7 @@ Trajectory frameTrajectory(const PoseGraph& graph, std::vector<TrackedFrame> fra
   out.reserve(frames.size());
   size_t missing = 0;
   for (const TrackedFrame& f : frames) {
+    if (f.lost) continue;  // its pose is the last good one, not where the camera was
     const std::optional<Pose> kf = graph.pose(f.keyframe_id);
     if (!kf) {
       ++missing;

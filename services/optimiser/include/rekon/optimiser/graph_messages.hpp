@@ -26,6 +26,7 @@ struct TrackedFrame {
   double timestamp = 0.0;
   int64_t keyframe_id = 0;
   Pose pose_in_keyframe = Pose::Identity();
+  bool lost = false;  // tracking was lost: the pose is the last good one
 };
 
 KeyframeIn keyframeFromMsg(const rekon_msgs::keyframe_t& msg);
@@ -39,8 +40,10 @@ TrackedFrame trackedFrameFromMsg(const rekon_msgs::tracked_frame_t& msg);
 rekon_msgs::graph_update_t graphUpdateMsg(const PoseGraph& graph, int64_t version, bool final_update);
 
 // World pose of every frame = its keyframe's pose x pose_in_keyframe, in
-// frame order. Frames whose keyframe the graph does not know are left out and
-// counted in `missing_keyframe`.
+// frame order. Lost frames are left out (their pose is the last good one, not
+// where the camera was; stats.json lists the lost intervals), as TUM
+// trajectories of other systems leave them out; frames whose keyframe the
+// graph does not know are left out and counted in `missing_keyframe`.
 Trajectory frameTrajectory(const PoseGraph& graph, std::vector<TrackedFrame> frames, size_t* missing_keyframe);
 
 }  // namespace rekon::optimiser
