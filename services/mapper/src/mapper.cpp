@@ -45,6 +45,9 @@ MapperParams MapperParams::fromConfig(const Config& c) {
   p.resume = c.getBool("mapper.resume");
   p.store = store::StoreOptions::fromConfig(c);  // segment, size and spill folder (mapper.store_*)
   p.session_dir = c.getString("session.dir");
+  p.continue_session = c.getBool("session.continue");
+  if (p.continue_session && p.session_dir.empty())
+    throw Error("session.continue needs session.dir (rekon run --continue DIR sets both)");
   return p;
 }
 
@@ -56,7 +59,9 @@ Mapper::Mapper(const MapperParams& params) : params_(params) {
     spdlog::warn("removed the stale keyframe store '{}' of an earlier run (set mapper.resume=true to continue from it)",
                  params_.store.segment);
   }
-  if (params_.use_store && params_.resume) {
+  if (params_.continue_session) {
+    continueSession();
+  } else if (params_.use_store && params_.resume) {
     try {
       store_ = store::KeyframeStore::openExisting(params_.store.segment);
     } catch (const Error&) {
@@ -70,7 +75,8 @@ Mapper::~Mapper() = default;
 
 int64_t Mapper::firstMissingFrame() const {
   int64_t newest = -1;
-  for (const KeyframeRecord& rec : keyframes_) newest = std::max(newest, rec.kf.last_frame_id);
+  for (const KeyframeRecord& rec : keyframes_)
+    if (rec.kf.id >= run_first_kf_id_) newest = std::max(newest, rec.kf.last_frame_id);
   return newest < 0 ? -1 : newest + 1;
 }
 
@@ -91,27 +97,63 @@ void Mapper::restoreFromStore() {
       session_->addKeyframe(rec.kf);
     }
     keyframes_.push_back(std::move(rec));
-    if (infos[i].integrated) {
-      // Straight into the volume, not through integrateKeyframe: the store
-      // already records this pose and the counters describe this run's work.
-      KeyframeRecord& r = keyframes_.back();
-      volume_->streamAround(infos[i].integrated_pose.translation());
-      volume_->integrate(r.kf.depth, r.kf.color, r.kf.weight, *camera_, infos[i].integrated_pose);
-      r.integrated = true;
-      r.integrated_pose = infos[i].integrated_pose;
-      r.first_pose = infos[i].integrated_pose;  // the store keeps no older pose: the baseline starts here
-      camera_position_ = infos[i].integrated_pose.translation();
-    }
+    if (infos[i].integrated) integrateRestored(keyframes_.back(), infos[i].integrated_pose);
     ++counters_.restored_keyframes;
     if ((i + 1) % 20 == 0) spdlog::info("rebuilt {} of {} keyframes", i + 1, infos.size());
   }
 }
 
+void Mapper::integrateRestored(KeyframeRecord& rec, const Pose& pose) {
+  // Straight into the volume, not through integrateKeyframe: the store or the
+  // session already records this pose, and the counters describe this run's work.
+  volume_->streamAround(pose.translation());
+  volume_->integrate(rec.kf.depth, rec.kf.color, rec.kf.weight, *camera_, pose);
+  rec.integrated = true;
+  rec.integrated_pose = pose;
+  rec.first_pose = pose;  // no older pose is kept: the uncorrected baseline starts here
+  camera_position_ = pose.translation();
+}
+
+void Mapper::continueSession() {
+  const store::Session session = store::Session::open(params_.session_dir);
+  const store::SessionInfo& info = session.info();
+  if (info.voxel_size != params_.volume.voxel_size || info.truncation != params_.volume.truncation)
+    spdlog::warn("session {} was mapped with {} m voxels and {} m truncation, this run maps with {} and {}; its "
+                 "session.yaml keeps the first", params_.session_dir, info.voxel_size, info.truncation,
+                 params_.volume.voxel_size, params_.volume.truncation);
+  ensureCamera(info.camera);  // the session writer reopens it; a frame of another camera is an error
+  graph_poses_ = session.anchors();
+  const size_t n = session.keyframes().size();
+  for (size_t i = 0; i < n; ++i) next_kf_id_ = std::max(next_kf_id_, session.keyframes()[i].id + 1);
+  // This run's keyframes are the store's (the session's are never put there):
+  // a restarted mapper resumes after them, a first one after none.
+  run_first_kf_id_ = next_kf_id_;
+  if (store_)
+    for (const store::KeyframeInfo& k : store_->list()) run_first_kf_id_ = std::min(run_first_kf_id_, k.id);
+  int without_pose = 0;
+  for (size_t i = 0; i < n; ++i) {
+    const auto pose = session.worldPose(session.keyframes()[i]);
+    if (!pose) {
+      ++without_pose;  // its anchor's pose never reached the session: it cannot be placed
+      continue;
+    }
+    KeyframeRecord rec;
+    rec.kf = session.load(i);
+    keyframes_.push_back(std::move(rec));
+    integrateRestored(keyframes_.back(), *pose);
+    ++counters_.restored_keyframes;
+    if ((i + 1) % 20 == 0) spdlog::info("integrated {} of the session's {} keyframes", i + 1, n);
+  }
+  if (without_pose > 0) spdlog::warn("{} of the session's keyframes have no anchor pose; left out", without_pose);
+  spdlog::info("session {}: {} KF keyframes integrated; this run's start with id {}", params_.session_dir,
+               keyframes_.size(), run_first_kf_id_);
+}
+
 void Mapper::ensureCamera(const Intrinsics& k) {
   if (camera_) {
-    if (k.width != camera_->width || k.height != camera_->height || k.fx != camera_->fx || k.fy != camera_->fy ||
-        k.cx != camera_->cx || k.cy != camera_->cy)
-      throw Error("mapper: a frame's intrinsics differ from the first frame's; one camera per run");
+    if (!sameCamera(k, *camera_))
+      throw Error("mapper: a frame's camera (" + describeCamera(k) + ") differs from the map's (" +
+                  describeCamera(*camera_) + "); one camera per run and per session");
     return;
   }
   k.validate("mapper camera");
@@ -127,7 +169,8 @@ void Mapper::ensureCamera(const Intrinsics& k) {
     info.voxel_size = params_.volume.voxel_size;
     info.truncation = params_.volume.truncation;
     info.max_depth = params_.volume.max_depth;
-    session_ = std::make_unique<store::SessionWriter>(params_.session_dir, info, params_.resume);
+    session_ = std::make_unique<store::SessionWriter>(params_.session_dir, info,
+                                                      params_.resume || params_.continue_session);
     spdlog::info("session {}: keyframes, poses and frames are written as the run goes", params_.session_dir);
   }
 }
@@ -220,7 +263,7 @@ void Mapper::integrateKeyframe(KeyframeRecord& rec, const Pose& pose) {
   counters_.integrate_ms_total += clockMs() - t0;
   rec.integrated = true;
   rec.integrated_pose = pose;
-  if (store_) store_->setIntegratedPose(rec.kf.id, pose);
+  if (store_ && rec.kf.id >= run_first_kf_id_) store_->setIntegratedPose(rec.kf.id, pose);  // an earlier run's are not in it
 }
 
 ReintegrationRound Mapper::reintegrate(const std::vector<size_t>& chosen) {
@@ -258,7 +301,9 @@ ReintegrationRound Mapper::applyGraphUpdate(const std::vector<std::pair<int64_t,
     if (store_) store_->setAnchorPose(id, pose);
   }
   ++counters_.graph_updates;
-  writeAnchorPoses();
+  // Before this run's first KF keyframe the session's files stay as they were
+  // (a continued run that stops early leaves its session untouched).
+  if (firstMissingFrame() >= 0) writeAnchorPoses();
   const std::vector<double> moved = movements();
   const auto chosen = selectForReintegration(params_.mode, moved, params_.m, params_.min_movement);
   const ReintegrationRound round = reintegrate(chosen);

@@ -51,11 +51,12 @@ void History::publishResult(const TrackResult& r) {
     keyframe_of_frame_[r.frame_id] = kf;
     bus_.publish(channel::kKeyframes, kf);
   }
-  if (r.odometry) {
-    const rekon_msgs::constraint_t c = constraintMsg(rekon_msgs::constraint_t::KIND_ODOMETRY, *r.odometry);
-    constraints_.push_back(c);
-    bus_.publish(channel::kConstraints, c);
-  }
+  const auto publish_edge = [&](int8_t kind, const OdometryConstraint& edge) {
+    constraints_.push_back(constraintMsg(kind, edge));
+    bus_.publish(channel::kConstraints, constraints_.back());
+  };
+  if (r.odometry) publish_edge(rekon_msgs::constraint_t::KIND_ODOMETRY, *r.odometry);
+  if (r.relocalised_from) publish_edge(rekon_msgs::constraint_t::KIND_LOOP, *r.relocalised_from);
   tracked_[r.frame_id] = tf;
   published_for_[r.frame_id] = mapper_instance_;
   bus_.publish(channel::kTrackedFrames, tf);

@@ -24,9 +24,9 @@ class History {
  public:
   explicit History(Bus& bus) : bus_(bus) {}
 
-  // A tracked frame's new keyframe and odometry constraint, then the tracked
-  // frame itself: a consumer meeting a new keyframe id in a tracked frame
-  // already knows the keyframe.
+  // A tracked frame's new keyframe and its odometry constraint (or the loop
+  // edge that relocalised it), then the tracked frame itself: a consumer
+  // meeting a new keyframe id in a tracked frame already knows the keyframe.
   void publishResult(const TrackResult& r);
   // An accepted loop closure, from the loop-closure worker.
   void publishLoopConstraint(const LoopConstraint& l);

@@ -90,7 +90,7 @@ void Inbox::onGraphUpdate(const rekon_msgs::graph_update_t& m) {
     spdlog::error("{}", e.what());
     return;
   }
-  loops_.updateGraph(m.version, std::move(poses));  // older versions are ignored there
+  worker_.updateGraph(m.version, std::move(poses));  // older versions are ignored there
 }
 
 void Inbox::onEndOfStream(const rekon_msgs::end_of_stream_t& m) {

@@ -47,6 +47,7 @@ void writeOutputs(ServiceContext& ctx, const TrackingTotals& totals, int64_t fra
       .set("lost_frames", static_cast<long long>(totals.lost))
       .set("keyframes", static_cast<long long>(totals.keyframes))
       .set("odometry_constraints", static_cast<long long>(totals.constraints))
+      .set("relocalisations", static_cast<long long>(totals.relocalisations))
       .set("undecodable_frames", static_cast<long long>(totals.undecodable))
       .set("frames_sent_again", static_cast<long long>(frames_sent_again))
       .set("track_cpu_ms_per_frame", 1e3 * totals.track_cpu_s / n)

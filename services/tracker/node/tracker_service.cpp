@@ -6,6 +6,7 @@
 #include <thread>
 
 #include "history.hpp"
+#include "rekon/common/error.hpp"
 #include "inbox.hpp"
 #include "outputs.hpp"
 #include "rekon/tracker/loop_closure.hpp"
@@ -30,9 +31,10 @@ constexpr auto kPoll = std::chrono::milliseconds(10);
 
 // Serves replays while the bus thread tracks, until every frame up to the
 // end of stream is tracked or the missing ones are given up as lost; false
-// at a stop request.
-bool trackUntilEndOfStream(ServiceContext& ctx, const Inbox& inbox, History& history) {
+// at a stop request or when the worker cannot go on.
+bool trackUntilEndOfStream(ServiceContext& ctx, const Inbox& inbox, const TrackingWorker& worker, History& history) {
   while (!ctx.stopRequested()) {
+    if (worker.failure()) return false;
     history.serveReplays();
     const int64_t end = inbox.endFrame();
     if (end != Inbox::kNoEndYet && inbox.lastTracked() >= end) return true;
@@ -75,7 +77,7 @@ void runTrackerService(ServiceContext& ctx) {
   const TrackerParams params = trackerParamsFromConfig(ctx.config());
   History history(ctx.bus());
   LoopClosureWorker loops(params, [&history](const LoopConstraint& c) { history.publishLoopConstraint(c); });
-  TrackingWorker worker(params, history, loops);
+  TrackingWorker worker(params, TrackerSession::fromConfig(ctx.config()), history, loops);
   PeerWatch peers(ctx.bus());
   Inbox inbox(ctx, worker, history, loops);
   StopThreadsOnExit stop_threads(ctx);  // before the state above dies: the bus handlers use it
@@ -84,11 +86,12 @@ void runTrackerService(ServiceContext& ctx) {
   spdlog::info("tracking levels {}..{}, keyframe criterion {}", params.aligner.coarsest_level,
                params.aligner.finest_level, params.keyframe.criterion);
 
-  const bool ended = trackUntilEndOfStream(ctx, inbox, history);
+  const bool ended = trackUntilEndOfStream(ctx, inbox, worker, history);
   ctx.setState("finishing");
   if (ended) finish(ctx, inbox, history, loops, peers);
   ctx.stopThreads();  // no handler runs after this
   writeOutputs(ctx, worker.totals(), inbox.framesSentAgain(), loops.stats());
+  if (const auto failure = worker.failure()) throw Error(*failure);  // after the outputs: what was tracked is kept
 }
 
 }  // namespace rekon::tracker

@@ -1,5 +1,6 @@
 #include "tracking_worker.hpp"
 
+#include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
 #include <chrono>
@@ -7,21 +8,85 @@
 
 #include "rekon/common/camera.hpp"
 #include "rekon/common/cpu_time.hpp"
+#include "rekon/common/error.hpp"
 #include "rekon/common/rgbd_frame.hpp"
+#include "rekon/tracker/keyframe_archive.hpp"
 
 namespace rekon::tracker {
 
-TrackingWorker::TrackingWorker(const TrackerParams& params, History& history, LoopClosureWorker& loops)
-    : history_(history), loops_(loops), tracker_(params) {}
+TrackerSession TrackerSession::fromConfig(const Config& config) {
+  TrackerSession s;
+  s.dir = config.getString("session.dir");
+  s.continued = config.getBool("session.continue");
+  s.relocalise_frames = config.getInt("session.relocalise_frames");
+  if (s.continued && s.dir.empty()) throw Error("session.continue needs session.dir (rekon run --continue DIR sets both)");
+  if (s.relocalise_frames < 1) throw Error("session.relocalise_frames must be at least 1");
+  return s;
+}
+
+TrackingWorker::TrackingWorker(const TrackerParams& params, const TrackerSession& session, History& history,
+                               LoopClosureWorker& loops)
+    : session_(session), history_(history), loops_(loops), tracker_(params) {
+  if (session_.continued) continueSession(params);
+}
+
+void TrackingWorker::continueSession(const TrackerParams& params) {
+  const std::vector<StoredKeyframe> stored = loadKeyframes(session_.dir, params.aligner);
+  for (const StoredKeyframe& s : stored) {
+    tracker_.addStoredKeyframe(s.keyframe, s.incoming);
+    loops_.addStored(s.keyframe, s.incoming);
+  }
+  session_camera_ = stored.front().camera;
+  stored_keyframes_ = stored.size();
+  tracker_.relocaliseFirstFrame(session_.relocalise_frames);
+  spdlog::info("session {}: {} DVO keyframes (ids {}..{}); relocalising the first frame against them", session_.dir,
+               stored.size(), stored.front().keyframe->id, stored.back().keyframe->id);
+}
+
+void TrackingWorker::checkCamera(const Intrinsics& k) const {
+  if (session_camera_ && !sameCamera(k, *session_camera_))
+    throw Error(session_.dir + " was made with another camera (" + describeCamera(*session_camera_) +
+                ", this run's: " + describeCamera(k) + "); continue it with the camera it was made with");
+}
+
+void TrackingWorker::keepInSession(const TrackResult& r, const Intrinsics& k) {
+  if (tracker_.gaveUp())
+    throw Error(fmt::format("none of the first {} frames relocalised against the {} keyframes of {}: is the camera "
+                            "in the space that session scanned? (session.relocalise_frames sets how long to try)",
+                            session_.relocalise_frames, stored_keyframes_, session_.dir));
+  if (!session_.dir.empty() && r.new_keyframe)
+    saveKeyframe(session_.dir, *tracker_.currentKeyframe(), r.odometry, k);
+}
+
+void TrackingWorker::updateGraph(int64_t version, std::unordered_map<int64_t, Pose> poses) {
+  tracker_.updateGraph(version, poses);
+  loops_.updateGraph(version, std::move(poses));
+}
+
+std::optional<std::string> TrackingWorker::failure() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return failure_;
+}
 
 bool TrackingWorker::track(const rekon_msgs::frame_t& msg) {
   std::lock_guard<std::mutex> lock(mutex_);
+  if (failure_) return false;
+  try {
+    return trackLocked(msg);
+  } catch (const Error& e) {  // the session's: the service stops with it (failure())
+    failure_ = e.what();
+    return false;
+  }
+}
+
+bool TrackingWorker::trackLocked(const rekon_msgs::frame_t& msg) {
   Intrinsics k;
   std::optional<RgbdFrame> frame = receiver_.receive(msg, &k);
   if (!frame) {
     ++totals_.undecodable;
     return false;
   }
+  checkCamera(k);
   const double t0 = threadCpuMs();
   const auto w0 = std::chrono::steady_clock::now();
   const TrackResult r = tracker_.track(*frame, k);
@@ -32,9 +97,11 @@ bool TrackingWorker::track(const rekon_msgs::frame_t& msg) {
   totals_.lost += r.state == TrackingState::Lost;
   totals_.keyframes += r.new_keyframe;
   totals_.constraints += r.odometry.has_value();
+  totals_.relocalisations += r.relocalised_from.has_value();
   totals_.odometry.push_back({r.timestamp, r.pose_world});
   totals_.lost_intervals.add(r);
   if (r.state == TrackingState::Lost) spdlog::warn("frame {}: lost ({})", r.frame_id, toString(r.lost_reason));
+  keepInSession(r, k);
   history_.publishResult(r);
   if (r.new_keyframe) loops_.submit(tracker_.currentKeyframe(), r.odometry);
   return true;

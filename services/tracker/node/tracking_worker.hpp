@@ -5,10 +5,14 @@
 // constraint never reaches the bus before its keyframe).
 #include <cstdint>
 #include <mutex>
+#include <optional>
+#include <string>
+#include <unordered_map>
 #include <utility>
 #include <vector>
 
 #include "history.hpp"
+#include "rekon/common/config.hpp"
 #include "rekon/common/frame_transport.hpp"
 #include "rekon/common/pose.hpp"
 #include "rekon/tracker/loop_closure.hpp"
@@ -20,7 +24,7 @@
 namespace rekon::tracker {
 
 struct TrackingCounts {
-  int64_t frames = 0, lost = 0, keyframes = 0, constraints = 0, undecodable = 0;
+  int64_t frames = 0, lost = 0, keyframes = 0, constraints = 0, undecodable = 0, relocalisations = 0;
 };
 
 struct TrackingTotals : TrackingCounts {
@@ -30,23 +34,51 @@ struct TrackingTotals : TrackingCounts {
   LostIntervals lost_intervals;
 };
 
+// The session (issue 18): where the DVO keyframes are kept, and whether the
+// run continues one (session.dir, session.continue, session.relocalise_frames).
+struct TrackerSession {
+  std::string dir;  // "" = none
+  bool continued = false;
+  int relocalise_frames = 0;
+  static TrackerSession fromConfig(const Config& config);
+};
+
 class TrackingWorker {
  public:
-  TrackingWorker(const TrackerParams& params, History& history, LoopClosureWorker& loops);
+  // With session.continue the session's keyframes are loaded here: rekon::Error naming the file when one is damaged.
+  TrackingWorker(const TrackerParams& params, const TrackerSession& session, History& history, LoopClosureWorker& loops);
 
   // Decodes and tracks one frame; false when it does not decode (the
   // receiver logged why).
   bool track(const rekon_msgs::frame_t& msg);
+  // The optimiser's poses (bus thread).
+  void updateGraph(int64_t version, std::unordered_map<int64_t, Pose> poses);
   TrackingTotals totals() const;
   TrackingCounts counts() const;  // cheap: no per-frame tables
+  // Why the run cannot go on (a continued session not relocalised in time, a
+  // session file not written), set once; the service stops with it.
+  std::optional<std::string> failure() const;
 
  private:
+  // track() under the lock; rekon::Error for what stops the service.
+  bool trackLocked(const rekon_msgs::frame_t& msg);
+  void continueSession(const TrackerParams& params);
+  // A continued session's camera must be this run's. Throws rekon::Error.
+  void checkCamera(const Intrinsics& k) const;
+  // The session's side of a tracked frame: its camera checked against the
+  // session's, its new keyframe kept. Throws rekon::Error.
+  void keepInSession(const TrackResult& r, const Intrinsics& k);
+
+  TrackerSession session_;
   History& history_;
   LoopClosureWorker& loops_;
   mutable std::mutex mutex_;
   Tracker tracker_;
   FrameReceiver receiver_;
   TrackingTotals totals_;
+  std::optional<Intrinsics> session_camera_;  // of the stored keyframes, when continuing
+  size_t stored_keyframes_ = 0;
+  std::optional<std::string> failure_;
 };
 
 }  // namespace rekon::tracker

@@ -167,27 +167,55 @@ bool LoopClosureDetector::passes(double log_det, double reference, double thresh
   return log_det - reference >= -(1.0 - threshold) * std::abs(reference);
 }
 
+std::vector<int64_t> LoopClosureDetector::ids() const {
+  std::vector<int64_t> out;
+  for (const auto& e : entries_) out.push_back(e.first);
+  return out;
+}
+
 CandidateCheck LoopClosureDetector::check(int64_t candidate_id, int64_t keyframe_id) {
-  CandidateCheck out;
-  out.candidate_id = candidate_id;
-  out.keyframe_id = keyframe_id;
-  const auto cand = entries_.find(candidate_id);
   const auto cur = entries_.find(keyframe_id);
-  if (cand == entries_.end() || cur == entries_.end()) {
+  if (cur == entries_.end()) {
+    CandidateCheck out;
+    out.candidate_id = candidate_id;
+    out.keyframe_id = keyframe_id;
     out.reason = "unknown keyframe";
     return out;
   }
-  const auto coarse_ref = odometryLogDet(candidate_id, keyframe_id, true);
-  const auto fine_ref = odometryLogDet(candidate_id, keyframe_id, false);
+  const Pose relative = orthonormalised(estimate(candidate_id).inverse() * estimate(keyframe_id));
+  return check(candidate_id, *cur->second.keyframe, {Pose::Identity(), relative});
+}
+
+std::vector<Pose> LoopClosureDetector::odometryNeighbours(int64_t id) const {
+  std::vector<Pose> out;
+  const auto it = entries_.find(id);
+  if (it == entries_.end()) return out;
+  if (const auto& in = it->second.incoming; in && entries_.count(in->from_id)) out.push_back(in->relative.inverse());
+  if (const auto next = entries_.find(id + 1);
+      next != entries_.end() && next->second.incoming && next->second.incoming->from_id == id)
+    out.push_back(next->second.incoming->relative);
+  return out;
+}
+
+CandidateCheck LoopClosureDetector::check(int64_t candidate_id, const Keyframe& current,
+                                          const std::vector<Pose>& guesses) {
+  CandidateCheck out;
+  out.candidate_id = candidate_id;
+  out.keyframe_id = current.id;
+  const auto cand = entries_.find(candidate_id);
+  if (cand == entries_.end()) {
+    out.reason = "unknown keyframe";
+    return out;
+  }
+  const auto coarse_ref = odometryLogDet(candidate_id, current.id, true);
+  const auto fine_ref = odometryLogDet(candidate_id, current.id, false);
   if (!coarse_ref || !fine_ref) {
     out.reason = "no odometry constraint to compare with";
     return out;
   }
   const Keyframe& reference = *cand->second.keyframe;
-  const Keyframe& current = *cur->second.keyframe;
   const int coarsest = params_.aligner.coarsest_level;
   const LoopClosureParams& lp = params_.loop;
-  const Pose guesses[2] = {Pose::Identity(), orthonormalised(estimate(candidate_id).inverse() * estimate(keyframe_id))};
   out.reason = "coarse stage";
   double best_log_det = -std::numeric_limits<double>::infinity();
   for (const Pose& guess : guesses) {
@@ -230,7 +258,7 @@ CandidateCheck LoopClosureDetector::check(int64_t candidate_id, int64_t keyframe
     const auto [forward, backward] = refine(reference, current, fine, back);
     LoopConstraint c;
     c.from_id = candidate_id;
-    c.to_id = keyframe_id;
+    c.to_id = current.id;
     c.relative = lp.both_directions ? bothDirections(forward, backward) : forward.pose;
     c.information = fine.information;
     c.coarse_ratio = coarse_ratio;
@@ -313,6 +341,16 @@ void LoopClosureWorker::submit(std::shared_ptr<const Keyframe> keyframe,
     }
     queue_.push_back(Job{std::move(keyframe), incoming, true});
     waiting_checks_ += queue_.back().check;
+  }
+  wake_.notify_one();
+}
+
+void LoopClosureWorker::addStored(std::shared_ptr<const Keyframe> keyframe,
+                                  const std::optional<OdometryConstraint>& incoming) {
+  if (!detector_.params().enabled) return;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    queue_.push_back(Job{std::move(keyframe), incoming, false});
   }
   wake_.notify_one();
 }

@@ -8,7 +8,7 @@ namespace rekon::tracker {
 
 void LostIntervals::add(const TrackResult& r) {
   if (r.state == TrackingState::Ok) {
-    if (open_) close(r.timestamp, "tracking resumed");
+    if (open_) close(r.timestamp, r.relocalised_from ? "relocalised" : "tracking resumed");
     return;
   }
   if (!open_) {

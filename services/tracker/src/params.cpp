@@ -59,6 +59,7 @@ void LostParams::validate() const {
           max_frame_translation, "positive");
   require(std::isfinite(max_frame_rotation_deg) && max_frame_rotation_deg > 0, "lost_max_frame_rotation_deg",
           max_frame_rotation_deg, "positive");
+  require(std::isfinite(max_gap_s) && max_gap_s > 0, "lost_max_gap_s", max_gap_s, "positive");
   require(std::isfinite(max_intensity_sigma) && max_intensity_sigma > 0, "lost_max_intensity_sigma",
           max_intensity_sigma, "positive");
   require(std::isfinite(max_depth_sigma) && max_depth_sigma > 0, "lost_max_depth_sigma", max_depth_sigma,
@@ -66,6 +67,7 @@ void LostParams::validate() const {
   require(std::isfinite(residual_entropy_ratio) && residual_entropy_ratio > 0, "lost_residual_entropy_ratio",
           residual_entropy_ratio, "positive");
   require(max_lost_frames >= 1, "lost_max_frames", max_lost_frames, "at least 1");
+  require(std::isfinite(relocalise_budget_ms) && relocalise_budget_ms > 0, "lost_relocalise_budget_ms", relocalise_budget_ms, "positive");
 }
 
 void LoopClosureParams::validate() const {
@@ -115,10 +117,12 @@ TrackerParams trackerParamsFromConfig(const Config& c) {
   p.lost.min_overlap = c.getDouble("tracker.lost_min_overlap");
   p.lost.max_frame_translation = c.getDouble("tracker.lost_max_frame_translation");
   p.lost.max_frame_rotation_deg = c.getDouble("tracker.lost_max_frame_rotation_deg");
+  p.lost.max_gap_s = c.getDouble("tracker.lost_max_gap_s");
   p.lost.max_intensity_sigma = c.getDouble("tracker.lost_max_intensity_sigma");
   p.lost.max_depth_sigma = c.getDouble("tracker.lost_max_depth_sigma");
   p.lost.residual_entropy_ratio = c.getDouble("tracker.lost_residual_entropy_ratio");
   p.lost.max_lost_frames = c.getInt("tracker.lost_max_frames");
+  p.lost.relocalise_budget_ms = c.getDouble("tracker.lost_relocalise_budget_ms");
   p.loop.enabled = c.getBool("tracker.loop_closure");
   p.loop.search_radius = c.getDouble("tracker.loop_search_radius");
   p.loop.exclude_predecessors = c.getInt("tracker.loop_exclude_predecessors");

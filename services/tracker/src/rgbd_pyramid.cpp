@@ -69,9 +69,7 @@ const PyramidLevel& RgbdPyramid::level(int l) const {
   return levels_[l];
 }
 
-void RgbdPyramid::build(const RgbdFrame& frame, const Intrinsics& k, int finest, int coarsest, double min_depth,
-                        double max_depth) {
-  checkFrame(frame, k);
+void RgbdPyramid::setLevels(const Intrinsics& k, int finest, int coarsest) {
   if (finest < 0 || coarsest < finest || (k.width >> coarsest) < 8 || (k.height >> coarsest) < 8)
     throw Error("pyramid levels " + std::to_string(finest) + ".." + std::to_string(coarsest) +
                 " do not fit a " + std::to_string(k.width) + "x" + std::to_string(k.height) +
@@ -84,6 +82,25 @@ void RgbdPyramid::build(const RgbdFrame& frame, const Intrinsics& k, int finest,
     levels_[l].intensity.clear();
     levels_[l].depth.clear();
   }
+}
+
+void RgbdPyramid::restore(const Intrinsics& k, int finest, int coarsest, std::vector<float> intensity,
+                          std::vector<float> depth) {
+  setLevels(k, finest, coarsest);
+  PyramidLevel& l = levels_[finest];
+  const size_t n = static_cast<size_t>(l.k.width) * static_cast<size_t>(l.k.height);
+  if (intensity.size() != n || depth.size() != n)
+    throw Error("stored pyramid level " + std::to_string(finest) + " holds " + std::to_string(intensity.size()) +
+                " pixels, the camera's level has " + std::to_string(n));
+  l.intensity = std::move(intensity);
+  l.depth = std::move(depth);
+  for (int c = finest + 1; c <= coarsest; ++c) downsample(levels_[c - 1], levels_[c]);
+}
+
+void RgbdPyramid::build(const RgbdFrame& frame, const Intrinsics& k, int finest, int coarsest, double min_depth,
+                        double max_depth) {
+  checkFrame(frame, k);
+  setLevels(k, finest, coarsest);
 
   const float to_m = static_cast<float>(1.0 / k.depth_scale);
   const float zmin = static_cast<float>(min_depth), zmax = static_cast<float>(max_depth);

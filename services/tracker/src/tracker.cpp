@@ -1,7 +1,10 @@
 #include "rekon/tracker/tracker.hpp"
 
+#include "rekon/tracker/relocaliser.hpp"
+
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <cmath>
 #include <numbers>
 
@@ -23,23 +26,85 @@ const char* toString(LostReason reason) {
     case LostReason::TooLittleOverlap: return "too little overlap with the keyframe";
     case LostReason::JumpBeyondBasin: return "jump beyond the convergence basin";
     case LostReason::LargeResidual: return "large residual after alignment";
+    case LostReason::Relocalising: return "relocalising against the session";
+    case LostReason::GapInTheData: return "gap in the data";
   }
   return "unknown";
 }
 
-Tracker::Tracker(const TrackerParams& params) : params_(params), aligner_(params.aligner) { params_.validate(); }
+Tracker::Tracker(const TrackerParams& params)
+    : params_(params), aligner_(params.aligner), relocaliser_(std::make_unique<Relocaliser>(params)) {
+  params_.validate();
+}
 
-std::shared_ptr<const Keyframe> Tracker::makeKeyframe(const RgbdFrame& frame, const Pose& pose_world) {
+Tracker::~Tracker() = default;
+
+void Tracker::addStoredKeyframe(std::shared_ptr<const Keyframe> keyframe, const std::optional<OdometryConstraint>& incoming) {
+  next_keyframe_id_ = std::max(next_keyframe_id_, keyframe->id + 1);
+  relocaliser_->addKeyframe(std::move(keyframe), incoming);
+}
+
+void Tracker::relocaliseFirstFrame(int frames) { relocalise_first_within_ = frames; }
+
+void Tracker::updateGraph(int64_t version, std::unordered_map<int64_t, Pose> poses) {
+  relocaliser_->updateGraph(version, std::move(poses));
+}
+
+std::shared_ptr<Keyframe> Tracker::keyframeOf(const RgbdFrame& frame, int64_t id) const {
   auto kf = std::make_shared<Keyframe>();
-  kf->id = next_keyframe_id_++;
+  kf->id = id;
   kf->frame_id = frame.id;
   kf->timestamp = frame.timestamp;
-  kf->pose_world = orthonormalised(pose_world);  // products of many poses drift off SO(3)
   kf->pyramid = current_;
   kf->reference = KeyframeReference(kf->pyramid, params_.aligner);
+  return kf;
+}
+
+std::shared_ptr<const Keyframe> Tracker::makeKeyframe(const RgbdFrame& frame, const Pose& pose_world) {
+  auto kf = keyframeOf(frame, next_keyframe_id_++);
+  kf->pose_world = orthonormalised(pose_world);  // products of many poses drift off SO(3)
   last_in_keyframe_ = Pose::Identity();
   reference_entropy_.reset();
   return kf;
+}
+
+void Tracker::startFrom(std::shared_ptr<const Keyframe> keyframe, double timestamp) {
+  keyframe_ = std::move(keyframe);
+  last_in_keyframe_ = Pose::Identity();
+  reference_entropy_.reset();
+  velocity_ = Pose::Identity();
+  velocity_dt_ = 0.0;
+  last_good_timestamp_ = timestamp;
+  lost_in_a_row_ = 0;
+}
+
+bool Tracker::relocalise(const RgbdFrame& frame, const std::optional<Pose>& guess_world, TrackResult& r) {
+  if (relocaliser_->size() == 0) return false;
+  std::shared_ptr<Keyframe> kf = keyframeOf(frame, next_keyframe_id_);
+  const auto found = relocaliser_->relocalise(*kf, guess_world, params_.lost.relocalise_budget_ms);
+  if (!found) return false;
+  relocaliser_->restart();
+  ++next_keyframe_id_;
+  kf->pose_world = found->pose_world;
+  startFrom(kf, frame.timestamp);
+  OdometryConstraint edge;
+  edge.from_id = found->edge.from_id;
+  edge.to_id = kf->id;
+  edge.relative = found->edge.relative;
+  edge.information = found->edge.information;
+  edge.valid_pixels = found->edge.valid_pixels;
+  r = TrackResult{};
+  r.frame_id = frame.id;
+  r.timestamp = frame.timestamp;
+  r.state = TrackingState::Ok;
+  r.new_keyframe = true;
+  r.relocalised_from = edge;
+  r.keyframe_id = kf->id;
+  r.keyframe_pose_world = kf->pose_world;
+  r.pose_world = kf->pose_world;
+  spdlog::info("frame {}: relocalised against keyframe {} ({} candidates tried; ln det ratios coarse {:.2f}, fine {:.2f})",
+               frame.id, edge.from_id, found->candidates_tried, found->edge.coarse_ratio, found->edge.fine_ratio);
+  return true;
 }
 
 bool Tracker::entropyRatioBelow(double entropy, double threshold) const {
@@ -58,6 +123,12 @@ bool Tracker::keyframeDue(const AlignResult& aligned) const {
 }
 
 TrackResult Tracker::track(const RgbdFrame& frame, const Intrinsics& k) {
+  TrackResult r = trackFrame(frame, k);
+  if (r.new_keyframe) relocaliser_->addKeyframe(keyframe_, r.odometry);
+  return r;
+}
+
+TrackResult Tracker::trackFrame(const RgbdFrame& frame, const Intrinsics& k) {
   const auto& ap = params_.aligner;
   current_.build(frame, k, ap.finest_level, ap.coarsest_level, ap.min_depth, ap.max_depth);
 
@@ -66,32 +137,43 @@ TrackResult Tracker::track(const RgbdFrame& frame, const Intrinsics& k) {
   r.timestamp = frame.timestamp;
   LostReason reason = untrackableReason();
   const bool trackable = reason == LostReason::None;
-
   if (!keyframe_) {
-    if (trackable) {
-      keyframe_ = makeKeyframe(frame, Pose::Identity());
-      last_good_timestamp_ = frame.timestamp;
-      r.state = TrackingState::Ok;
-      r.new_keyframe = true;
-      r.keyframe_id = keyframe_->id;
-    } else {
-      r.lost_reason = reason;
-    }
+    startTracking(frame, reason, r);
     return r;
   }
 
+  if (trackable && frame.timestamp - last_good_timestamp_ > params_.lost.max_gap_s) reason = LostReason::GapInTheData;
   AlignResult aligned;
-  if (trackable) {
+  if (reason == LostReason::None) {
     const Pose prediction = last_in_keyframe_ * predictedMotion(frame.timestamp);
     aligned = aligner_.align(keyframe_->reference, current_, prediction);
     reportAlignment(aligned, r);
     reason = alignmentLostReason(aligned, prediction);
   }
-  if (reason != LostReason::None)
-    markLost(frame, reason, trackable, r);
-  else
+  if (reason == LostReason::None)
     followAlignment(frame, aligned, r);
+  else if (!trackable || !relocalise(frame, keyframe_->pose_world * last_in_keyframe_, r))
+    markLost(frame, reason, trackable, r);
   return r;
+}
+
+void Tracker::startTracking(const RgbdFrame& frame, LostReason reason, TrackResult& r) {
+  if (relocalise_first_within_ > 0) {
+    ++frames_before_first_;
+    if (reason == LostReason::None && relocalise(frame, std::nullopt, r)) return;
+    r.lost_reason = reason == LostReason::None ? LostReason::Relocalising : reason;
+    gave_up_ = frames_before_first_ >= relocalise_first_within_;
+    return;
+  }
+  if (reason != LostReason::None) {
+    r.lost_reason = reason;
+    return;
+  }
+  keyframe_ = makeKeyframe(frame, Pose::Identity());
+  last_good_timestamp_ = frame.timestamp;
+  r.state = TrackingState::Ok;
+  r.new_keyframe = true;
+  r.keyframe_id = keyframe_->id;
 }
 
 Pose Tracker::predictedMotion(double timestamp) const {

@@ -78,12 +78,6 @@ SessionInfo readInfo(const std::string& dir) {
   return s;
 }
 
-bool sameCamera(const Intrinsics& a, const Intrinsics& b) {
-  const auto close = [](double x, double y) { return std::abs(x - y) <= 1e-6 * std::max(1.0, std::abs(x)); };
-  return a.width == b.width && a.height == b.height && close(a.fx, b.fx) && close(a.fy, b.fy) && close(a.cx, b.cx) &&
-         close(a.cy, b.cy);
-}
-
 // kf_<id>.txt: "id anchor first_frame last_frame frames timestamp" then the pose in the anchor.
 std::string metaText(const fusion::FusedKeyframe& kf) {
   return fmt::format("{} {} {} {} {} {:.6f} {}\n", kf.id, kf.anchor_keyframe_id, kf.first_frame_id, kf.last_frame_id,
@@ -122,8 +116,9 @@ SessionWriter::SessionWriter(const std::string& dir, const SessionInfo& info, bo
   impl_->info = info;
   const bool exists = fs::exists(infoPath(dir));
   if (!reopen) requireNoSession(dir);
-  if (exists && !sameCamera(readInfo(dir).camera, info.camera))
-    throw Error(dir + " holds a session of another camera; give a new folder to --session");
+  if (const Intrinsics old = exists ? readInfo(dir).camera : info.camera; !sameCamera(old, info.camera))
+    throw Error(dir + " holds a session of another camera (" + describeCamera(old) + ", this run's: " +
+                describeCamera(info.camera) + "); continue it with the camera it was made with, or give a new folder to --session");
   std::error_code ec;
   fs::create_directories(keyframeDir(dir), ec);
   if (ec) throw Error("cannot create the session folder " + dir + " (" + ec.message() + ")");

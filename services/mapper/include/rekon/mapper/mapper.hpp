@@ -42,6 +42,9 @@ struct MapperParams {
   // session.dir: the session folder written as the run goes ("" = none;
   // store/session.hpp). With `resume` an existing one is written on.
   std::string session_dir;
+  // session.continue: the session's KF keyframes are integrated at their
+  // newest poses first, and the run extends that map (issue 18).
+  bool continue_session = false;
 
   static MapperParams fromConfig(const Config& config);
 };
@@ -94,7 +97,9 @@ class Mapper {
  public:
   // With params.use_store and params.resume, an existing store is opened and
   // every keyframe in it is integrated again with the pose it had (a restart);
-  // without resume an existing store is removed as stale.
+  // without resume an existing store is removed as stale. With
+  // params.continue_session the session's keyframes are integrated instead
+  // (a restarted mapper of a continued run finds its own there too).
   explicit Mapper(const MapperParams& params);
   ~Mapper();
 
@@ -120,8 +125,8 @@ class Mapper {
 
   const volume::TsdfVolume& volume() const { return *volume_; }
   const std::vector<KeyframeRecord>& keyframes() const { return keyframes_; }
-  // The frame after the newest one in a KF keyframe held (restored from the
-  // store or fused since), or -1 when none is held: where a restarted
+  // The frame after the newest one in a KF keyframe of this run held
+  // (restored from the store or fused since), or -1 when none is held: where a restarted
   // mapper's frames must resume (the KF keyframe being fused, the queued
   // frames and those in flight died with the old instance).
   int64_t firstMissingFrame() const;
@@ -146,6 +151,9 @@ class Mapper {
   ReintegrationRound reintegrate(const std::vector<size_t>& chosen);
   void ensureCamera(const Intrinsics& k);
   void restoreFromStore();
+  void continueSession();
+  // A keyframe restored from the store or the session, integrated at `pose`.
+  void integrateRestored(KeyframeRecord& rec, const Pose& pose);
 
   MapperParams params_;
   std::unique_ptr<volume::TsdfVolume> volume_;
@@ -158,6 +166,7 @@ class Mapper {
   std::map<int64_t, Pose> graph_poses_;  // latest graph update
   std::vector<KeyframeRecord> keyframes_;
   int64_t next_kf_id_ = 0;
+  int64_t run_first_kf_id_ = 0;  // KF keyframes before it are an earlier run's (a continued session)
   Eigen::Vector3d camera_position_ = Eigen::Vector3d::Zero();
   MapperCounters counters_;
   // Now on the clock the *_ms counters use (wall or process CPU), in ms.

@@ -101,6 +101,15 @@ class LoopClosureDetector {
 
   // Aligns keyframe `keyframe_id` to the earlier `candidate_id` and validates the result.
   CandidateCheck check(int64_t candidate_id, int64_t keyframe_id);
+  // The same for a keyframe that need not be in the database (a frame being
+  // relocalised, relocaliser.hpp), aligned from each of `guesses` (poses of
+  // `current` in the candidate).
+  CandidateCheck check(int64_t candidate_id, const Keyframe& current, const std::vector<Pose>& guesses);
+  // The poses, in keyframe `id`'s frame, of the keyframes odometry links it
+  // to (its predecessor and successor, when linked).
+  std::vector<Pose> odometryNeighbours(int64_t id) const;
+  // Ids of the keyframes added, ascending.
+  std::vector<int64_t> ids() const;
 
   // candidates() then check() for each (up to max_candidates); accumulates into `stats`.
   std::vector<LoopConstraint> detect(int64_t keyframe_id, LoopClosureStats& stats);
@@ -154,6 +163,8 @@ class LoopClosureWorker {
   // the oldest waiting one is dropped with a warning (its keyframe is still
   // added as a candidate).
   void submit(std::shared_ptr<const Keyframe> keyframe, const std::optional<OdometryConstraint>& incoming);
+  // A keyframe of an earlier run (a continued session): a candidate, never checked itself.
+  void addStored(std::shared_ptr<const Keyframe> keyframe, const std::optional<OdometryConstraint>& incoming);
   void updateGraph(int64_t version, std::unordered_map<int64_t, Pose> poses);
   // Waits until every queued keyframe has been handled, at most `timeout_ms`;
   // true when drained (false at once when not started and not empty).

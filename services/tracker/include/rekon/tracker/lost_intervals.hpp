@@ -1,7 +1,8 @@
 #pragma once
 // Where tracking was lost in a run (issue 18): every run of lost frames as
 // one interval, its first reason and how it ended: tracking resumed (a frame
-// aligned to the keyframe again), restarted at the last good pose (a new
+// aligned to the keyframe again), relocalised (a frame placed against one of
+// the keyframes, relocaliser.hpp), restarted at the last good pose (a new
 // keyframe after max_lost_frames), or the end of the stream. While lost,
 // frames carry state lost: the mapper fuses none of them.
 #include <cstdint>
@@ -17,7 +18,7 @@ struct LostInterval {
   int frames = 0;
   double seconds = 0.0;  // from the first lost frame to the frame that ended it (or the last)
   std::string reason;    // the first frame's (toString(LostReason))
-  std::string ended;     // "tracking resumed", "restarted at the last good pose", "end of stream"
+  std::string ended;     // "tracking resumed", "relocalised", "restarted at the last good pose", "end of stream"
 };
 
 class LostIntervals {

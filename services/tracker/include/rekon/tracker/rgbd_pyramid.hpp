@@ -26,6 +26,11 @@ class RgbdPyramid {
   void build(const RgbdFrame& frame, const Intrinsics& k, int finest, int coarsest, double min_depth,
              double max_depth);
 
+  // Levels finest..coarsest from a stored finest level (a session's keyframe,
+  // keyframe_archive.hpp) of the camera `k`. rekon::Error when the planes'
+  // size is not k.atLevel(finest)'s or the levels do not fit the image.
+  void restore(const Intrinsics& k, int finest, int coarsest, std::vector<float> intensity, std::vector<float> depth);
+
   int finestLevel() const { return finest_; }
   int coarsestLevel() const { return coarsest_; }
   bool hasLevel(int level) const { return level >= finest_ && level <= coarsest_ && !levels_[level].empty(); }
@@ -36,6 +41,9 @@ class RgbdPyramid {
   double meanIntensity() const { return mean_intensity_; }
 
  private:
+  // Sizes levels 0..coarsest for `k` and frees those finer than `finest`.
+  void setLevels(const Intrinsics& k, int finest, int coarsest);
+
   std::vector<PyramidLevel> levels_;
   int finest_ = 0, coarsest_ = -1;
   double valid_depth_fraction_ = 0.0, mean_intensity_ = 0.0;

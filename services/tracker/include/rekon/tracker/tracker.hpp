@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <memory>
 #include <optional>
+#include <unordered_map>
 
 #include "rekon/common/camera.hpp"
 #include "rekon/common/pose.hpp"
@@ -29,6 +30,8 @@ enum class LostReason {
   TooLittleOverlap,  // too few keyframe pixels landed in the frame
   JumpBeyondBasin,   // the estimate moved too far from the prediction to be trusted
   LargeResidual,     // the aligned images still disagree
+  Relocalising,      // a continued session's first frames, until one is relocalised
+  GapInTheData,      // too long after the last good frame: the motion meanwhile is unknown
 };
 const char* toString(LostReason reason);
 
@@ -69,6 +72,9 @@ struct TrackResult {
   // last good pose: no odometry constraint links it to its predecessor.
   bool keyframe_reset = false;
   std::optional<OdometryConstraint> odometry;  // set when a keyframe followed its predecessor
+  // Set when the frame was relocalised (relocaliser.hpp): its new keyframe's
+  // validated edge from an earlier keyframe, published as a loop edge.
+  std::optional<OdometryConstraint> relocalised_from;
   Pose keyframe_pose_world = Pose::Identity();  // odometry estimate of the keyframe
   Pose pose_world = Pose::Identity();           // keyframe_pose_world * pose_in_keyframe
   double entropy = 0.0;                         // of the alignment, when one ran
@@ -79,15 +85,31 @@ struct TrackResult {
   double depth_sigma = 0.0;
 };
 
+class Relocaliser;
+
 class Tracker {
  public:
   static constexpr double kLostVariance = 1e4;
 
   explicit Tracker(const TrackerParams& params = {});
+  ~Tracker();
+  Tracker(const Tracker&) = delete;
+  Tracker& operator=(const Tracker&) = delete;
 
   // Tracks one frame; never returns a NaN or non-orthonormal pose. Throws
   // rekon::Error only for a frame whose format does not match `k`.
   TrackResult track(const RgbdFrame& frame, const Intrinsics& k);
+
+  // A continued session (issue 18): a keyframe of an earlier run, a
+  // candidate for relocalisation; new keyframe ids continue past it.
+  void addStoredKeyframe(std::shared_ptr<const Keyframe> keyframe, const std::optional<OdometryConstraint>& incoming);
+  // The first keyframe is relocalised against the stored ones (frames before
+  // it are lost: Relocalising); when none of the first `frames` frames is,
+  // gaveUp() turns true.
+  void relocaliseFirstFrame(int frames);
+  bool gaveUp() const { return gave_up_; }
+  // The optimiser's keyframe poses, for ranking and placing relocalisations (any thread).
+  void updateGraph(int64_t version, std::unordered_map<int64_t, Pose> poses);
 
   std::shared_ptr<const Keyframe> currentKeyframe() const { return keyframe_; }
   int64_t keyframeCount() const { return next_keyframe_id_; }
@@ -95,6 +117,16 @@ class Tracker {
 
  private:
   std::shared_ptr<const Keyframe> makeKeyframe(const RgbdFrame& frame, const Pose& pose_world);
+  // Tracking goes on from `keyframe` (a relocalised one), no motion known.
+  void startFrom(std::shared_ptr<const Keyframe> keyframe, double timestamp);
+  // current_ as a keyframe with id `id`, not yet adopted.
+  std::shared_ptr<Keyframe> keyframeOf(const RgbdFrame& frame, int64_t id) const;
+  TrackResult trackFrame(const RgbdFrame& frame, const Intrinsics& k);
+  // The first frame: a keyframe at identity, or with relocaliseFirstFrame() a relocalised one.
+  void startTracking(const RgbdFrame& frame, LostReason reason, TrackResult& r);
+  // Relocalises current_ (nearest `guess_world` first); on success the frame
+  // becomes the keyframe at the validated pose and `r` says so.
+  bool relocalise(const RgbdFrame& frame, const std::optional<Pose>& guess_world, TrackResult& r);
   bool keyframeDue(const AlignResult& aligned) const;
   bool entropyRatioBelow(double entropy, double threshold) const;
 
@@ -126,6 +158,10 @@ class Tracker {
   double last_good_timestamp_ = 0.0;
   std::optional<double> reference_entropy_;   // H(kf, kf+1)
   int lost_in_a_row_ = 0;
+  std::unique_ptr<Relocaliser> relocaliser_;  // every keyframe, stored and new
+  int relocalise_first_within_ = 0;           // > 0: the first keyframe must be relocalised within this many frames
+  int frames_before_first_ = 0;
+  bool gave_up_ = false;
 };
 
 }  // namespace rekon::tracker

@@ -1,0 +1,56 @@
+#pragma once
+// Relocalisation (issue 18): a frame that tracking cannot place is aligned to
+// the keyframes one after another, from the candidate's pose, a step of the
+// odometry either way around it and (after a loss) the last good pose, and
+// validated exactly as a loop closure (LoopClosureDetector::check: coarse
+// then fine stage against the odometry's information, cross-checked the
+// other way round); the first accepted alignment places it. Every keyframe is a candidate: those nearest a guess
+// of the pose first when there is one (the last good pose after a loss),
+// else in id order (the first frame of a continued session, whose pose is
+// unknown). A call stops once its time budget is spent and the next call
+// goes on with the next candidates, so one search over many keyframes
+// spreads over several frames.
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <unordered_map>
+#include <vector>
+
+#include "rekon/tracker/loop_closure.hpp"
+
+namespace rekon::tracker {
+
+struct Relocalisation {
+  LoopConstraint edge;  // the frame's keyframe in the candidate's frame (edge.from_id: the candidate)
+  Pose pose_world = Pose::Identity();  // the candidate's current estimate times edge.relative
+  int candidates_tried = 0;            // in this search, over all calls
+};
+
+class Relocaliser {
+ public:
+  explicit Relocaliser(const TrackerParams& params) : detector_(params) {}
+
+  // Tracking thread only.
+  void addKeyframe(std::shared_ptr<const Keyframe> keyframe, const std::optional<OdometryConstraint>& incoming);
+  // Any thread (the bus thread): the optimiser's poses.
+  void updateGraph(int64_t version, std::unordered_map<int64_t, Pose> poses);
+  size_t size() const { return size_; }
+
+  // Checks candidates for `query` (a keyframe made of the frame, not yet in
+  // the database) for at most `budget_ms` (at least one candidate).
+  std::optional<Relocalisation> relocalise(const Keyframe& query, const std::optional<Pose>& guess_world, double budget_ms);
+  // The next relocalise() starts a new search (from the first candidate).
+  void restart();
+
+ private:
+  std::vector<int64_t> ranked(const std::optional<Pose>& guess_world) const;
+  // Initial poses of the query in `candidate` to align from.
+  std::vector<Pose> guesses(int64_t candidate, const std::optional<Pose>& guess_world) const;
+
+  LoopClosureDetector detector_;
+  size_t size_ = 0;
+  size_t next_ = 0;  // index into the ranked candidates where the search goes on
+  int tried_ = 0;
+};
+
+}  // namespace rekon::tracker

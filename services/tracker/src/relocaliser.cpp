@@ -1,0 +1,73 @@
+#include "rekon/tracker/relocaliser.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <chrono>
+#include <utility>
+
+namespace rekon::tracker {
+
+void Relocaliser::addKeyframe(std::shared_ptr<const Keyframe> keyframe, const std::optional<OdometryConstraint>& incoming) {
+  detector_.addKeyframe(std::move(keyframe), incoming);
+  ++size_;
+}
+
+void Relocaliser::updateGraph(int64_t version, std::unordered_map<int64_t, Pose> poses) {
+  detector_.updateGraph(version, std::move(poses));
+}
+
+void Relocaliser::restart() {
+  next_ = 0;
+  tried_ = 0;
+}
+
+std::vector<int64_t> Relocaliser::ranked(const std::optional<Pose>& guess_world) const {
+  std::vector<int64_t> ids = detector_.ids();
+  if (!guess_world) return ids;
+  std::vector<std::pair<double, int64_t>> by_distance;
+  for (const int64_t id : ids)
+    by_distance.emplace_back((detector_.estimate(id).translation() - guess_world->translation()).norm(), id);
+  std::sort(by_distance.begin(), by_distance.end());
+  for (size_t i = 0; i < ids.size(); ++i) ids[i] = by_distance[i].second;
+  return ids;
+}
+
+std::vector<Pose> Relocaliser::guesses(int64_t candidate, const std::optional<Pose>& guess_world) const {
+  // At the candidate, and a step of the odometry's motion around it either
+  // way: a camera between keyframes, or beyond the last one, starts inside the
+  // coarse level's basin of one of them.
+  std::vector<Pose> out{Pose::Identity()};
+  for (const Pose& step : detector_.odometryNeighbours(candidate)) {
+    out.push_back(step);
+    out.push_back(step.inverse());
+  }
+  if (guess_world) out.push_back(orthonormalised(detector_.estimate(candidate).inverse() * *guess_world));
+  return out;
+}
+
+std::optional<Relocalisation> Relocaliser::relocalise(const Keyframe& query, const std::optional<Pose>& guess_world,
+                                                      double budget_ms) {
+  const std::vector<int64_t> ids = ranked(guess_world);
+  if (ids.empty()) return std::nullopt;
+  const auto start = std::chrono::steady_clock::now();
+  const auto spent_ms = [&] {
+    return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  };
+  for (size_t n = 0; n < ids.size() && (n == 0 || spent_ms() < budget_ms); ++n) {
+    const int64_t candidate = ids[next_++ % ids.size()];
+    ++tried_;
+    const CandidateCheck c = detector_.check(candidate, query, guesses(candidate, guess_world));
+    spdlog::debug("relocalisation of frame {} against keyframe {}: {} (ln det ratios coarse {:.3f}, fine {:.3f})",
+                  query.frame_id, candidate, c.accepted ? "accepted" : c.reason, c.best_coarse_ratio, c.best_fine_ratio);
+    if (!c.accepted) continue;
+    Relocalisation r;
+    r.edge = *c.constraint;
+    r.pose_world = orthonormalised(detector_.estimate(candidate) * r.edge.relative);
+    r.candidates_tried = tried_;
+    return r;
+  }
+  return std::nullopt;
+}
+
+}  // namespace rekon::tracker
