@@ -1,17 +1,20 @@
 // `rekon run --session` on the synthetic room, read back by `rekon remesh`
 // and `rekon export`; runs killed mid-way (the mapper alone, or everything at
-// once) leave sessions that open; a second run never writes over a session.
+// once) leave sessions that open and continue; a second run never writes over a session.
 #include <gtest/gtest.h>
 
 #include <filesystem>
 #include <regex>
+#include <sstream>
 
 #include "rekon/common/mesh.hpp"
+#include "rekon/common/pose.hpp"
 #include "test_support.hpp"
 
 namespace {
 
 namespace fs = std::filesystem;
+using rekon::test::ateOf;
 using rekon::test::binDir;
 using rekon::test::readText;
 using rekon::test::runCommand;
@@ -25,12 +28,6 @@ double corr(const std::string& mesh, const std::string& reference, const std::st
   std::string out;
   runCommand(binDir() + "/rekon eval surface " + mesh + " " + reference + " " + trajectories, &out);
   return valueAfter(out, "corr_m");
-}
-
-double ate(const std::string& groundtruth, const std::string& trajectory) {
-  std::string out;
-  runCommand(binDir() + "/rekon eval traj " + groundtruth + " " + trajectory, &out);
-  return valueAfter(out, "ate_rmse_m");
 }
 
 // The room's frames and one run with --session, shared by the tests.
@@ -91,8 +88,8 @@ TEST_F(SessionRun, ExportWritesTheRunsTrajectoryItsGraphAndAMesh) {
   std::string out;
   ASSERT_EQ(runCommand(binDir() + "/rekon export " + session() + " --out " + (*dir_ / "export"), &out), 0) << out;
   // The fused frames at the final graph's poses: the optimiser's trajectory.txt.
-  const double run_ate = ate(data() + "/groundtruth.txt", run() + "/trajectory.txt");
-  const double export_ate = ate(data() + "/groundtruth.txt", *dir_ / "export/trajectory.txt");
+  const double run_ate = ateOf(data() + "/groundtruth.txt", run() + "/trajectory.txt");
+  const double export_ate = ateOf(data() + "/groundtruth.txt", *dir_ / "export/trajectory.txt");
   EXPECT_GT(run_ate, 0.0);
   EXPECT_NEAR(export_ate, run_ate, 1e-6);
   const std::string g2o = readText(*dir_ / "export/graph.g2o");
@@ -127,8 +124,38 @@ std::string runKilling(const std::string& service, const rekon::test::TempDir& d
   return out + "\nrekon run:\n" + readText(dir / "run/run.out");
 }
 
+// A run killed whole, or one whose tracker was killed, leaves its shared
+// memory (frame ring, keyframe store): removed here.
+void removeLeftovers(const rekon::test::TempDir& dir) {
+  for (const std::string& segment : rekon::test::leftoverSegments(dir / "run"))
+    runCommand(binDir() + "/rekon keyframes --remove --segment " + segment + "; rm -f /dev/shm/" + segment);
+}
+
+// A killed run's session continued with the frames after the last it kept
+// (the last 30 again when it kept them all): the new run relocalises against
+// it and maps the rest of the room into it.
+void expectContinues(const rekon::test::TempDir& dir) {
+  std::istringstream frames(readText(dir / "session/frames.txt"));
+  long long last = -1;
+  for (std::string line; std::getline(frames, line);) {
+    std::istringstream l(line);
+    if (long long id = 0; l >> id) last = std::max(last, id);
+  }
+  ASSERT_GE(last, 0);
+  std::string out;
+  ASSERT_EQ(runCommand(rekon::test::inNetns() + " timeout 240 " + binDir() + "/rekon run --dataset " + (dir / "room") +
+                           " --out " + (dir / "continued") + " --continue " + (dir / "session") +
+                           " --set player.first_frame=" + std::to_string(std::min<long long>(last + 1, kFrames - 30)),
+                       &out), 0) << out;
+  const std::string tracker = readText(dir / "continued/tracker_stats.json");
+  EXPECT_GE(rekon::test::jsonInt(tracker, "relocalisations"), 1) << tracker;
+  ASSERT_EQ(runCommand(binDir() + "/rekon export " + (dir / "session") + " --out " + (dir / "export_continued"), &out), 0) << out;
+  const size_t poses = rekon::readTumTrajectory(dir / "export_continued/trajectory.txt").size();
+  EXPECT_GE(poses, static_cast<size_t>(kFrames - 10)) << "frames of both runs, less the lost ones";
+}
+
 // Everything killed at once: the session holds the keyframes written before
-// (at least the 3 the store held, less any in flight) and re-meshes.
+// (at least the 3 the store held, less any in flight), re-meshes and continues.
 TEST(SessionKilled, ARunKilledWholeLeavesASessionThatOpensAndRemeshes) {
   rekon::test::TempDir dir;
   const std::string log = runKilling("all", dir);
@@ -138,14 +165,12 @@ TEST(SessionKilled, ARunKilledWholeLeavesASessionThatOpensAndRemeshes) {
   EXPECT_GE(valueAfter(out, "keyframes"), 2) << out;
   EXPECT_GT(rekon::readPly(dir / "remesh.ply").triangles.size(), 1000u);
   EXPECT_EQ(runCommand(binDir() + "/rekon export " + (dir / "session") + " --out " + (dir / "export"), &out), 0) << out;
-  // A run killed whole leaves its shared memory (frame ring, keyframe store): removed here.
-  for (const std::string& segment : rekon::test::leftoverSegments(dir / "run")) {
-    runCommand(binDir() + "/rekon keyframes --remove --segment " + segment + "; rm -f /dev/shm/" + segment);
-  }
+  removeLeftovers(dir);
+  expectContinues(dir);
 }
 
 // The mapper killed and restarted by rekon run goes on writing the same
-// session, which then re-meshes into the run's mesh.
+// session, which then re-meshes into the run's mesh and continues.
 TEST(SessionKilled, AMapperRestartedMidRunGoesOnWritingTheSameSession) {
   rekon::test::TempDir dir;
   const std::string log = runKilling("mapper", dir);
@@ -155,6 +180,20 @@ TEST(SessionKilled, AMapperRestartedMidRunGoesOnWritingTheSameSession) {
   const double same = corr(dir / "remesh.ply", dir / "run/mesh.ply");
   EXPECT_GE(same, 0.0);
   EXPECT_LT(same, 5e-4) << out;  // as an uninterrupted run's: 0.103 mm measured
+  expectContinues(dir);
+}
+
+// The tracker killed (the run stops) or the optimiser killed (restarted, it
+// rebuilds from the tracker's replay): either session opens and continues.
+TEST(SessionKilled, RunsWithTheTrackerOrTheOptimiserKilledLeaveSessionsThatContinue) {
+  for (const std::string service : {"tracker", "optimiser"}) {
+    SCOPED_TRACE(service);
+    rekon::test::TempDir dir;
+    const std::string log = runKilling(service, dir);
+    ASSERT_NE(log.find("killed rekon-" + service), std::string::npos) << log;
+    removeLeftovers(dir);
+    expectContinues(dir);
+  }
 }
 
 }  // namespace

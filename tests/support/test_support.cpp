@@ -125,6 +125,12 @@ double valueAfter(const std::string& text, const std::string& key) {
   return std::stod(text.substr(p + key.size() + 1));
 }
 
+double ateOf(const std::string& groundtruth, const std::string& trajectory) {
+  std::string out;
+  runCommand(binDir() + "/rekon eval traj " + groundtruth + " " + trajectory, &out);
+  return valueAfter(out, "ate_rmse_m");
+}
+
 bool insideNetns() {
   static const char* kInside = "REKON_TEST_INSIDE_NETNS";
   if (std::getenv(kInside)) return true;

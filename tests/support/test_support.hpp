@@ -57,6 +57,8 @@ std::string inNetns();
 // The number after "key=" in a command's output (rekon eval prints
 // `ate_rmse_m=...`), or -1 when it is absent.
 double valueAfter(const std::string& text, const std::string& key);
+// ATE RMSE (m) of a TUM trajectory against a ground truth (`rekon eval traj`), -1 when it fails.
+double ateOf(const std::string& groundtruth, const std::string& trajectory);
 
 // Multi-process tests whose own process talks on the bus: runs the current
 // test again inside tests/support/in_netns.sh and reports its result; returns

@@ -1,9 +1,9 @@
 // Tracking loss as a run reports it (issue 18): LostIntervals on tracking
-// results, and a real sequence with the lens covered for 20 frames through
-// the whole pipeline: the loss is found and reported, nothing is fused while
-// lost, and tracking goes on. Without relocalisation (not built yet) it goes
-// on from the last good pose, and the trajectory after the gap is off by the
-// motion during it: this test guards today's numbers, stated below.
+// results, and a real sequence through the whole pipeline with the lens
+// covered for 20 frames, and with 50 frames cut out so that the camera jumps:
+// the loss is found and reported, nothing is fused while lost, and tracking
+// goes on, relocalised against the keyframes where the camera is somewhere
+// they saw, else from the last good pose.
 #include <gtest/gtest.h>
 
 #include <filesystem>
@@ -18,6 +18,7 @@ namespace rekon::tracker {
 namespace {
 
 namespace fs = std::filesystem;
+using rekon::test::ateOf;
 using rekon::test::binDir;
 using rekon::test::jsonInt;
 using rekon::test::readText;
@@ -41,8 +42,12 @@ TEST(LostIntervals, EachRunOfLostFramesIsOneIntervalWithItsReasonAndEnd) {
   for (int64_t f = 5; f <= 8; ++f) l.add(result(f, true, LostReason::LargeResidual, f == 8));
   l.add(result(9, true, LostReason::NoDepth));
   l.add(result(10, true, LostReason::NoDepth));
+  TrackResult relocalised = result(11, false);
+  relocalised.relocalised_from = OdometryConstraint{};
+  l.add(relocalised);
+  l.add(result(12, true, LostReason::GapInTheData));
   l.finish();
-  ASSERT_EQ(l.intervals().size(), 3u);
+  ASSERT_EQ(l.intervals().size(), 4u);
   const LostInterval& a = l.intervals()[0];
   EXPECT_EQ(a.first_frame, 1);
   EXPECT_EQ(a.last_frame, 3);
@@ -53,16 +58,20 @@ TEST(LostIntervals, EachRunOfLostFramesIsOneIntervalWithItsReasonAndEnd) {
   EXPECT_EQ(l.intervals()[1].frames, 4);
   EXPECT_EQ(l.intervals()[1].ended, "restarted at the last good pose");
   EXPECT_EQ(l.intervals()[2].first_frame, 9);
-  EXPECT_EQ(l.intervals()[2].ended, "end of stream");
-  EXPECT_EQ(l.count(), 3);
+  EXPECT_EQ(l.intervals()[2].ended, "relocalised");
+  EXPECT_EQ(l.intervals()[3].reason, "gap in the data");
+  EXPECT_EQ(l.intervals()[3].ended, "end of stream");
+  EXPECT_EQ(l.count(), 4);
   EXPECT_NE(l.json().find(R"({"first_frame":1,"last_frame":3,"frames":3,"seconds":0.300,"reason":"black image","ended":"tracking resumed"})"),
             std::string::npos) << l.json();
 }
 
-// The first `frames` frames of a TUM dataset, with frames [from, from + n)
-// replaced by a covered lens: black color, no depth. Everything else links
-// to the original files.
-void coveredLens(const std::string& src, const std::string& dst, int frames, int from, int n) {
+enum class Edit { CoverLens, CutOut };
+
+// The first `frames` frames of a TUM dataset with frames [from, from + n)
+// replaced by a covered lens (black color, no depth) or cut out (the camera
+// jumps). Everything else links to the original files.
+void editedSequence(const std::string& src, const std::string& dst, int frames, int from, int n, Edit edit) {
   fs::create_directories(dst);
   for (const char* f : {"camera.yaml", "groundtruth.txt"}) fs::copy_file(fs::path(src) / f, fs::path(dst) / f);
   fs::create_directory_symlink(fs::absolute(fs::path(src) / "rgb"), fs::path(dst) / "rgb");
@@ -79,38 +88,42 @@ void coveredLens(const std::string& src, const std::string& dst, int frames, int
       std::istringstream s(line);
       std::string ts, file;
       s >> ts >> file;
-      const bool covered = i >= from && i < from + n;
-      out << ts << ' ' << (covered ? (std::string(list) == "rgb.txt" ? "black.png" : "no_depth.png") : file) << '\n';
+      const bool inside = i >= from && i < from + n;
       ++i;
+      if (inside && edit == Edit::CutOut) continue;
+      if (inside) file = std::string(list) == "rgb.txt" ? "black.png" : "no_depth.png";
+      out << ts << ' ' << file << '\n';
     }
   }
 }
 
-double ate(const std::string& groundtruth, const std::string& trajectory) {
-  std::string out;
-  runCommand(binDir() + "/rekon eval traj " + groundtruth + " " + trajectory, &out);
-  return rekon::test::valueAfter(out, "ate_rmse_m");
+// `rekon run` on the first `frames` frames of `src` edited as editedSequence
+// (outputs in DIR/edited_run) and on the same frames unedited (DIR/whole_run).
+void runEditedAndWhole(const std::string& src, const rekon::test::TempDir& dir, int frames, int from, int n, Edit edit) {
+  editedSequence(src, dir / "edited", frames, from, n, edit);
+  editedSequence(src, dir / "whole", frames, 0, 0, edit);
+  for (const char* name : {"edited", "whole"}) {
+    std::string out;
+    ASSERT_EQ(runCommand(rekon::test::inNetns() + " timeout 300 " + binDir() + "/rekon run --dataset " + (dir / name) +
+                             " --out " + (dir / (std::string(name) + "_run")),
+                         &out), 0) << out;
+  }
 }
 
-// Measured: frames 150-169 are lost (no valid depth), 170-179 do not align
-// to the keyframe (the camera moved 0.67 s meanwhile), and at frame 179
-// (tracker.max_lost_frames = 30 in a row) the tracker restarts at the last
-// good pose; the mapper skips all 30. ATE 57.1 mm against 19.9 mm uncovered
-// (2.9x): relocalisation against the keyframes is what would bring it back.
+// Measured: frames 150-169 are lost (no valid depth); 170-179 neither align
+// to the keyframe nor relocalise (the camera moved on for 0.67 s, into a view
+// no keyframe holds: the best candidates reach ln det ratio 0.85-0.88 at the
+// fine stage, below 0.9, and accepting 0.88 placed the camera 0.35 m wrong),
+// and at frame 179 (tracker.max_lost_frames = 30 in a row) the tracker
+// restarts at the last good pose; the mapper skips all 30. ATE 58.2 mm
+// (the lost frames are not in trajectory.txt) against 19.9 mm uncovered (2.9x).
 TEST(LostIntervals, CoveredLensOnARealSequenceIsLostNotFusedAndTrackingGoesOn) {
   REKON_REQUIRE_DATASET(data, "7scenes_loop_1000");
   rekon::test::TempDir dir;
   constexpr int kFrames = 300, kFrom = 150, kCovered = 20;
-  coveredLens(data, dir / "covered", kFrames, kFrom, kCovered);
-  coveredLens(data, dir / "plain", kFrames, 0, 0);
-  std::string out;
-  for (const char* name : {"covered", "plain"}) {
-    ASSERT_EQ(runCommand(rekon::test::inNetns() + " timeout 240 " + binDir() + "/rekon run --dataset " + (dir / name) +
-                             " --out " + (dir / (std::string(name) + "_run")),
-                         &out), 0) << out;
-  }
-  const std::string tracker = readText(dir / "covered_run/tracker_stats.json");
-  const std::string mapper = readText(dir / "covered_run/mapper_stats.json");
+  ASSERT_NO_FATAL_FAILURE(runEditedAndWhole(data, dir, kFrames, kFrom, kCovered, Edit::CoverLens));
+  const std::string tracker = readText(dir / "edited_run/tracker_stats.json");
+  const std::string mapper = readText(dir / "edited_run/mapper_stats.json");
   EXPECT_EQ(jsonInt(tracker, "lost_intervals_count"), 1) << tracker;
   // The interval starts with the cover and ends within max_lost_frames (30) of it.
   EXPECT_NE(tracker.find(R"("first_frame":150,)"), std::string::npos) << tracker;
@@ -121,11 +134,45 @@ TEST(LostIntervals, CoveredLensOnARealSequenceIsLostNotFusedAndTrackingGoesOn) {
   EXPECT_EQ(jsonInt(mapper, "frames_skipped"), lost) << mapper;  // nothing fused while lost
   EXPECT_EQ(jsonInt(mapper, "frames_fused"), kFrames - lost) << mapper;
   // The covered run's ATE (its covered frames carry the last good pose) against the plain run's.
-  const double covered = ate(data + "/groundtruth.txt", dir / "covered_run/trajectory.txt");
-  const double plain = ate(data + "/groundtruth.txt", dir / "plain_run/trajectory.txt");
+  const double covered = ateOf(data + "/groundtruth.txt", dir / "edited_run/trajectory.txt");
+  const double plain = ateOf(data + "/groundtruth.txt", dir / "whole_run/trajectory.txt");
   EXPECT_GT(plain, 0.0);
   EXPECT_LT(covered, 4.0 * plain);  // 2.9x measured
   std::cout << "ATE covered " << covered << " m, plain " << plain << " m\n";
+}
+
+// Frames 900-949 of the 7-Scenes loop cut out: 1.7 s, the camera jumps 0.50 m
+// and 21 degrees, back into the part of the room its first minute mapped.
+// Measured: frame 900 (after the cut) is lost as a gap in the data (beyond
+// tracker.lost_max_gap_s), relocalised at frame 906 against keyframe 24 (6
+// frames lost; without the gap check the tracker aligned across the jump and
+// kept 0.36 m for it, a wrong pose that passed every check); ATE 35.3 mm
+// against 37.3 mm uncut (0.95x). The search is bounded by time
+// (tracker.lost_relocalise_budget_ms a frame; 52 candidates in 6 frames
+// here), so a loaded machine takes more frames: bound 25, below the 30 after
+// which the tracker restarts at the last good pose instead. ATE within 1.3x
+// of the uncut run's.
+TEST(LostIntervals, ACutInARealSequenceIsAGapAndTrackingResumesRelocalised) {
+  REKON_REQUIRE_DATASET(data, "7scenes_loop_1000");
+  rekon::test::TempDir dir;
+  constexpr int kFrames = 1000, kFrom = 900, kCut = 50;
+  ASSERT_NO_FATAL_FAILURE(runEditedAndWhole(data, dir, kFrames, kFrom, kCut, Edit::CutOut));
+  const std::string tracker = readText(dir / "edited_run/tracker_stats.json");
+  EXPECT_EQ(jsonInt(tracker, "lost_intervals_count"), 1) << tracker;
+  EXPECT_NE(tracker.find(R"("first_frame":900,)"), std::string::npos) << tracker;
+  EXPECT_NE(tracker.find(R"("reason":"gap in the data")"), std::string::npos) << tracker;
+  EXPECT_NE(tracker.find(R"("ended":"relocalised")"), std::string::npos) << tracker;
+  EXPECT_GE(jsonInt(tracker, "relocalisations"), 1) << tracker;
+  const long long lost = jsonInt(tracker, "lost_frames");
+  EXPECT_GE(lost, 1) << tracker;
+  EXPECT_LE(lost, 25) << tracker;
+  const std::string mapper = readText(dir / "edited_run/mapper_stats.json");
+  EXPECT_EQ(jsonInt(mapper, "frames_fused"), kFrames - kCut - lost) << mapper;  // nothing fused while lost
+  const double cut = ateOf(data + "/groundtruth.txt", dir / "edited_run/trajectory.txt");
+  const double uncut = ateOf(data + "/groundtruth.txt", dir / "whole_run/trajectory.txt");
+  EXPECT_GT(uncut, 0.0);
+  EXPECT_LT(cut, 1.3 * uncut);
+  std::cout << "ATE cut " << cut << " m, uncut " << uncut << " m, " << lost << " frames lost\n";
 }
 
 }  // namespace

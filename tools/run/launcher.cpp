@@ -16,6 +16,7 @@
 #include <thread>
 
 #include "process.hpp"
+#include "rekon/common/camera.hpp"
 #include "rekon/common/cli.hpp"
 #include "rekon/common/config.hpp"
 #include "rekon/common/error.hpp"
@@ -24,8 +25,11 @@
 #include "rekon/common/logging.hpp"
 #include "rekon/mapper/store/keyframe_store.hpp"
 #include "rekon/mapper/store/session.hpp"
+#include "rekon/optimiser/g2o.hpp"
 #include "rekon/report/run_report.hpp"
 #include "rekon/synth/synth.hpp"
+#include "rekon/tracker/keyframe_archive.hpp"
+#include "rekon/tracker/params.hpp"
 
 namespace rekon {
 namespace fs = std::filesystem;
@@ -140,6 +144,27 @@ void configureSession(Config& config, const RunOptions& opt) {
   config.set("session.dir", dir.string());
 }
 
+// --continue DIR: every service's part of the session read whole before
+// anything starts (a damaged file is one line and the session stays
+// untouched): the mapper's keyframes with their checksums, the tracker's
+// keyframes, the pose graph; with a dataset, its camera must be the session's.
+void configureContinue(Config& config, const RunOptions& opt) {
+  const fs::path dir = fs::absolute(opt.continued);
+  const store::Session session = store::Session::open(dir.string());
+  for (size_t i = 0; i < session.keyframes().size(); ++i) session.load(i);
+  const size_t dvo = tracker::loadKeyframes(dir.string(), tracker::trackerParamsFromConfig(config).aligner).size();
+  if (fs::exists(dir / "graph.g2o")) optimiser::readG2oFile((dir / "graph.g2o").string());
+  if (!opt.dataset.empty()) {
+    const Intrinsics k = loadIntrinsics((fs::path(opt.dataset) / "camera.yaml").string());
+    if (!sameCamera(k, session.info().camera))
+      throw Error(dir.string() + " was made with another camera (" + describeCamera(session.info().camera) + ") than " +
+                  opt.dataset + "'s (" + describeCamera(k) + "); continue a session with the camera it was made with");
+  }
+  spdlog::info("continuing session {}: {} KF keyframes, {} DVO keyframes", dir.string(), session.keyframes().size(), dvo);
+  config.set("session.dir", dir.string());
+  config.set("session.continue", "true");
+}
+
 // A camera run: the device, its calibration and the recording folder go into
 // the effective config (config.yaml says what the run used).
 void configureCamera(Config& config, const RunOptions& opt) {
@@ -165,6 +190,7 @@ RunPlan planRun(const RunOptions& opt) {
   std::vector<std::string> services = servicesToRun(config, bin, source);
   if (!opt.camera.empty()) configureCamera(config, opt);
   if (!opt.session.empty()) configureSession(config, opt);
+  if (!opt.continued.empty()) configureContinue(config, opt);
   // Behind a source that cannot wait, a busy mapper drops frames rather than
   // holding the tracker's next frames back.
   if (!opt.camera.empty() || config.getString("player.pacing") == "live") config.set("mapper.when_full", "drop");
@@ -456,6 +482,7 @@ int runCommand(int argc, char** argv) {
       .option("record", "with --camera: also record every captured frame into this new folder (a TUM dataset)")
       .option("out", "output folder (required)")
       .option("session", "also keep a session in this new folder as the run goes: rekon remesh and rekon export read it")
+      .option("continue", "extend the session in this folder: relocalise against it, then map into it (same camera)")
       .option("config", "YAML config laid over config/default.yaml")
       .repeated("set", "override one config key, e.g. --set mapper.voxel_size=0.02")
       .flag("report", "also write report.html (mesh views, trajectory, timing, stats) into --out")
@@ -468,6 +495,7 @@ int runCommand(int argc, char** argv) {
   opt.record = args.get("record");
   opt.out = args.get("out");
   opt.session = args.get("session");
+  opt.continued = args.get("continue");
   opt.config_file = args.get("config");
   opt.sets = args.all("set");
   opt.report = args.flagSet("report");
@@ -476,6 +504,8 @@ int runCommand(int argc, char** argv) {
     throw Error("rekon run needs --out and one of --dataset DIR or --camera DEVICE; see rekon run --help");
   }
   if (!opt.dataset.empty() && !fs::is_directory(opt.dataset)) throw Error(opt.dataset + ": dataset folder not found");
+  if (!opt.session.empty() && !opt.continued.empty())
+    throw Error("--session starts a new session and --continue extends one; give one of them");
   if (opt.camera.empty() && !(opt.calibration.empty() && opt.record.empty())) {
     throw Error("--calibration and --record go with --camera (a dataset has its own camera.yaml)");
   }

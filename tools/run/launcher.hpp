@@ -12,6 +12,7 @@ struct RunOptions {
   std::string camera, calibration, record;  // a live camera (rekon-camera), see rekon run --help
   std::string out, config_file;
   std::string session;  // a new folder kept as the run goes (session.dir), for rekon remesh and rekon export
+  std::string continued;  // a session this run extends (session.dir with session.continue)
   std::vector<std::string> sets;
   bool report = false;  // also write report.html
   bool view = false;    // also start rekon-viewer (a live web page of the run; its URL is printed)
