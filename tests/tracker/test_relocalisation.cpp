@@ -61,7 +61,9 @@ TEST(KeyframeArchive, KeyframesComeBackBitExactAndDamageIsOneLine) {
     EXPECT_EQ(b.frame_id, a.frame_id);
     EXPECT_TRUE(b.pose_world.matrix().isApprox(a.pose_world.matrix(), 1e-12));  // re-orthonormalised on reading
     EXPECT_EQ(back[i].incoming.has_value(), t.keyframes[i].second.has_value());
-    if (back[i].incoming) EXPECT_EQ(back[i].incoming->information, t.keyframes[i].second->information);
+    if (back[i].incoming) {
+      EXPECT_EQ(back[i].incoming->information, t.keyframes[i].second->information);
+    }
     EXPECT_TRUE(sameCamera(back[i].camera, views.intrinsics()));
     for (int l = a.pyramid.finestLevel(); l <= a.pyramid.coarsestLevel(); ++l) {
       EXPECT_EQ(b.pyramid.level(l).intensity, a.pyramid.level(l).intensity) << "level " << l;
