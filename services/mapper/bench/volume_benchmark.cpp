@@ -1,6 +1,7 @@
 // Speed of the TSDF volume on a real sequence with ground-truth poses:
 // integration, de-integration (ms per frame) and marching cubes of the whole
 // volume. Frames are decoded before timing. Not a test: it prints numbers.
+// Against other libraries' volumes: `rekon bench peers` (tools/bench/mapper).
 //   rekon_volume_benchmark [--dataset DIR] [--frames N] [--backend auto|cpu|cuda]
 #include <spdlog/spdlog.h>
 
@@ -15,9 +16,6 @@
 #include "rekon/common/error.hpp"
 #include "rekon/common/logging.hpp"
 #include "rekon/mapper/volume/tsdf_volume.hpp"
-#ifdef REKON_WITH_OPEN3D
-#include "open3d_reference.hpp"
-#endif
 
 namespace {
 
@@ -25,7 +23,7 @@ using Clock = std::chrono::steady_clock;
 double msSince(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
 
 struct Frame {
-  cv::Mat depth, color, raw_depth;
+  cv::Mat depth, color;
   rekon::Pose pose;
 };
 
@@ -37,7 +35,7 @@ std::vector<Frame> loadFrames(const rekon::TumDataset& dataset, double max_time_
     if (p < 0) continue;
     const rekon::RgbdFrame f = dataset.load(i);
     frames.push_back({rekon::volume::depthToMetres(f.depth, dataset.intrinsics().depth_scale),
-                      no_color ? cv::Mat() : f.color, f.depth, dataset.groundTruth()[p].pose});
+                      no_color ? cv::Mat() : f.color, dataset.groundTruth()[p].pose});
   }
   return frames;
 }
@@ -85,30 +83,6 @@ void printExactness(const std::vector<Frame>& frames, const rekon::volume::Volum
               differing_color, voxels);
 }
 
-#ifdef REKON_WITH_OPEN3D
-// Open3D's VoxelBlockGrid on the same frames, with 16-bit and float voxels.
-void compareWithOpen3d(const std::vector<Frame>& frames, const rekon::volume::VolumeParams& params,
-                       const rekon::Intrinsics& k, double integrate_ms, double integrate_cpu_ms, double mesh_s) {
-  std::vector<cv::Mat> raw, color;
-  std::vector<rekon::Pose> poses;
-  for (const Frame& f : frames) {
-    raw.push_back(f.raw_depth);
-    color.push_back(f.color);
-    poses.push_back(f.pose);
-  }
-  for (const bool float_voxels : {false, true}) {
-    const Open3dResult o3d = runOpen3dReference(raw, color, poses, k, params.voxel_size, params.truncation,
-                                                params.max_depth, float_voxels);
-    const char* layout = float_voxels ? "float32" : "uint16";
-    std::printf("open3d_%s_integrate_ms_per_frame=%.2f open3d_%s_mesh_s=%.3f open3d_blocks=%lld open3d_mesh_vertices=%zu\n",
-                layout, o3d.integrate_ms_per_frame, layout, o3d.mesh_s, o3d.blocks, o3d.mesh_vertices);
-    std::printf("open3d_%s_integrate_cpu_ms_per_frame=%.2f\n", layout, o3d.integrate_cpu_ms_per_frame);
-    std::printf("speedup_vs_open3d_%s_same_run=%.2f (cpu time %.2f) mesh_speedup=%.2f\n", layout,
-                o3d.integrate_ms_per_frame / integrate_ms, o3d.integrate_cpu_ms_per_frame / integrate_cpu_ms,
-                o3d.mesh_s / mesh_s);
-  }
-}
-#endif
 
 }  // namespace
 
@@ -184,13 +158,7 @@ int main(int argc, char** argv) try {
               static_cast<long long>(volume.stats().blocks));
   printExactness(frames, params, k);
 
-#ifdef REKON_WITH_OPEN3D
-  if (!args.flagSet("no-color")) compareWithOpen3d(frames, params, k, integrate_ms, integrate_cpu_ms, mesh_s);
-#else
-  std::printf("open3d: not built (install libopen3d-dev and re-configure to compare in the same run)\n");
-#endif
-  std::printf("open3d_reference_ms_per_frame=26.9 (measured on this machine, data/README.md) speedup_vs_open3d_reference=%.2f\n",
-              26.9 / integrate_ms);
+  std::printf("peers: rekon bench peers --dataset DIR times OpenCV's and Open3D's volumes on the same frames\n");
   return 0;
 } catch (...) {
   std::fprintf(stderr, "rekon_volume_benchmark: %s\n", rekon::currentExceptionLine().c_str());

@@ -11,6 +11,7 @@ int benchCommand(int argc, char** argv) {
   const std::string usage =
       "usage: rekon bench keyframes --dataset DIR --out DIR [...]      (paper Figure 5)\n"
       "       rekon bench reintegration --dataset DIR --out DIR [...]  (paper Figure 7)\n"
+      "       rekon bench peers --dataset DIR [--frames N] [--out DIR]  (TSDF integration against OpenCV and Open3D)\n"
       "       rekon bench SUBCOMMAND --help for the options\n";
   if (argc < 2 || std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h") {
     std::cout << usage;
@@ -21,7 +22,8 @@ int benchCommand(int argc, char** argv) {
   argv[1] = program.data();  // the subcommand sees "rekon bench NAME" as its program
   if (what == "keyframes") return benchKeyframesCommand(argc - 1, argv + 1);
   if (what == "reintegration") return benchReintegrationCommand(argc - 1, argv + 1);
-  throw Error("rekon bench: unknown subcommand '" + what + "'; use keyframes or reintegration");
+  if (what == "peers") return benchPeersCommand(argc - 1, argv + 1);
+  throw Error("rekon bench: unknown subcommand '" + what + "'; use keyframes, reintegration or peers");
 }
 
 }  // namespace rekon::mapper_bench
