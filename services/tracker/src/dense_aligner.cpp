@@ -8,6 +8,7 @@
 #include <string>
 
 #include "rekon/common/error.hpp"
+#include "rekon/common/simd.hpp"
 
 namespace rekon::tracker {
 namespace {
@@ -54,53 +55,91 @@ double entropyOfInformation(const Matrix6d& information) {
 
 DenseAligner::DenseAligner(const AlignerParams& params) : params_(params) { params_.validate(); }
 
+namespace {
+
+inline float maxf(float a, float b) { return a > b ? a : b; }
+inline float minf(float a, float b) { return a < b ? a : b; }
+
+struct WarpConstants {
+  float r00, r01, r02, t0, r10, r11, r12, t1, r20, r21, r22, t2;
+  float fx, fy, cx, cy, umax, vmax, zmin, max_step;
+  int width;
+  float use_depth;  // 1 or 0: a float, so that its test vectorises as a mask like the others
+};
+
+// Every reference point in one pass, written so that the compiler vectorises
+// it (-fopt-info-vec): no branches (each test a mask), selects as a > b ? a :
+// b, outputs that alias nothing (restrict parameters). A point that does not
+// count reads a clamped pixel and gets keep = 0. Same arithmetic as testing
+// point by point.
+REKON_SIMD_CLONES void warpPoints(const float* __restrict points, int count, const float* __restrict intensity,
+                                  const float* __restrict depth, const WarpConstants c, float* __restrict res_i,
+                                  float* __restrict res_z, int* __restrict keep) {
+  for (int i = 0; i < count; ++i) {
+    const bool use_depth = c.use_depth > 0.f;
+    const float* p = points + KeyframeReference::kPointStride * i;
+    const float z = c.r20 * p[0] + c.r21 * p[1] + c.r22 * p[2] + c.t2;
+    const float iz = 1.f / maxf(z, 1e-6f);
+    const float u = c.fx * (c.r00 * p[0] + c.r01 * p[1] + c.r02 * p[2] + c.t0) * iz + c.cx;
+    const float v = c.fy * (c.r10 * p[0] + c.r11 * p[1] + c.r12 * p[2] + c.t1) * iz + c.cy;
+    const bool inside = (z > c.zmin) & (u >= 0.f) & (v >= 0.f) & (u < c.umax) & (v < c.vmax);
+    const float uc = minf(maxf(u, 0.f), c.umax), vc = minf(maxf(v, 0.f), c.vmax);
+    const int x0 = static_cast<int>(uc), y0 = static_cast<int>(vc);
+    const float ax = uc - static_cast<float>(x0), ay = vc - static_cast<float>(y0);
+    const int o = y0 * c.width + x0;
+    const float d00 = depth[o], d01 = depth[o + 1], d10 = depth[o + c.width], d11 = depth[o + c.width + 1];
+    const float sum = d00 + d01 + d10 + d11;
+    const float lo = minf(minf(d00, d01), minf(d10, d11));
+    const float hi = maxf(maxf(d00, d01), maxf(d10, d11));
+    // Interpolating across a hole or an occlusion edge would invent a surface.
+    const bool depth_ok = (sum == sum) & !(hi - lo > c.max_step * lo);
+    const float dtop = d00 + ax * (d01 - d00), dbottom = d10 + ax * (d11 - d10);
+    const float i00 = intensity[o], i01 = intensity[o + 1], i10 = intensity[o + c.width],
+                i11 = intensity[o + c.width + 1];
+    const float itop = i00 + ax * (i01 - i00), ibottom = i10 + ax * (i11 - i10);
+    res_i[i] = itop + ay * (ibottom - itop) - p[3];
+    res_z[i] = use_depth ? dtop + ay * (dbottom - dtop) - z : 0.f;
+    keep[i] = (inside & (depth_ok | !use_depth)) ? 1 : 0;
+  }
+}
+
+}  // namespace
+
 int DenseAligner::warp(const KeyframeReference::Level& ref, const PyramidLevel& cur,
                        const Eigen::Matrix<float, 3, 4>& t) {
   const int w = cur.k.width, h = cur.k.height;
-  const float fx = static_cast<float>(cur.k.fx), fy = static_cast<float>(cur.k.fy);
-  const float cx = static_cast<float>(cur.k.cx), cy = static_cast<float>(cur.k.cy);
-  const float umax = static_cast<float>(w - 1) - 1e-3f, vmax = static_cast<float>(h - 1) - 1e-3f;
-  const float zmin = static_cast<float>(params_.min_depth);
-  const float max_step = static_cast<float>(params_.max_depth_step);
-  const bool use_depth = params_.use_depth;
-  const float r00 = t(0, 0), r01 = t(0, 1), r02 = t(0, 2), t0 = t(0, 3);
-  const float r10 = t(1, 0), r11 = t(1, 1), r12 = t(1, 2), t1 = t(1, 3);
-  const float r20 = t(2, 0), r21 = t(2, 1), r22 = t(2, 2), t2 = t(2, 3);
-  const float* P = ref.points.data();
-  const float* I = cur.intensity.data();
-  const float* D = cur.depth.data();
-  float* out_i = res_i_.data();
-  float* out_z = res_z_.data();
-  int* out_idx = index_.data();
+  const WarpConstants c{t(0, 0),
+                        t(0, 1),
+                        t(0, 2),
+                        t(0, 3),
+                        t(1, 0),
+                        t(1, 1),
+                        t(1, 2),
+                        t(1, 3),
+                        t(2, 0),
+                        t(2, 1),
+                        t(2, 2),
+                        t(2, 3),
+                        static_cast<float>(cur.k.fx),
+                        static_cast<float>(cur.k.fy),
+                        static_cast<float>(cur.k.cx),
+                        static_cast<float>(cur.k.cy),
+                        static_cast<float>(w - 1) - 1e-3f,
+                        static_cast<float>(h - 1) - 1e-3f,
+                        static_cast<float>(params_.min_depth),
+                        static_cast<float>(params_.max_depth_step),
+                        w,
+                        params_.use_depth ? 1.f : 0.f};
+  warpPoints(ref.points.data(), ref.count, cur.intensity.data(), cur.depth.data(), c, res_i_.data(), res_z_.data(),
+             index_.data());
+  // Compaction in place (n <= i): the points that count, with their index.
   int n = 0;
   for (int i = 0; i < ref.count; ++i) {
-    const float* p = P + KeyframeReference::kPointStride * i;
-    const float z = r20 * p[0] + r21 * p[1] + r22 * p[2] + t2;
-    if (!(z > zmin)) continue;
-    const float iz = 1.f / z;
-    const float u = fx * (r00 * p[0] + r01 * p[1] + r02 * p[2] + t0) * iz + cx;
-    const float v = fy * (r10 * p[0] + r11 * p[1] + r12 * p[2] + t1) * iz + cy;
-    if (!(u >= 0.f && v >= 0.f && u < umax && v < vmax)) continue;
-    const int x0 = static_cast<int>(u), y0 = static_cast<int>(v);
-    const float ax = u - static_cast<float>(x0), ay = v - static_cast<float>(y0);
-    const int o = y0 * w + x0;
-    float rz = 0.f;
-    if (use_depth) {
-      const float d00 = D[o], d01 = D[o + 1], d10 = D[o + w], d11 = D[o + w + 1];
-      if (std::isnan(d00 + d01 + d10 + d11)) continue;
-      const float lo = std::min(std::min(d00, d01), std::min(d10, d11));
-      const float hi = std::max(std::max(d00, d01), std::max(d10, d11));
-      // Interpolating across an occlusion edge would invent a surface.
-      if (hi - lo > max_step * lo) continue;
-      const float top = d00 + ax * (d01 - d00), bottom = d10 + ax * (d11 - d10);
-      rz = top + ay * (bottom - top) - z;
-    }
-    const float i00 = I[o], i01 = I[o + 1], i10 = I[o + w], i11 = I[o + w + 1];
-    const float top = i00 + ax * (i01 - i00), bottom = i10 + ax * (i11 - i10);
-    out_i[n] = top + ay * (bottom - top) - p[3];
-    out_z[n] = rz;
-    out_idx[n] = i;
-    ++n;
+    const int keep = index_[i];
+    res_i_[n] = res_i_[i];
+    res_z_[n] = res_z_[i];
+    index_[n] = i;
+    n += keep;
   }
   return n;
 }
@@ -180,41 +219,52 @@ DenseAligner::Whitening DenseAligner::whitening(const Scale& scale) const {
   return u;
 }
 
+namespace {
+
+// The rows of one block of pixels, column by column (7 columns: 6 Jacobian
+// entries and the residual) with the photometric rows of the `count` pixels
+// first and their geometric rows after them. One pass over the pixels, written
+// so that the compiler vectorises it (the Jacobians are gathered by index).
+REKON_SIMD_CLONES void fillBlock(const float* __restrict res_i, const float* __restrict res_z,
+                                 const int* __restrict index, const float* __restrict jacobians, int count,
+                                 float u11, float u12, float u22, float nu, float* __restrict block) {
+  const int rows = 2 * count;
+#pragma omp simd  // independent pixels: the 14 rows a pixel writes never overlap another pixel's
+  for (int k = 0; k < count; ++k) {
+    const float ri = res_i[k], rz = res_z[k];
+    const float e1 = u11 * ri + u12 * rz, e2 = u22 * rz;
+    const float sw = std::sqrt((nu + 2.f) / (nu + e1 * e1 + e2 * e2));
+    const int j = KeyframeReference::kJacobianStride * index[k];  // an offset, not a pointer: gathers need one
+    const float s1 = sw * u11, s12 = sw * u12, s2 = sw * u22;
+    for (int d = 0; d < 6; ++d) {
+      block[d * rows + k] = s1 * jacobians[j + d] + s12 * jacobians[j + 8 + d];
+      block[d * rows + count + k] = s2 * jacobians[j + 8 + d];
+    }
+    block[6 * rows + k] = sw * e1;
+    block[6 * rows + count + k] = sw * e2;
+  }
+}
+
+}  // namespace
+
 void DenseAligner::accumulate(const KeyframeReference::Level& ref, int n, const Scale& scale, Matrix6d& h,
                               Vector6d& b) {
   // whitening() turns the 2x2-weighted joint residual into two scalar rows
-  // sqrt(w) (U J | U r) per pixel. A block of such rows is stored column by
-  // column (7 columns: 6 Jacobian entries and the residual), and the 28 dot
-  // products of column pairs give J^T W J and J^T W r: contiguous, vectorised
-  // reductions with no gathering. Float within a block, double across blocks.
+  // sqrt(w) (U J | U r) per pixel (fillBlock), and the 28 dot products of
+  // column pairs give J^T W J and J^T W r: contiguous, vectorised reductions
+  // with no gathering. Float within a block, double across blocks.
   const Whitening u = whitening(scale);
-  const float u11 = u.u11, u12 = u.u12, u22 = u.u22;
   const float nu = static_cast<float>(params_.t_dof);
-  const float* J = ref.jacobians.data();
-  constexpr int kRows = 2 * kBlockPixels;
-  float* col[7];
-  for (int d = 0; d < 7; ++d) col[d] = block_.data() + static_cast<size_t>(d) * kRows;
   Eigen::Matrix<double, 7, 7> total = Eigen::Matrix<double, 7, 7>::Zero();
   for (int start = 0; start < n; start += kBlockPixels) {
     const int count = std::min(kBlockPixels, n - start);
-    for (int k = 0; k < count; ++k) {
-      const int i = start + k;
-      const float ri = res_i_[i], rz = res_z_[i];
-      const float e1 = u11 * ri + u12 * rz, e2 = u22 * rz;
-      const float sw = std::sqrt((nu + 2.f) / (nu + e1 * e1 + e2 * e2));
-      const float* j = J + KeyframeReference::kJacobianStride * index_[i];
-      const float s1 = sw * u11, s12 = sw * u12, s2 = sw * u22;
-      for (int d = 0; d < 6; ++d) {
-        col[d][2 * k] = s1 * j[d] + s12 * j[8 + d];
-        col[d][2 * k + 1] = s2 * j[8 + d];
-      }
-      col[6][2 * k] = sw * e1;
-      col[6][2 * k + 1] = sw * e2;
-    }
     const int rows = 2 * count;
+    fillBlock(res_i_.data() + start, res_z_.data() + start, index_.data() + start, ref.jacobians.data(), count, u.u11,
+              u.u12, u.u22, nu, block_.data());
     for (int p = 0; p < 7; ++p) {
-      const Eigen::Map<const Eigen::VectorXf> gp(col[p], rows);
-      for (int q = p; q < 7; ++q) total(p, q) += gp.dot(Eigen::Map<const Eigen::VectorXf>(col[q], rows));
+      const Eigen::Map<const Eigen::VectorXf> gp(block_.data() + static_cast<size_t>(p) * rows, rows);
+      for (int q = p; q < 7; ++q)
+        total(p, q) += gp.dot(Eigen::Map<const Eigen::VectorXf>(block_.data() + static_cast<size_t>(q) * rows, rows));
     }
   }
   total.triangularView<Eigen::StrictlyLower>() = total.transpose();
