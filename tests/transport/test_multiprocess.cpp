@@ -78,6 +78,13 @@ TEST(MultiProcess, HundredFramesArriveBitExactThroughSharedMemory) {
   EXPECT_EQ(playToListener(data, 100, "shm", dir), expectedLines(data, 100));
 }
 
+// Decoded ahead on two threads (player.decode_threads): the same frames, in order.
+TEST(MultiProcess, FramesDecodedAheadArriveBitExactAndInOrder) {
+  REKON_REQUIRE_DATASET(data, "7scenes_loop_1000");
+  rekon::test::TempDir dir;
+  EXPECT_EQ(playToListener(data, 100, "shm", dir, "", "--set player.decode_threads=2"), expectedLines(data, 100));
+}
+
 TEST(MultiProcess, HundredFramesArriveBitExactThroughInlineLcm) {
   REKON_REQUIRE_DATASET(data, "7scenes_loop_1000");
   rekon::test::TempDir dir;

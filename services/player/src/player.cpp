@@ -11,6 +11,7 @@
 #include "rekon/common/dataset.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/common/frame_source.hpp"
+#include "decode_ahead.hpp"
 #include "rekon_msgs/end_of_stream_t.hpp"
 
 namespace rekon {
@@ -55,7 +56,8 @@ class Player {
   Player(ServiceContext& ctx, const PlayerParams& params)
       : ctx_(ctx), params_(params), dataset_(openDataset(params)), first_(params.first_frame),
         end_(static_cast<int64_t>(dataset_.size())), count_(dataset_.size() - static_cast<size_t>(first_)),
-        watch_(ctx.bus()), peers_(ctx.bus()), stop_threads_(ctx), acked_pacing_(!params.wait_for.empty()) {
+        ahead_(dataset_, params.decode_threads, end_), watch_(ctx.bus()), peers_(ctx.bus()), stop_threads_(ctx),
+        acked_pacing_(!params.wait_for.empty()) {
     spdlog::info("dataset {}: {} frames, {}x{}, {:.1f} s", params.dataset, count_, dataset_.intrinsics().width,
                  dataset_.intrinsics().height, dataset_.timestamp(dataset_.size() - 1) - dataset_.timestamp(first_));
   }
@@ -78,11 +80,10 @@ class Player {
   }
 
  private:
-  void sendFrame(int64_t id) {
-    const size_t i = static_cast<size_t>(id);
-    const EncodedFrame encoded = dataset_.loadEncoded(i);
-    const RgbdFrame frame = dataset_.decode(i, encoded);  // validates the files before anyone sees them
-    sender_->send(frame, dataset_.intrinsics(), &encoded);
+  // Frame `id` in playing order: decoded ahead (resends decode their frame again).
+  void sendFrame(int64_t id) { send(id, ahead_.take(id)); }
+  void send(int64_t id, const LoadedFrame& loaded) {
+    sender_->send(loaded.frame, dataset_.intrinsics(), &loaded.encoded);
     newest_sent_ = std::max(newest_sent_, id);
   }
 
@@ -109,7 +110,7 @@ class Player {
       if (newest_sent_ >= 0 && peers_.alive(silent, 2.0)) {
         spdlog::debug("no acknowledgement from rekon-{} for {:.0f} s: sending frame {} again", silent, kResendAfterS,
                       newest_sent_);
-        sendFrame(newest_sent_);
+        send(newest_sent_, ahead_.load(newest_sent_));
         ++resent_;
       }
     }
@@ -189,8 +190,7 @@ class Player {
     LiveOutlet outlet(ctx_, *sender_, watch_, params_.wait_for, params_.live_in_flight);
     for (int64_t id = first_; id < end_ && !ctx_.stopRequested(); ++id) {
       sleepUntilRecorded(id);
-      const size_t i = static_cast<size_t>(id);
-      outlet.offer(dataset_.decode(i, dataset_.loadEncoded(i)), dataset_.intrinsics());
+      outlet.offer(ahead_.take(id).frame, dataset_.intrinsics());
       ++sent_;
       reportProgress(id + 1);
     }
@@ -259,6 +259,7 @@ class Player {
   const TumDataset dataset_;
   const int64_t first_, end_;  // end_: one past the last frame id
   const size_t count_;
+  DecodeAhead ahead_;  // after dataset_ and end_
   ConsumerWatch watch_;
   PeerWatch peers_;
   StopThreadsOnExit stop_threads_;  // after `watch_` and `peers_`: their handlers run on the bus thread
@@ -290,6 +291,8 @@ PlayerParams PlayerParams::fromConfig(const Config& config, const std::string& d
   p.max_frames = config.getInt("player.max_frames");
   p.first_frame = config.getInt("player.first_frame");
   p.camera = config.getString("player.camera");
+  p.decode_threads = config.getInt("player.decode_threads");
+  if (p.decode_threads < 0 || p.decode_threads > 16) throw Error("player.decode_threads must lie in [0, 16]");
   const std::string pacing = config.getString("player.pacing");
   if (pacing != "wait" && pacing != "live") throw Error("player.pacing '" + pacing + "' must be \"wait\" or \"live\"");
   p.live = pacing == "live";

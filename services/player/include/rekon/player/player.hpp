@@ -22,6 +22,7 @@ struct PlayerParams {
   int max_frames = 0;
   int first_frame = 0;
   std::string camera;  // camera.yaml overriding the dataset's; "" = the dataset's
+  int decode_threads = 0;  // frames decoded ahead on their own threads (0 = on the sending thread)
   std::string transport_mode = "auto";  // shm | lcm | auto
   std::string segment;
   int slots = 8;
