@@ -12,6 +12,7 @@ int benchCommand(int argc, char** argv) {
       "usage: rekon bench keyframes --dataset DIR --out DIR [...]      (paper Figure 5)\n"
       "       rekon bench reintegration --dataset DIR --out DIR [...]  (paper Figure 7)\n"
       "       rekon bench peers --dataset DIR [--frames N] [--out DIR]  (TSDF integration against OpenCV and Open3D)\n"
+      "       rekon bench scaling --out DIR [--laps 3] [...]           (integration time as the map grows)\n"
       "       rekon bench SUBCOMMAND --help for the options\n";
   if (argc < 2 || std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h") {
     std::cout << usage;
@@ -23,7 +24,8 @@ int benchCommand(int argc, char** argv) {
   if (what == "keyframes") return benchKeyframesCommand(argc - 1, argv + 1);
   if (what == "reintegration") return benchReintegrationCommand(argc - 1, argv + 1);
   if (what == "peers") return benchPeersCommand(argc - 1, argv + 1);
-  throw Error("rekon bench: unknown subcommand '" + what + "'; use keyframes, reintegration or peers");
+  if (what == "scaling") return benchScalingCommand(argc - 1, argv + 1);
+  throw Error("rekon bench: unknown subcommand '" + what + "'; use keyframes, reintegration, peers or scaling");
 }
 
 }  // namespace rekon::mapper_bench

@@ -1,7 +1,7 @@
 #pragma once
-// `rekon bench keyframes | reintegration | peers`: the paper's Figures 5 and
-// 7 measured on rekon's own mapper, and its TSDF volume against its peers
-// (tools/bench/mapper/README.md).
+// `rekon bench keyframes | reintegration | peers | scaling`: the paper's
+// Figures 5 and 7 measured on rekon's own mapper, its TSDF volume against its
+// peers, and its times as the map grows (tools/bench/mapper/README.md).
 
 namespace rekon::mapper_bench {
 
@@ -13,5 +13,7 @@ int benchKeyframesCommand(int argc, char** argv);
 int benchReintegrationCommand(int argc, char** argv);
 // Issue 19: TSDF integration against OpenCV's and Open3D's on the same frames.
 int benchPeersCommand(int argc, char** argv);
+// Issue 19: integration and re-integration time as the map grows (synthetic corridor).
+int benchScalingCommand(int argc, char** argv);
 
 }  // namespace rekon::mapper_bench

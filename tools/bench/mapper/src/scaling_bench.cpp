@@ -1,0 +1,166 @@
+// `rekon bench scaling` (issue 19): does a KF keyframe's integration or a
+// graph update's re-integration round get slower as the map grows? The mapper
+// (services/mapper, the code rekon-mapper runs) is fed a synthetic scene
+// rendered in this process (default: the corridor, 3 laps, 15 808 frames) at
+// the poses of a drifted trajectory, and graph updates move the DVO keyframes
+// toward the ground truth as rekon-replay does (the reintegration bench's
+// driver). Every --every frames it prints the map's size and the mean ms of
+// the integrations and of the rounds since the last line; the curve goes to
+// scaling.csv and scaling.svg (log-log against the KF keyframes integrated).
+// Rendering is not timed; times are the process's CPU time unless --wall.
+#include <spdlog/spdlog.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+
+#include "bench_data.hpp"
+#include "rekon/common/cli.hpp"
+#include "rekon/common/config.hpp"
+#include "rekon/common/error.hpp"
+#include "rekon/common/json.hpp"
+#include "rekon/common/logging.hpp"
+#include "rekon/mapper/mapper.hpp"
+#include "rekon/mapper_bench/bench_command.hpp"
+#include "rekon/replay/replay.hpp"
+#include "rekon/report/plot.hpp"
+#include "rekon/synth/synth.hpp"
+
+namespace rekon::mapper_bench {
+namespace {
+
+// One line of the curve: the map at `frames`, and the mean times since the previous line.
+struct ScalingPoint {
+  int64_t frames = 0, kf_keyframes = 0, blocks = 0, integrations = 0, rounds = 0;
+  double integration_ms = 0.0;  // per first integration of a KF keyframe
+  double round_ms = 0.0;        // per graph-update round (de-integration, re-integration, streaming)
+};
+
+// Counters of the mapper at one moment, to take differences of.
+struct Totals {
+  int64_t integrations = 0, rounds = 0;
+  double integration_ms = 0.0, round_ms = 0.0;
+  static Totals of(const mapper::MapperCounters& c) {
+    return {c.integrations, c.graph_updates, c.first_integration_ms_total, c.reintegration_ms_total};
+  }
+};
+
+ScalingPoint pointSince(const Totals& before, const mapper::Mapper& m) {
+  const mapper::MapperCounters& c = m.counters();
+  const Totals now = Totals::of(c);
+  ScalingPoint p;
+  p.frames = c.frames;
+  p.kf_keyframes = c.kf_keyframes;
+  p.blocks = m.volume().stats().blocks;
+  p.integrations = now.integrations - before.integrations;
+  p.rounds = now.rounds - before.rounds;
+  p.integration_ms = p.integrations > 0 ? (now.integration_ms - before.integration_ms) / static_cast<double>(p.integrations) : 0.0;
+  p.round_ms = p.rounds > 0 ? (now.round_ms - before.round_ms) / static_cast<double>(p.rounds) : 0.0;
+  return p;
+}
+
+void writeCurve(const std::vector<ScalingPoint>& points, const std::string& dir, bool cpu_time) {
+  std::ofstream csv(dir + "/scaling.csv");
+  csv << "frames,kf_keyframes,blocks,integrations,integration_ms,rounds,round_ms\n";
+  report::Series integration, round;
+  integration.name = "first integration of a KF keyframe";
+  round.name = "graph-update round (m KF keyframes)";
+  integration.color = "#0072B2";
+  round.color = "#D55E00";
+  integration.markers = round.markers = true;
+  for (const ScalingPoint& p : points) {
+    csv << p.frames << ',' << p.kf_keyframes << ',' << p.blocks << ',' << p.integrations << ',' << p.integration_ms
+        << ',' << p.rounds << ',' << p.round_ms << '\n';
+    if (p.integrations > 0) integration.x.push_back(static_cast<double>(p.kf_keyframes)), integration.y.push_back(p.integration_ms);
+    if (p.rounds > 0) round.x.push_back(static_cast<double>(p.kf_keyframes)), round.y.push_back(p.round_ms);
+  }
+  if (!csv) throw Error(dir + "/scaling.csv: cannot write; check that --out is writable");
+  report::PlotOptions o;
+  o.title = "integration and re-integration as the map grows";
+  o.x_label = "KF keyframes in the map";
+  o.y_label = cpu_time ? "ms CPU time (mean since the previous point)" : "ms wall time (mean since the previous point)";
+  o.x_scale = o.y_scale = report::Scale::Log;
+  report::LinePlot plot(o);
+  plot.add(std::move(integration)).add(std::move(round));
+  plot.save(dir + "/scaling.svg");
+}
+
+}  // namespace
+
+int benchScalingCommand(int argc, char** argv) {
+  ArgParser args(argv[0],
+                 "Integration and re-integration time against the map's size on a synthetic scene rendered in process "
+                 "(drifted poses, graph updates toward the ground truth as rekon-replay does). Writes scaling.csv and "
+                 "scaling.svg; the last line is first_*/last_* means of the first and last tenth of the run.");
+  args.option("out", "output folder")
+      .option("scene", "synthetic scene (rekon synth --help)", "corridor")
+      .option("laps", "corridor laps (3: 15 808 frames)", "3")
+      .option("frames", "frames (0 = the scene's default for --laps)", "0")
+      .option("level", "pyramid level rendered (0 = 640x480, 1 = 320x240)", "1")
+      .option("every", "a point of the curve every this many frames", "500")
+      .option("drift", "drift of the fused poses: metres per metre,degrees per metre", "0.03,1.5")
+      .flag("wall", "time in wall clock instead of the process's CPU time")
+      .option("config", "YAML file laid over config/default.yaml (volume and mapper settings)")
+      .repeated("set", "override one key, e.g. --set mapper.m=5");
+  if (!args.parse(argc, argv)) return 0;
+  if (!args.has("out")) throw Error("--out is required; see rekon bench scaling --help");
+  const Config config = Config::load(args.has("config") ? args.get("config") : "", args.all("set"));
+  setupLogging("bench", config.getString("log.level"));
+  const std::string out = args.get("out");
+  createOutputFolder(out);
+  const auto scene = synth::Scene::make(args.get("scene"));
+  const int laps = args.getInt("laps");
+  const int frames = args.getInt("frames") > 0 ? args.getInt("frames") : scene->defaultFrames(laps);
+  const std::vector<double> drift = parseNumberList(args.get("drift"), "drift");
+  if (drift.size() != 2) throw Error("--drift: give metres per metre and degrees per metre, e.g. 0.03,1.5");
+  const Intrinsics k = synth::defaultIntrinsics().atLevel(args.getInt("level"));
+  const Trajectory truth = scene->trajectory(frames, 1, laps);
+  const Trajectory drifted = synth::driftedTrajectory(truth, drift[0], drift[1], 2);
+  const int every = std::max(1, args.getInt("every"));
+
+  mapper::MapperParams params = mapper::MapperParams::fromConfig(config);
+  params.cpu_time_counters = !args.flagSet("wall");
+  params.use_store = false;
+  mapper::Mapper mapper(params);
+  replay::ReplayParams rp;
+  rp.trajectory = rp.target = "(in memory)";
+  replay::ReplayScript script(drifted, truth, rp, frames);
+  std::vector<ScalingPoint> points;
+  Totals before;
+  std::printf("frames kf_keyframes blocks integration_ms round_ms (means since the previous line)\n");
+  for (int i = 0; i < frames; ++i) {
+    RgbdFrame f = scene->render(k, truth[static_cast<size_t>(i)].pose, synth::Noise::Kinect, static_cast<uint64_t>(i));
+    f.id = i;
+    f.timestamp = truth[static_cast<size_t>(i)].timestamp;
+    const replay::ReplayTracked t = script.onFrame(f.id, f.timestamp);
+    if (t.new_keyframe_world) mapper.setKeyframeEstimate(t.keyframe_id, *t.new_keyframe_world);
+    mapper.addFrame(f, k, t.keyframe_id, t.pose_in_keyframe, t.lost);
+    if (auto u = script.dueUpdate()) mapper.applyGraphUpdate(u->poses);
+    if ((i + 1) % every == 0 || i + 1 == frames) {
+      points.push_back(pointSince(before, mapper));
+      before = Totals::of(mapper.counters());
+      const ScalingPoint& p = points.back();
+      std::printf("%lld %lld %lld %.2f %.2f\n", static_cast<long long>(p.frames), static_cast<long long>(p.kf_keyframes),
+                  static_cast<long long>(p.blocks), p.integration_ms, p.round_ms);
+      std::fflush(stdout);
+    }
+  }
+  writeCurve(points, out, params.cpu_time_counters);
+  // The first and the last tenth of the points, so that one line says whether time grew with the map.
+  const size_t tenth = std::max<size_t>(1, points.size() / 10);
+  auto mean = [&](size_t from, size_t to, double ScalingPoint::*field) {
+    double sum = 0.0;
+    for (size_t i = from; i < to; ++i) sum += points[i].*field;
+    return sum / static_cast<double>(to - from);
+  };
+  std::printf("%s\n", keyValueLine({{"first_integration_ms", mean(0, tenth, &ScalingPoint::integration_ms)},
+                                    {"last_integration_ms", mean(points.size() - tenth, points.size(), &ScalingPoint::integration_ms)},
+                                    {"first_round_ms", mean(0, tenth, &ScalingPoint::round_ms)},
+                                    {"last_round_ms", mean(points.size() - tenth, points.size(), &ScalingPoint::round_ms)},
+                                    {"kf_keyframes", static_cast<double>(points.back().kf_keyframes)},
+                                    {"blocks", static_cast<double>(points.back().blocks)}})
+                          .c_str());
+  return 0;
+}
+
+}  // namespace rekon::mapper_bench
