@@ -11,10 +11,6 @@
 #include "rekon/common/simd.hpp"
 
 namespace rekon::fusion {
-namespace {
-// Inputs one KF keyframe can fuse: the color fusion's per-pixel sort keys live on the stack.
-constexpr int kMaxFramesPerKeyframe = 256;
-}  // namespace
 
 KeyframeStrategy parseStrategy(const std::string& text) {
   if (text == "const") return KeyframeStrategy::kConst;
@@ -39,8 +35,7 @@ void FusionParams::validate() const {
     if (!ok) throw Error("mapper." + what);
   };
   require(kappa >= 1, "kappa must be at least 1 (frames per KF keyframe)");
-  require(max_frames_per_keyframe >= 1 && max_frames_per_keyframe <= kMaxFramesPerKeyframe,
-          "max_frames_per_keyframe must lie in [1, " + std::to_string(kMaxFramesPerKeyframe) + "]");
+  require(max_frames_per_keyframe >= 1, "max_frames_per_keyframe must be at least 1");
   require(strategy != KeyframeStrategy::kConst || kappa <= max_frames_per_keyframe,
           "kappa (" + std::to_string(kappa) + ") exceeds mapper.max_frames_per_keyframe (" +
               std::to_string(max_frames_per_keyframe) + "); raise the cap or lower kappa");
@@ -130,9 +125,9 @@ struct Observation {
 // where the cumulative weight crosses half keeps its whole color (no mixed
 // hues). Sorts 64-bit keys (luma's bits, which order like the non-negative
 // luma, above the index) by insertion: a few dozen register compares, where
-// sorting the 12-byte observations moved them around memory.
-cv::Vec3b weightedMedianColor(const Observation* obs, int count) {
-  uint64_t keys[kMaxFramesPerKeyframe];
+// sorting the 12-byte observations moved them around memory. `keys` holds
+// room for `count`.
+cv::Vec3b weightedMedianColor(const Observation* obs, int count, uint64_t* keys) {
   for (int j = 0; j < count; ++j) {
     uint32_t bits = 0;
     std::memcpy(&bits, &obs[j].luma, sizeof bits);
@@ -406,6 +401,7 @@ FusedKeyframe KeyframeFuser::finish() {
   cv::parallel_for_(cv::Range(0, (k_.height + kBandRows - 1) / kBandRows), [&](const cv::Range& bands) {
     std::vector<Observation> obs(static_cast<size_t>(kBandRows * width * n));
     std::vector<int> count(static_cast<size_t>(kBandRows * width));
+    std::vector<uint64_t> keys(static_cast<size_t>(n));
     RowWarp warp(width);
     for (int band = bands.start; band < bands.end; ++band) {
       const int y0 = band * kBandRows, y1 = std::min(y0 + kBandRows, k_.height);
@@ -433,7 +429,8 @@ FusedKeyframe KeyframeFuser::finish() {
         for (int x = 0; x < width; ++x) {
           const int pixel = (y - y0) * width + x;
           if (count[static_cast<size_t>(pixel)] == 0) continue;
-          crow[x] = weightedMedianColor(obs.data() + static_cast<size_t>(pixel) * n, count[static_cast<size_t>(pixel)]);
+          crow[x] = weightedMedianColor(obs.data() + static_cast<size_t>(pixel) * n, count[static_cast<size_t>(pixel)],
+                                        keys.data());
         }
       }
     }
