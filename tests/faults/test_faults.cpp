@@ -99,11 +99,12 @@ struct Faulty {
   std::string output;  // the kill script's and rekon run's
 };
 
-// `rekon run` on the room with `service` killed once 2 KF keyframes are stored.
-Faulty runKilling(const std::string& service, const std::string& out, const std::string& sets = "") {
+// `rekon run` on the room with `service` killed once `after_keyframes` KF keyframes are stored.
+Faulty runKilling(const std::string& service, const std::string& out, const std::string& sets = "",
+                  int after_keyframes = kKillAfterKeyframes) {
   Faulty f;
   f.rc = runCommand(inNetns() + " " + rekon::test::sourceDir() + "/tests/faults/kill_during_run.sh " + bin() + " " + service +
-                        " " + std::to_string(kKillAfterKeyframes) + " " + out + " --dataset " + baseline().data + " " + sets,
+                        " " + std::to_string(after_keyframes) + " " + out + " --dataset " + baseline().data + " " + sets,
                     &f.output);
   f.output += "\nrekon run:\n" + readText(out + "/run.out");
   return f;
@@ -124,6 +125,20 @@ TEST(Faults, KilledMapperIsRestartedAndItsMeshMatchesAnUninterruptedRun) {
   // room for another machine's timing; a keyframe lost or fused twice moves CORR by more.
   EXPECT_NEAR(corrOf(out), corrOf(baseline().run), 0.00002) << readText(out + "/mapper.log");
   EXPECT_EQ(leftoverSegments(out), std::vector<std::string>{});
+}
+
+// Killed once it stored the last KF keyframe (5 of the room's 90 frames): its
+// resume point is past the last frame, so nothing is sent again, but the
+// player announces the end of the stream again (it once waited for ever).
+TEST(Faults, MapperKilledAfterTheLastFrameGetsTheEndOfTheStreamAgain) {
+  rekon::test::TempDir dir;
+  const std::string out = dir / "run";
+  const Faulty f = runKilling("mapper", out, "", 5);
+  ASSERT_NE(f.output.find("killed rekon-mapper"), std::string::npos) << f.output;
+  ASSERT_EQ(f.rc, 0) << f.output << readText(out + "/player.log");
+  EXPECT_NE(readText(out + "/player.log").find("sending frames 90..89 again"), std::string::npos)
+      << readText(out + "/player.log");
+  EXPECT_NEAR(corrOf(out), corrOf(baseline().run), 0.00002) << readText(out + "/mapper.log");
 }
 
 // The optimiser killed, restarted, rebuilt from the tracker's replay: with

@@ -123,6 +123,7 @@ class Player {
   int64_t handleRestarts(int64_t next) {
     for (const auto& service : watch_.takeRestarts()) {
       if (std::find(params_.wait_for.begin(), params_.wait_for.end(), service) == params_.wait_for.end()) continue;
+      ++restarts_;
       const std::optional<int64_t> point =
           newest_sent_ < 0 ? std::nullopt : watch_.resumePoint(service, kResumePointWaitS, ctx_);
       if (!point) {
@@ -248,8 +249,11 @@ class Player {
   void linger() {
     ctx_.setState("lingering");
     while (acked_pacing_ && !ctx_.stopRequested() && !peers_.finished(params_.wait_for, PeerWatch::kSilenceS)) {
+      const int64_t restarts = restarts_;
       const int64_t next = params_.live ? end_ : handleRestarts(end_);  // a live source does not rewind
-      if (next != end_) playToEnd(next);
+      // Also when nothing is left to send (a consumer restarted after it had
+      // every frame): it still waits for the end of the stream.
+      if (next != end_ || restarts_ != restarts) playToEnd(next);
       std::this_thread::sleep_for(std::chrono::milliseconds(50));
     }
   }
@@ -268,6 +272,7 @@ class Player {
   std::optional<FrameSender> sender_;
   int in_flight_ = 1;
   int64_t newest_sent_ = -1, sent_ = 0, resent_ = 0, rewinds_ = 0;
+  int64_t restarts_ = 0;  // restarted consumers handled
   Clock::time_point start_, last_report_;
   rekon_msgs::end_of_stream_t eos_{};
 };
