@@ -31,9 +31,14 @@ struct Agreement {
   double beyond_1cm = 0.0;  // fraction of its points farther than 1 cm
 };
 
-Agreement agreement(const std::vector<Eigen::Vector3f>& points, const Mesh& rekon_mesh) {
+Agreement agreement(const std::vector<Eigen::Vector3f>& all_points, const Mesh& rekon_mesh) {
   Agreement a;
-  if (points.empty()) return a;
+  if (all_points.empty()) return a;
+  // Every k-th point, at most about 200 000: the statistics, not every point, are wanted.
+  constexpr size_t kMaxPoints = 200000;
+  const size_t step = (all_points.size() + kMaxPoints - 1) / kMaxPoints;
+  std::vector<Eigen::Vector3f> points;
+  for (size_t i = 0; i < all_points.size(); i += step) points.push_back(all_points[i]);
   std::vector<float> d = eval::distancesToSurface(points, rekon_mesh, 0.05);
   double sum = 0.0;
   size_t far = 0;

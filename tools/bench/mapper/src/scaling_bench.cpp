@@ -6,7 +6,7 @@
 // toward the ground truth as rekon-replay does (the reintegration bench's
 // driver). Every --every frames it prints the map's size and the mean ms of
 // the integrations and of the rounds since the last line; the curve goes to
-// scaling.csv and scaling.svg (log-log against the KF keyframes integrated).
+// scaling.csv and scaling_plot.svg (log-log against the KF keyframes in the map).
 // Rendering is not timed; times are the process's CPU time unless --wall.
 #include <spdlog/spdlog.h>
 
@@ -82,7 +82,7 @@ void writeCurve(const std::vector<ScalingPoint>& points, const std::string& dir,
   o.x_scale = o.y_scale = report::Scale::Log;
   report::LinePlot plot(o);
   plot.add(std::move(integration)).add(std::move(round));
-  plot.save(dir + "/scaling.svg");
+  plot.save(dir + "/scaling_plot.svg");  // its data in scaling_plot.csv
 }
 
 }  // namespace
@@ -91,7 +91,8 @@ int benchScalingCommand(int argc, char** argv) {
   ArgParser args(argv[0],
                  "Integration and re-integration time against the map's size on a synthetic scene rendered in process "
                  "(drifted poses, graph updates toward the ground truth as rekon-replay does). Writes scaling.csv and "
-                 "scaling.svg; the last line is first_*/last_* means of the first and last tenth of the run.");
+                 "scaling_plot.svg; the last line is first_*/last_* means over the first and last tenth of the points "
+                 "(those with an integration, or a round).");
   args.option("out", "output folder")
       .option("scene", "synthetic scene (rekon synth --help)", "corridor")
       .option("laps", "corridor laps (3: 15 808 frames)", "3")
@@ -146,17 +147,27 @@ int benchScalingCommand(int argc, char** argv) {
     }
   }
   writeCurve(points, out, params.cpu_time_counters);
-  // The first and the last tenth of the points, so that one line says whether time grew with the map.
-  const size_t tenth = std::max<size_t>(1, points.size() / 10);
-  auto mean = [&](size_t from, size_t to, double ScalingPoint::*field) {
-    double sum = 0.0;
-    for (size_t i = from; i < to; ++i) sum += points[i].*field;
-    return sum / static_cast<double>(to - from);
+  // Means over the first and the last tenth of the points that have an
+  // integration (or a round), so that one line says whether time grew with the map.
+  auto ends = [&](int64_t ScalingPoint::*count, double ScalingPoint::*ms) {
+    std::vector<double> v;
+    for (const ScalingPoint& p : points)
+      if (p.*count > 0) v.push_back(p.*ms);
+    if (v.empty()) return std::make_pair(0.0, 0.0);
+    const size_t tenth = std::max<size_t>(1, v.size() / 10);
+    const auto mean = [&](size_t from) {
+      double sum = 0.0;
+      for (size_t i = from; i < from + tenth; ++i) sum += v[i];
+      return sum / static_cast<double>(tenth);
+    };
+    return std::make_pair(mean(0), mean(v.size() - tenth));
   };
-  std::printf("%s\n", keyValueLine({{"first_integration_ms", mean(0, tenth, &ScalingPoint::integration_ms)},
-                                    {"last_integration_ms", mean(points.size() - tenth, points.size(), &ScalingPoint::integration_ms)},
-                                    {"first_round_ms", mean(0, tenth, &ScalingPoint::round_ms)},
-                                    {"last_round_ms", mean(points.size() - tenth, points.size(), &ScalingPoint::round_ms)},
+  const auto [first_integration, last_integration] = ends(&ScalingPoint::integrations, &ScalingPoint::integration_ms);
+  const auto [first_round, last_round] = ends(&ScalingPoint::rounds, &ScalingPoint::round_ms);
+  std::printf("%s\n", keyValueLine({{"first_integration_ms", first_integration},
+                                    {"last_integration_ms", last_integration},
+                                    {"first_round_ms", first_round},
+                                    {"last_round_ms", last_round},
                                     {"kf_keyframes", static_cast<double>(points.back().kf_keyframes)},
                                     {"blocks", static_cast<double>(points.back().blocks)}})
                           .c_str());
