@@ -108,28 +108,13 @@ REKON_SIMD_CLONES void warpPoints(const float* __restrict points, int count, con
 int DenseAligner::warp(const KeyframeReference::Level& ref, const PyramidLevel& cur,
                        const Eigen::Matrix<float, 3, 4>& t) {
   const int w = cur.k.width, h = cur.k.height;
-  const WarpConstants c{t(0, 0),
-                        t(0, 1),
-                        t(0, 2),
-                        t(0, 3),
-                        t(1, 0),
-                        t(1, 1),
-                        t(1, 2),
-                        t(1, 3),
-                        t(2, 0),
-                        t(2, 1),
-                        t(2, 2),
-                        t(2, 3),
-                        static_cast<float>(cur.k.fx),
-                        static_cast<float>(cur.k.fy),
-                        static_cast<float>(cur.k.cx),
-                        static_cast<float>(cur.k.cy),
-                        static_cast<float>(w - 1) - 1e-3f,
-                        static_cast<float>(h - 1) - 1e-3f,
-                        static_cast<float>(params_.min_depth),
-                        static_cast<float>(params_.max_depth_step),
-                        w,
-                        params_.use_depth ? 1.f : 0.f};
+  const WarpConstants c{t(0, 0), t(0, 1), t(0, 2), t(0, 3), t(1, 0), t(1, 1), t(1, 2), t(1, 3),
+                        t(2, 0), t(2, 1), t(2, 2), t(2, 3),
+                        static_cast<float>(cur.k.fx), static_cast<float>(cur.k.fy),
+                        static_cast<float>(cur.k.cx), static_cast<float>(cur.k.cy),
+                        static_cast<float>(w - 1) - 1e-3f, static_cast<float>(h - 1) - 1e-3f,
+                        static_cast<float>(params_.min_depth), static_cast<float>(params_.max_depth_step),
+                        w, params_.use_depth ? 1.f : 0.f};
   warpPoints(ref.points.data(), ref.count, cur.intensity.data(), cur.depth.data(), c, res_i_.data(), res_z_.data(),
              index_.data());
   // Compaction in place (n <= i): the points that count, with their index.

@@ -166,8 +166,9 @@ inline float minf(float a, float b) { return a < b ? a : b; }
 
 // (The outputs are __restrict parameters: GCC honours restrict on parameters.)
 REKON_SIMD_CLONES void warpRow(const float* __restrict zrow, int y, const PinholeF& cam, const Eigen::Matrix3f& rotation,
-             const Eigen::Vector3f& translation, const float* __restrict zw, float agree, float* __restrict uf_out,
-             float* __restrict vf_out, float* __restrict w_out, int32_t* __restrict seen_out) {
+                               const Eigen::Vector3f& translation, const float* __restrict zw, float agree,
+                               float* __restrict uf_out, float* __restrict vf_out, float* __restrict w_out,
+                               int32_t* __restrict seen_out) {
   const float r00 = rotation(0, 0), r01 = rotation(0, 1), r02 = rotation(0, 2), t0 = translation.x();
   const float r10 = rotation(1, 0), r11 = rotation(1, 1), r12 = rotation(1, 2), t1 = translation.y();
   const float r20 = rotation(2, 0), r21 = rotation(2, 1), r22 = rotation(2, 2), t2 = translation.z();
@@ -193,6 +194,20 @@ REKON_SIMD_CLONES void warpRow(const float* __restrict zrow, int y, const Pinhol
     vf_out[x] = vf;
     w_out[x] = weight;
     seen_out[x] = (inside & (weight > 0) & (std::abs(depth - qz) <= agree * qz)) ? 1 : 0;
+  }
+}
+
+// The color observations one input makes of one keyframe row: a bilinear
+// sample of its sharpened image where warpRow saw the surface, appended to
+// each pixel's n slots (`count` holds how many are filled).
+void observeRow(const RowWarp& warp, const cv::Mat& sharp, int n, Observation* obs, int* count) {
+  for (size_t x = 0; x < warp.seen.size(); ++x) {
+    float bgr[3];
+    if (!warp.seen[x] || !sampleBilinear(sharp, warp.uf[x], warp.vf[x], bgr)) continue;
+    Observation& o = obs[x * static_cast<size_t>(n) + static_cast<size_t>(count[x]++)];
+    for (int c = 0; c < 3; ++c) o.bgr[c] = static_cast<uint8_t>(std::min(255.0f, bgr[c] + 0.5f));
+    o.luma = 0.114f * bgr[0] + 0.587f * bgr[1] + 0.299f * bgr[2];
+    o.w = warp.w[x];
   }
 }
 
@@ -412,16 +427,8 @@ FusedKeyframe KeyframeFuser::finish() {
           warpRow(kf_.depth.ptr<float>(y), y, cam, rotations[static_cast<size_t>(i)],
                   translations[static_cast<size_t>(i)], in.depth_weight.ptr<float>(), agree, warp.uf.data(),
                   warp.vf.data(), warp.w.data(), warp.seen.data());
-          for (int x = 0; x < width; ++x) {
-            if (!warp.seen[static_cast<size_t>(x)]) continue;
-            float bgr[3];
-            if (!sampleBilinear(in.sharp, warp.uf[static_cast<size_t>(x)], warp.vf[static_cast<size_t>(x)], bgr)) continue;
-            const int pixel = (y - y0) * width + x;
-            Observation& o = obs[static_cast<size_t>(pixel * n + count[static_cast<size_t>(pixel)]++)];
-            for (int c = 0; c < 3; ++c) o.bgr[c] = static_cast<uint8_t>(std::min(255.0f, bgr[c] + 0.5f));
-            o.luma = 0.114f * bgr[0] + 0.587f * bgr[1] + 0.299f * bgr[2];
-            o.w = warp.w[static_cast<size_t>(x)];
-          }
+          const size_t row = static_cast<size_t>(y - y0) * width;
+          observeRow(warp, in.sharp, n, obs.data() + row * n, count.data() + row);
         }
       }
       for (int y = y0; y < y1; ++y) {
