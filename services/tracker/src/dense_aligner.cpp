@@ -57,8 +57,6 @@ DenseAligner::DenseAligner(const AlignerParams& params) : params_(params) { para
 
 namespace {
 
-inline float maxf(float a, float b) { return a > b ? a : b; }
-inline float minf(float a, float b) { return a < b ? a : b; }
 
 struct WarpConstants {
   float r00, r01, r02, t0, r10, r11, r12, t1, r20, r21, r22, t2;
@@ -79,18 +77,18 @@ REKON_SIMD_CLONES void warpPoints(const float* __restrict points, int count, con
     const bool use_depth = c.use_depth > 0.f;
     const float* p = points + KeyframeReference::kPointStride * i;
     const float z = c.r20 * p[0] + c.r21 * p[1] + c.r22 * p[2] + c.t2;
-    const float iz = 1.f / maxf(z, 1e-6f);
+    const float iz = 1.f / selectMax(z, 1e-6f);
     const float u = c.fx * (c.r00 * p[0] + c.r01 * p[1] + c.r02 * p[2] + c.t0) * iz + c.cx;
     const float v = c.fy * (c.r10 * p[0] + c.r11 * p[1] + c.r12 * p[2] + c.t1) * iz + c.cy;
     const bool inside = (z > c.zmin) & (u >= 0.f) & (v >= 0.f) & (u < c.umax) & (v < c.vmax);
-    const float uc = minf(maxf(u, 0.f), c.umax), vc = minf(maxf(v, 0.f), c.vmax);
+    const float uc = selectMin(selectMax(u, 0.f), c.umax), vc = selectMin(selectMax(v, 0.f), c.vmax);
     const int x0 = static_cast<int>(uc), y0 = static_cast<int>(vc);
     const float ax = uc - static_cast<float>(x0), ay = vc - static_cast<float>(y0);
     const int o = y0 * c.width + x0;
     const float d00 = depth[o], d01 = depth[o + 1], d10 = depth[o + c.width], d11 = depth[o + c.width + 1];
     const float sum = d00 + d01 + d10 + d11;
-    const float lo = minf(minf(d00, d01), minf(d10, d11));
-    const float hi = maxf(maxf(d00, d01), maxf(d10, d11));
+    const float lo = selectMin(selectMin(d00, d01), selectMin(d10, d11));
+    const float hi = selectMax(selectMax(d00, d01), selectMax(d10, d11));
     // Interpolating across a hole or an occlusion edge would invent a surface.
     const bool depth_ok = (sum == sum) & !(hi - lo > c.max_step * lo);
     const float dtop = d00 + ax * (d01 - d00), dbottom = d10 + ax * (d11 - d10);

@@ -11,3 +11,12 @@
 #else
 #define REKON_SIMD_CLONES
 #endif
+
+namespace rekon {
+
+// Selects that vectorise: std::fmax/fmin keep IEEE NaN rules, which GCC does
+// not vectorise; a > b ? a : b compiles to one max/min instruction (b for a NaN a).
+inline float selectMax(float a, float b) { return a > b ? a : b; }
+inline float selectMin(float a, float b) { return a < b ? a : b; }
+
+}  // namespace rekon

@@ -161,8 +161,6 @@ struct RowWarp {
   explicit RowWarp(int width) : uf(width), vf(width), w(width), seen(width) {}
 };
 
-inline float maxf(float a, float b) { return a > b ? a : b; }
-inline float minf(float a, float b) { return a < b ? a : b; }
 
 // (The outputs are __restrict parameters: GCC honours restrict on parameters.)
 REKON_SIMD_CLONES void warpRow(const float* __restrict zrow, int y, const PinholeF& cam, const Eigen::Matrix3f& rotation,
@@ -183,11 +181,11 @@ REKON_SIMD_CLONES void warpRow(const float* __restrict zrow, int y, const Pinhol
     const float qx = r00 * px + r01 * py + r02 * z + t0;
     const float qy = r10 * px + r11 * py + r12 * z + t1;
     const float qz = r20 * px + r21 * py + r22 * z + t2;
-    const float inv_z = 1.0f / maxf(qz, 1e-6f);
+    const float inv_z = 1.0f / selectMax(qz, 1e-6f);
     const float uf = fx * qx * inv_z + cx, vf = fy * qy * inv_z + cy;
     const bool inside = (z > 0) & (qz > 0) & (uf > -0.5f) & (vf > -0.5f) & (uf < w_max) & (vf < h_max);
-    const int u = static_cast<int>(minf(maxf(uf, 0.f), w_max - 0.5f) + 0.5f);
-    const int v = static_cast<int>(minf(maxf(vf, 0.f), h_max - 0.5f) + 0.5f);
+    const int u = static_cast<int>(selectMin(selectMax(uf, 0.f), w_max - 0.5f) + 0.5f);
+    const int v = static_cast<int>(selectMin(selectMax(vf, 0.f), h_max - 0.5f) + 0.5f);
     const int k = 2 * (v * width + u);
     const float depth = zw[k], weight = zw[k + 1];
     uf_out[x] = uf;
