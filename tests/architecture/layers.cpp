@@ -1,10 +1,13 @@
 #include "layers.hpp"
 
 #include <algorithm>
+#include <cctype>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <regex>
 #include <set>
+#include <sstream>
 
 namespace rekon::architecture {
 namespace fs = std::filesystem;
@@ -13,6 +16,7 @@ namespace {
 // The CUDA backend is launch code around the mapper's shared kernels: the
 // per-voxel maths and the backend interface it implements, nothing else.
 const std::set<std::string> kCudaMayInclude = {"volume_kernels.hpp", "volume_backend.hpp"};
+const std::set<std::string> kCudaMayLink = {"rekon_volume_kernels"};
 
 bool isSource(const fs::path& p) {
   static const std::set<std::string> kExtensions = {".hpp", ".h", ".cuh", ".cpp", ".cc", ".cu"};
@@ -39,7 +43,7 @@ std::vector<std::string> sourcesUnder(const fs::path& root) {
 }
 
 std::vector<std::string> includesOf(const fs::path& file) {
-  static const std::regex kInclude(R"re(^\s*#\s*include\s*"([^"]+)")re");
+  static const std::regex kInclude(R"re(^\s*#\s*include\s*["<]([^">]+)[">])re");
   std::vector<std::string> out;
   std::ifstream in(file);
   std::smatch m;
@@ -63,14 +67,116 @@ std::set<std::string> ownersOf(const std::string& include, const std::string& in
   return owners;
 }
 
-bool allowed(const std::string& from, const std::string& owner, const std::string& include) {
+// `what`: the included path, or for a link the linked target.
+bool allowed(const std::string& from, const std::string& owner, const std::string& what, bool link) {
   if (owner.empty() || owner == from) return true;
   if (from == "tools" || from == "tests" || from.empty()) return true;
   if (from == "messages") return false;
   if (owner == "messages") return true;
   if (from == "common") return false;
-  if (from == "cuda") return owner == "common" || (owner == "services/mapper" && kCudaMayInclude.count(fs::path(include).filename().string()));
+  if (from == "cuda")
+    return owner == "common" ||
+           (owner == "services/mapper" && (link ? kCudaMayLink.count(what) : kCudaMayInclude.count(fs::path(what).filename().string())));
+  if (link && from == "services/mapper" && owner == "cuda") return true;  // the volume's CUDA backend
   return owner == "common";  // a service: common, messages and its own folder
+}
+
+// A CMake command: its name and arguments (quotes and comments gone).
+struct CMakeCall {
+  std::string name;
+  std::vector<std::string> args;
+};
+
+// The identifier that ends just before text[end] (spaces allowed between).
+std::string nameBefore(const std::string& text, size_t end) {
+  while (end > 0 && std::isspace(static_cast<unsigned char>(text[end - 1]))) --end;
+  size_t begin = end;
+  while (begin > 0 && (std::isalnum(static_cast<unsigned char>(text[begin - 1])) || text[begin - 1] == '_')) --begin;
+  return text.substr(begin, end - begin);
+}
+
+std::vector<CMakeCall> cmakeCalls(const fs::path& file) {
+  std::ifstream in(file);
+  std::string text;
+  for (std::string line; std::getline(in, line);) text += line.substr(0, line.find('#')) + "\n";
+  std::vector<CMakeCall> calls;
+  for (size_t open = text.find('('); open != std::string::npos; open = text.find('(', open + 1)) {
+    size_t close = open + 1;
+    for (int depth = 1; close < text.size() && (depth += (text[close] == '(') - (text[close] == ')')) > 0;) ++close;
+    CMakeCall call{nameBefore(text, open), {}};
+    std::istringstream args(text.substr(open + 1, close - open - 1));
+    for (std::string a; args >> a;) {
+      a.erase(std::remove(a.begin(), a.end(), '"'), a.end());
+      call.args.push_back(a);
+    }
+    if (!call.name.empty()) calls.push_back(call);
+    open = close;
+  }
+  return calls;
+}
+
+std::vector<std::string> cmakeFilesUnder(const fs::path& root) {
+  std::vector<std::string> files;
+  for (auto it = fs::recursive_directory_iterator(root); it != fs::recursive_directory_iterator(); ++it) {
+    if (it->is_directory() && skipped(it->path())) {
+      it.disable_recursion_pending();
+      continue;
+    }
+    const std::string name = it->path().filename().string();
+    if (it->is_regular_file() && (name == "CMakeLists.txt" || it->path().extension() == ".cmake"))
+      files.push_back(it->path().lexically_relative(root).generic_string());
+  }
+  std::sort(files.begin(), files.end());
+  return files;
+}
+
+// One target linking others, where the link is written.
+struct Link {
+  std::string file, target;
+  std::vector<std::string> libs;
+};
+
+// The targets a call defines ("" for none); rekon_add_service_node(NAME
+// [LIBS ...]) defines rekon_NAME_node (linking rekon_NAME, rekon_common and
+// LIBS) and rekon-NAME.
+std::vector<std::string> definedBy(const CMakeCall& c) {
+  if (c.args.empty()) return {};
+  if (c.name == "add_library" || c.name == "add_executable" || c.name == "rekon_add_test") return {c.args[0]};
+  if (c.name == "rekon_add_service_node") return {"rekon_" + c.args[0] + "_node", "rekon-" + c.args[0]};
+  return {};
+}
+
+std::vector<Link> linksOf(const CMakeCall& c, const std::string& file) {
+  if (c.args.empty()) return {};
+  if (c.name == "target_link_libraries") return {{file, c.args[0], {c.args.begin() + 1, c.args.end()}}};
+  if (c.name != "rekon_add_service_node") return {};
+  Link node{file, "rekon_" + c.args[0] + "_node", {"rekon_" + c.args[0], "rekon_common"}};
+  const auto libs = std::find(c.args.begin(), c.args.end(), "LIBS");
+  if (libs != c.args.end()) node.libs.insert(node.libs.end(), libs + 1, c.args.end());
+  return {node};
+}
+
+// Every CMake link between two rekon targets that breaks the rule; counts them in `scan`.
+void checkLinks(const fs::path& root, Scan& scan) {
+  std::map<std::string, std::string> owner;  // target -> layer of the file defining it
+  std::vector<Link> links;
+  for (const std::string& f : cmakeFilesUnder(root)) {
+    const std::string layer = layerOf(f);
+    for (const CMakeCall& c : cmakeCalls(root / f)) {
+      for (const std::string& t : definedBy(c)) owner.emplace(t, layer);
+      for (const Link& l : linksOf(c, f)) links.push_back(l);
+    }
+  }
+  for (const Link& l : links) {
+    const auto from = owner.find(l.target);
+    if (from == owner.end() || from->second.empty() || from->second == "tools" || from->second == "tests") continue;
+    for (const std::string& lib : l.libs) {
+      const auto to = owner.find(lib);
+      if (to == owner.end()) continue;
+      ++scan.tree_links;
+      if (!allowed(from->second, to->second, lib, true)) scan.violations.push_back({l.file, lib, to->second, l.target});
+    }
+  }
 }
 
 }  // namespace
@@ -89,21 +195,28 @@ std::string layerOf(const std::string& relative_path) {
   return "";
 }
 
-std::vector<Violation> violations(const std::string& root_dir) {
+Scan scan(const std::string& root_dir) {
   const fs::path root(root_dir);
   std::vector<std::string> files;
   for (const char* top : {"messages", "common", "cuda", "services", "tools"})
     for (const std::string& f : sourcesUnder(root / top)) files.push_back((fs::path(top) / f).generic_string());
-  std::vector<Violation> found;
+  Scan scan;
   for (const std::string& f : files) {
     const std::string from = layerOf(f);
     if (from == "tools") continue;
-    for (const std::string& include : includesOf(root / f))
-      for (const std::string& owner : ownersOf(include, f, files, root))
-        if (!allowed(from, owner, include)) found.push_back({f, include, owner});
+    ++scan.files;
+    for (const std::string& include : includesOf(root / f)) {
+      const std::set<std::string> owners = ownersOf(include, f, files, root);
+      if (!owners.empty()) ++scan.tree_includes;
+      for (const std::string& owner : owners)
+        if (!allowed(from, owner, include, false)) scan.violations.push_back({f, include, owner, ""});
+    }
   }
-  return found;
+  if (fs::is_directory(root)) checkLinks(root, scan);
+  return scan;
 }
+
+std::vector<Violation> violations(const std::string& root) { return scan(root).violations; }
 
 std::vector<std::string> headersWithCommandLines(const std::string& root_dir) {
   static const std::regex kArgv(R"re(char\s*\*\s*\*\s*argv|char\s*\*\s*argv\s*\[)re");
