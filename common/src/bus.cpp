@@ -3,8 +3,10 @@
 #include <lcm/lcm.h>
 #include <spdlog/spdlog.h>
 
+#include <exception>
 #include <mutex>
 #include <random>
+#include <utility>
 #include <vector>
 
 #include "rekon/common/config.hpp"
@@ -72,6 +74,9 @@ struct LcmBus::Impl {
   };
   lcm_t* lcm = nullptr;
   std::vector<std::unique_ptr<Subscription>> subscriptions;
+  // A handler's exception, held while liblcm's C frames are on the stack (C++
+  // unwinding through them is undefined) and thrown again by handle().
+  std::exception_ptr handler_error;
 };
 
 namespace {
@@ -111,8 +116,12 @@ void LcmBus::subscribeRaw(const std::string& name, std::function<void(const void
   auto sub = std::make_unique<Impl::Subscription>(Impl::Subscription{this, std::move(handler)});
   auto trampoline = [](const lcm_recv_buf_t* rbuf, const char*, void* user) {
     auto* s = static_cast<Impl::Subscription*>(user);
-    if (s->bus->dropReceived()) return;
-    s->handler(rbuf->data, static_cast<int>(rbuf->data_size));
+    try {
+      if (s->bus->dropReceived()) return;
+      s->handler(rbuf->data, static_cast<int>(rbuf->data_size));
+    } catch (...) {
+      s->bus->impl_->handler_error = std::current_exception();
+    }
   };
   // LCM channel names are regular expressions; ours are plain words.
   std::string pattern = channel(name);
@@ -123,6 +132,7 @@ void LcmBus::subscribeRaw(const std::string& name, std::function<void(const void
 
 bool LcmBus::handle(int timeout_ms) {
   const int r = lcm_handle_timeout(impl_->lcm, timeout_ms);
+  if (impl_->handler_error) std::rethrow_exception(std::exchange(impl_->handler_error, nullptr));
   if (r < 0) throw Error("LCM receive failed; the bus is down (check the network namespace and multicast route)");
   return r > 0;
 }
