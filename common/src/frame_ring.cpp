@@ -73,6 +73,24 @@ SlotHeader* slotAt(void* base, size_t slot_bytes, int slot) {
   return reinterpret_cast<SlotHeader*>(static_cast<char*>(base) + kHeaderBytes + slot_bytes * static_cast<size_t>(slot));
 }
 
+std::string sizeText(int w, int h) { return std::to_string(w) + "x" + std::to_string(h); }
+
+// A frame the slot cannot hold (a 1280x720 camera mode or dataset): one line
+// with both sizes and the keys that size the slot.
+void checkFitsSlot(const RingHeader& h, const RgbdFrame& frame) {
+  const int w = frame.depth.cols, ht = frame.depth.rows;
+  if (w > h.max_width || ht > h.max_height) {
+    throw Error("frame " + std::to_string(frame.id) + " is " + sizeText(w, ht) + ", larger than a frame-ring slot (" +
+                sizeText(h.max_width, h.max_height) + "); set transport.max_width to at least " + std::to_string(w) +
+                " and transport.max_height to at least " + std::to_string(ht));
+  }
+  if (frame.depth.type() != CV_16UC1 || frame.color.type() != CV_8UC3 || frame.color.size() != frame.depth.size() ||
+      !frame.depth.isContinuous() || !frame.color.isContinuous()) {
+    throw Error("frame " + std::to_string(frame.id) +
+                " is not 16-bit depth and 8-bit BGR colour of one size in continuous memory (a frame source bug)");
+  }
+}
+
 }  // namespace
 
 struct FrameRingWriter::Impl {
@@ -144,13 +162,7 @@ int FrameRingWriter::slots() const { return impl_->header->slots; }
 uint64_t FrameRingWriter::write(int slot, const RgbdFrame& frame) {
   const RingHeader& h = *impl_->header;
   if (slot < 0 || slot >= h.slots) throw Error("frame ring slot " + std::to_string(slot) + " out of range");
-  if (frame.depth.cols > h.max_width || frame.depth.rows > h.max_height || frame.depth.type() != CV_16UC1 ||
-      frame.color.type() != CV_8UC3 || frame.color.size() != frame.depth.size() || !frame.depth.isContinuous() ||
-      !frame.color.isContinuous()) {
-    throw Error("frame " + std::to_string(frame.id) + " (" + std::to_string(frame.depth.cols) + "x" +
-                std::to_string(frame.depth.rows) + ") does not fit a ring slot of " + std::to_string(h.max_width) + "x" +
-                std::to_string(h.max_height) + "; raise transport.max_width/max_height");
-  }
+  checkFitsSlot(h, frame);
   SlotHeader* s = slotAt(impl_->region.get_address(), h.slot_bytes, slot);
   const uint64_t seq = s->sequence.load(std::memory_order_relaxed);
   s->sequence.store(seq + 1, std::memory_order_relaxed);  // odd: being written

@@ -6,10 +6,12 @@
 #include <chrono>
 #include <condition_variable>
 #include <deque>
+#include <exception>
 #include <map>
 #include <mutex>
 #include <optional>
 #include <thread>
+#include <utility>
 
 #include "rekon/common/error.hpp"
 #include "rekon/common/latency_histogram.hpp"
@@ -49,6 +51,13 @@ using Clock = std::chrono::steady_clock;
 // again (as the player does): a frame or its acknowledgements were lost.
 constexpr double kResendAfterS = 1.0;
 
+// A frame as sent, kept to be sent again with the intrinsics it went with
+// (`State::k` belongs to the waiting frame and changes under the lock).
+struct SentFrame {
+  RgbdFrame frame;
+  Intrinsics k;
+};
+
 }  // namespace
 
 struct LiveOutlet::State {
@@ -61,7 +70,8 @@ struct LiveOutlet::State {
   mutable std::mutex mutex;
   std::condition_variable wake;
   std::optional<RgbdFrame> waiting;
-  Intrinsics k;
+  Intrinsics k;  // the waiting frame's
+  std::exception_ptr error;  // what ended the sender thread, until offer() or finish() throws it
   bool stopping = false;
   Counts counts;
   std::deque<int64_t> unacked;                  // ids sent, oldest first, not yet known to be acknowledged
@@ -82,7 +92,7 @@ struct LiveOutlet::State {
   // True when fewer than in_flight sent frames are unacknowledged; waits (a
   // while) for an acknowledgement otherwise, sending the newest frame again
   // when they stall.
-  bool room(const std::optional<RgbdFrame>& newest_sent) {
+  bool room(const std::optional<SentFrame>& newest_sent) {
     int64_t oldest_in_window;
     {
       std::lock_guard<std::mutex> lock(mutex);
@@ -105,8 +115,8 @@ struct LiveOutlet::State {
         return false;
       case ConsumerWatch::Wait::kStalled:
         if (newest_sent) {
-          spdlog::debug("no acknowledgement for {:.0f} s: sending frame {} again", kResendAfterS, newest_sent->id);
-          sender.send(*newest_sent, k);
+          spdlog::debug("no acknowledgement for {:.0f} s: sending frame {} again", kResendAfterS, newest_sent->frame.id);
+          sender.send(newest_sent->frame, newest_sent->k);
         }
         return false;
       case ConsumerWatch::Wait::kStopped:
@@ -115,8 +125,21 @@ struct LiveOutlet::State {
     return false;
   }
 
+  // The sender thread: an exception ends it, held for offer() or finish() to
+  // throw on the source's thread (whose service logs it as its one line and
+  // stops cleanly); a stop is requested so that the source stops offering.
   void run() {
-    std::optional<RgbdFrame> newest_sent;
+    try {
+      sendUntilStopped();
+    } catch (...) {
+      std::lock_guard<std::mutex> lock(mutex);
+      error = std::current_exception();
+      ctx.requestStop();
+    }
+  }
+
+  void sendUntilStopped() {
+    std::optional<SentFrame> newest_sent;
     while (true) {
       {
         std::unique_lock<std::mutex> lock(mutex);
@@ -124,21 +147,24 @@ struct LiveOutlet::State {
         if (!waiting || ctx.stopRequested()) return;
       }
       if (!room(newest_sent)) continue;  // the waiting frame may have been replaced meanwhile
-      Intrinsics frame_k;
       {
         std::lock_guard<std::mutex> lock(mutex);
-        newest_sent = std::move(*waiting);
+        newest_sent = SentFrame{std::move(*waiting), k};
         waiting.reset();
-        frame_k = k;
       }
-      sender.send(*newest_sent, frame_k);
-      ctx.setLastFrame(newest_sent->id);
+      sender.send(newest_sent->frame, newest_sent->k);
+      ctx.setLastFrame(newest_sent->frame.id);
       std::lock_guard<std::mutex> lock(mutex);
-      unacked.push_back(newest_sent->id);
+      unacked.push_back(newest_sent->frame.id);
       ++counts.sent;
-      counts.newest_sent = newest_sent->id;
+      counts.newest_sent = newest_sent->frame.id;
       ctx.setLive("frames_sent", static_cast<double>(counts.sent));
     }
+  }
+
+  // Throws the sender thread's exception, once. Call with `mutex` held.
+  void throwSenderError() {
+    if (error) std::rethrow_exception(std::exchange(error, nullptr));
   }
 };
 
@@ -160,6 +186,14 @@ LiveOutlet::~LiveOutlet() {
   }
   state_->wake.notify_all();
   if (state_->thread.joinable()) state_->thread.join();
+  // Destroyed before offer() or finish() could pass the sender's exception on
+  // (the source failed too): it still gets its one line.
+  std::lock_guard<std::mutex> lock(state_->mutex);
+  try {
+    state_->throwSenderError();
+  } catch (...) {
+    spdlog::error("{}", currentExceptionLine());
+  }
 }
 
 void LiveOutlet::offer(RgbdFrame frame, const Intrinsics& k, double age_s) {
@@ -167,6 +201,7 @@ void LiveOutlet::offer(RgbdFrame frame, const Intrinsics& k, double age_s) {
                                            std::chrono::duration<double>(std::clamp(age_s, 0.0, 10.0)));
   {
     std::lock_guard<std::mutex> lock(state_->mutex);
+    state_->throwSenderError();
     if (state_->waiting) ++state_->counts.dropped;
     ++state_->counts.offered;
     state_->capture[frame.id] = captured;
@@ -197,6 +232,10 @@ void LiveOutlet::finish(double timeout_s) {
   }
   state_->wake.notify_all();
   if (state_->thread.joinable()) state_->thread.join();
+  {
+    std::lock_guard<std::mutex> lock(state_->mutex);
+    state_->throwSenderError();
+  }
   const int64_t last = counts().newest_sent;
   const double left_s = std::chrono::duration<double>(deadline - Clock::now()).count();
   if (last >= 0 && left_s > 0) state_->watch.waitForAck(state_->consumers, last, left_s, state_->ctx);

@@ -5,10 +5,14 @@
 // frame once, and measures the capture-to-pose latency. Runs under TSan in CI
 // (the outlet's sender thread, the bus thread and the offering thread).
 #include <gtest/gtest.h>
+#include <spdlog/sinks/ostream_sink.h>
+#include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <deque>
+#include <sstream>
 #include <string>
 #include <thread>
 #include <vector>
@@ -32,14 +36,16 @@ constexpr int kInFlight = 2;
 constexpr double kOfferEveryS = 0.002;   // 500 Hz
 constexpr double kConsumerTakesS = 0.02;  // 50 Hz
 
-RgbdFrame smallFrame(int64_t id) {
+RgbdFrame frameOfSize(int64_t id, int width, int height) {
   RgbdFrame f;
   f.id = id;
   f.timestamp = static_cast<double>(id) * kOfferEveryS;
-  f.depth = cv::Mat(24, 32, CV_16UC1, cv::Scalar(static_cast<double>(1000 + id)));
-  f.color = cv::Mat(24, 32, CV_8UC3, cv::Scalar(static_cast<double>(id), 0, 0));
+  f.depth = cv::Mat(height, width, CV_16UC1, cv::Scalar(static_cast<double>(1000 + id)));
+  f.color = cv::Mat(height, width, CV_8UC3, cv::Scalar(static_cast<double>(id), 0, 0));
   return f;
 }
+
+RgbdFrame smallFrame(int64_t id) { return frameOfSize(id, 32, 24); }
 
 TEST(LiveOutlet, AFastSourceBeforeASlowConsumerDropsOldFramesAndNeverQueues) {
   test::TempDir dir;
@@ -116,6 +122,92 @@ TEST(LiveOutlet, AFastSourceBeforeASlowConsumerDropsOldFramesAndNeverQueues) {
   EXPECT_GT(counts.dropped, kOffered / 2);
   EXPECT_EQ(test::jsonInt(stats, "latency_samples"), counts.sent) << stats;
   EXPECT_NE(stats.find("latency_ms_p95"), std::string::npos) << stats;
+}
+
+
+// A frame larger than the ring slot (a 1280x720 camera mode) used to throw
+// on the sender thread, which had no handler: std::terminate, no stats. Now
+// the source's thread throws it: the service logs one error line naming both
+// sizes and the keys to change, stops cleanly and writes its stats.
+TEST(LiveOutlet, AFrameLargerThanTheRingSlotStopsTheSourceWithOneLineNamingBothSizes) {
+  test::TempDir dir;
+  const Config config = Config::load("", {"lcm.url=memory://live_outlet_too_large"});
+  std::ostringstream log;
+  const auto previous = spdlog::default_logger();
+  spdlog::set_default_logger(std::make_shared<spdlog::logger>("test", std::make_shared<spdlog::sinks::ostream_sink_mt>(log)));
+  ArgParser args("rekon-camera", "in-process");
+  ServiceContext ctx("camera", config, dir / "out", args);
+  createOutputFolder(dir / "out");
+  const int status = runInContext(ctx, [&](ServiceContext& c) {
+    ConsumerWatch watch(c.bus());
+    StopThreadsOnExit stop(c);
+    FrameSender sender(c.bus(), TransportMode::kShm, "rekon_test_live_outlet_too_large", FrameRingLayout{2, 32, 24});
+    LiveOutlet outlet(c, sender, watch, {"tracker"}, kInFlight);
+    Intrinsics k;
+    k.width = 64;
+    k.height = 48;
+    outlet.offer(frameOfSize(0, 64, 48), k);
+    outlet.finish(5.0);
+  });
+  spdlog::set_default_logger(previous);
+  EXPECT_EQ(status, 1);
+  std::vector<std::string> errors;
+  std::istringstream lines(log.str());
+  for (std::string line; std::getline(lines, line);) {
+    if (line.find("error") != std::string::npos) errors.push_back(line);
+  }
+  ASSERT_EQ(errors.size(), 1u) << log.str();
+  for (const char* part : {"64x48", "32x24", "transport.max_width", "transport.max_height"}) {
+    EXPECT_NE(errors[0].find(part), std::string::npos) << part << " missing from: " << errors[0];
+  }
+  EXPECT_FALSE(test::readText(dir / "out/camera_stats.json").empty()) << "the stats are written after the error";
+}
+
+// Each frame offered with its own focal length: a frame sent again (no
+// acknowledgement for kResendAfterS, 1 s) must carry the intrinsics it was
+// sent with. Before, the sender read State::k, the newest offered frame's,
+// without the lock offer() holds (a data race TSan reports) and sent the old
+// frame with another frame's intrinsics.
+TEST(LiveOutlet, AFrameSentAgainCarriesItsOwnIntrinsics) {
+  test::TempDir dir;
+  const std::string url = "memory://live_outlet_resend";
+  const Config config = Config::load("", {"lcm.url=" + url});
+  MemoryBus bus(BusOptions::fromConfig(config));
+  std::vector<std::pair<int64_t, double>> received;  // frame id, fx
+  bus.subscribe<rekon_msgs::frame_t>(channel::kFrames, [&](const rekon_msgs::frame_t& m) {
+    received.emplace_back(m.frame_id, m.fx);
+  });
+  const auto fxOf = [](int64_t id) { return 500.0 + static_cast<double>(id); };
+  ArgParser args("rekon-camera", "in-process");
+  ServiceContext ctx("camera", config, dir / "out", args);
+  createOutputFolder(dir / "out");
+  std::atomic<bool> offering{true};
+  std::thread source([&] {
+    runInContext(ctx, [&](ServiceContext& c) {
+      ConsumerWatch watch(c.bus());
+      StopThreadsOnExit stop(c);
+      FrameSender sender(c.bus(), TransportMode::kLcm, "", FrameRingLayout{});
+      LiveOutlet outlet(c, sender, watch, {"tracker"}, 1);
+      // 1.5 s of frames, never acknowledged: frame 0 goes out again after 1 s, while offers go on.
+      for (int64_t id = 0; id < 75; ++id) {
+        Intrinsics k;
+        k.width = 32;
+        k.height = 24;
+        k.fx = fxOf(id);
+        outlet.offer(smallFrame(id), k);
+        std::this_thread::sleep_for(std::chrono::milliseconds(20));
+      }
+      offering = false;
+      c.requestStop();
+    });
+  });
+  while (offering) bus.handle(5);
+  source.join();
+  while (bus.handle(0)) {
+  }
+  ASSERT_GE(received.size(), 2u) << "frame 0, then frame 0 again after 1 s without an acknowledgement";
+  EXPECT_EQ(received[1].first, received[0].first) << "the newest sent frame goes out again";
+  for (const auto& [id, fx] : received) EXPECT_EQ(fx, fxOf(id)) << "frame " << id;
 }
 
 }  // namespace

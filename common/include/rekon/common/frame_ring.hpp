@@ -36,7 +36,9 @@ class FrameRingWriter {
   FrameRingWriter(const FrameRingWriter&) = delete;
   FrameRingWriter& operator=(const FrameRingWriter&) = delete;
 
-  // Copies `frame` into `slot`; returns the slot's new generation.
+  // Copies `frame` into `slot`; returns the slot's new generation. Throws
+  // rekon::Error naming both sizes and transport.max_width/max_height for a
+  // frame larger than a slot.
   uint64_t write(int slot, const RgbdFrame& frame);
   const std::string& name() const { return name_; }
   int slots() const;

@@ -41,6 +41,10 @@ void announceEndOfStream(Bus& bus, const rekon_msgs::end_of_stream_t& eos);
 // capture times of the frames in flight.
 // Also measures the capture-to-pose latency: from a frame's capture time to
 // the tracker's tracked_frame_t for it, as this process receives it.
+// An exception on the sending thread (a frame larger than the ring slot, a
+// bus error) ends that thread and requests a stop; the next offer() or
+// finish() throws it on the source's thread, whose service logs it as one
+// line and stops cleanly.
 class LiveOutlet {
  public:
   struct Counts {
