@@ -3,8 +3,10 @@
 #include <algorithm>
 #include <atomic>
 #include <condition_variable>
+#include <exception>
 #include <mutex>
 #include <thread>
+#include <utility>
 #include <vector>
 
 namespace rekon::volume {
@@ -46,17 +48,31 @@ class ThreadPool {
     }
     wake_.notify_all();
     work(0);
-    std::unique_lock<std::mutex> lock(mutex_);
-    done_.wait(lock, [this] { return pending_ == 0; });
-    body_ = nullptr;
+    std::exception_ptr error;
+    {
+      // Every worker is out of `body` before it goes out of scope, even when one of them threw.
+      std::unique_lock<std::mutex> lock(mutex_);
+      done_.wait(lock, [this] { return pending_ == 0; });
+      body_ = nullptr;
+      error = std::exchange(error_, nullptr);
+    }
+    if (error) std::rethrow_exception(error);
   }
 
  private:
+  // A chunk's exception ends the loop: the first is kept for run() to throw on
+  // the caller's thread, and the chunks not yet taken are left undone.
   void work(int worker) {
-    while (true) {
-      const int begin = next_.fetch_add(grain_);
-      if (begin >= n_) break;
-      (*body_)(begin, std::min(n_, begin + grain_), worker);
+    try {
+      while (true) {
+        const int begin = next_.fetch_add(grain_);
+        if (begin >= n_) break;
+        (*body_)(begin, std::min(n_, begin + grain_), worker);
+      }
+    } catch (...) {
+      next_.store(n_);
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (!error_) error_ = std::current_exception();
     }
   }
   void workerLoop(int worker) {
@@ -85,6 +101,7 @@ class ThreadPool {
   const std::function<void(int, int, int)>* body_ = nullptr;
   int n_ = 0, grain_ = 1, participants_ = 0, pending_ = 0;
   std::atomic<int> next_{0};
+  std::exception_ptr error_;  // the first exception of the current loop's chunks
   uint64_t generation_ = 0;
   bool stop_ = false;
 };
