@@ -20,6 +20,7 @@
 #include "rekon/common/config.hpp"
 #include "rekon/common/dataset.hpp"
 #include "rekon/common/frame_transport.hpp"
+#include "rekon/common/mesh.hpp"
 #include "rekon/common/messages.hpp"
 #include "rekon/common/pose.hpp"
 #include "rekon/common/service.hpp"
@@ -143,6 +144,56 @@ TEST(MapperResend, FramesSentAgainAreNeitherQueuedTwiceNorDroppedAndEveryFrameIs
   EXPECT_EQ(test::jsonInt(stats, "frames_dropped"), 0) << stats;
   EXPECT_EQ(test::jsonInt(stats, "frames_received_again"), kFrames * (kCopiesWhileWaiting + kCopiesAfterJoin)) << stats;
   EXPECT_EQ(test::jsonInt(stats, "kf_keyframes"), kFrames / 4) << stats;
+}
+
+
+// A frame from another camera (its fx changed) makes the mapping worker
+// throw. Before, the service threw that error before writing anything: the
+// map of every frame fused until then was lost. Now, as the tracker does, the
+// outputs are written first, then the service fails with the worker's error.
+TEST(MapperWorkerError, TheMeshOfTheFramesFusedBeforeIsWrittenAndTheServiceFails) {
+  test::TempDir dir;
+  synth::SequenceOptions sequence;
+  sequence.scene = "room";
+  sequence.frames = kFrames;
+  synth::writeSequence(sequence, dir / "room");
+  const TumDataset data(dir / "room");
+  const Config config = Config::load("", {"lcm.url=memory://mapper_worker_error", "mapper.kappa=4",
+                                          "mapper.wait_for_optimiser=false", "mapper.use_store=false",
+                                          "mapper.write_uncorrected_mesh=false"});
+  MemoryBus bus(BusOptions::fromConfig(config));
+  bool running = false;
+  bus.subscribe<rekon_msgs::heartbeat_t>(channel::kHeartbeat, [&](const rekon_msgs::heartbeat_t& m) {
+    if (m.service == "mapper" && m.state == "running") running = true;
+  });
+  InProcessService service("mapper", config, dir / "out", mapper::runMapperService);
+  const auto deadline = Clock::now() + std::chrono::seconds(60);
+  while (!running && Clock::now() < deadline) bus.handle(20);
+  ASSERT_TRUE(running) << "the mapper never said it was running";
+
+  FrameSender sender(bus, TransportMode::kLcm, "", FrameRingLayout{});
+  const Trajectory& gt = data.groundTruth();
+  rekon_msgs::keyframe_t kf{};
+  kf.keyframe_id = 0;
+  kf.pose_world = toMsg(gt.front().pose);
+  bus.publish(channel::kKeyframes, kf);
+  for (int i = 0; i < kFrames; ++i) {
+    Intrinsics k = data.intrinsics();
+    if (i == kFrames - 1) k.fx *= 1.1;  // the last frame's camera is not the map's
+    sender.send(data.decode(static_cast<size_t>(i), data.loadEncoded(static_cast<size_t>(i))), k);
+    rekon_msgs::tracked_frame_t t{};
+    t.frame_id = i;
+    t.keyframe_id = 0;
+    t.pose_in_keyframe = toMsg(gt.front().pose.inverse() * gt[static_cast<size_t>(i)].pose);
+    bus.publish(channel::kTrackedFrames, t);
+    while (bus.handle(0)) {
+    }
+  }
+  EXPECT_EQ(service.join(), 1) << "the worker's error fails the service";
+  const Mesh mesh = readPly(dir / "out/mesh.ply");
+  EXPECT_GT(mesh.vertices.size(), 1000u) << "the room's surface from the frames fused before the error";
+  EXPECT_FALSE(test::readText(dir / "out/mapper_timing.csv").empty());
+  EXPECT_EQ(test::jsonInt(test::readText(dir / "out/mapper_stats.json"), "frames_fused"), kFrames - 1);
 }
 
 }  // namespace

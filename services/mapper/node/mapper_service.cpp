@@ -10,7 +10,6 @@
 #include <vector>
 
 #include "inbox.hpp"
-#include "rekon/common/error.hpp"
 #include "mapping_worker.hpp"
 #include "mesh_publisher.hpp"
 #include "outputs.hpp"
@@ -97,6 +96,19 @@ void serveTheStream(ServiceContext& ctx, Inbox& inbox, const Settings& settings,
   }
 }
 
+// The final pass (after a clean end), the last mesh update, the files in the
+// output folder and the stats.
+void finishAndWrite(ServiceContext& ctx, const Settings& settings, Mapper& mapper, MappingWorker& worker,
+                    MeshPublisher& mesh, const Inbox& inbox, bool clean) {
+  worker.finish(clean);
+  mesh.finish(mapper);  // the last update: a subscriber's map now equals mesh.ply
+  if (!ctx.outDir().empty()) {
+    writeMeshAndTables(mapper, worker.frameTiming(), worker.rounds(), ctx.outDir());
+    if (settings.baseline_wanted && !worker.baselineWritten()) writeUncorrectedMesh(mapper, ctx.outDir());
+  }
+  recordStats(ctx, mapper, settings.params, inbox.counts(), mesh.stats());
+}
+
 }  // namespace
 
 void runMapperService(ServiceContext& ctx) {
@@ -118,17 +130,21 @@ void runMapperService(ServiceContext& ctx) {
   inbox.drain();
   worker_thread.join();
   ctx.stopThreads();  // no handler runs after this
-  if (!inbox.workerError().empty()) throw Error(inbox.workerError());
   inbox.dropUnjoinedFrames();
 
-  worker.finish(clean);
-  mesh.finish(mapper);  // the last update: a subscriber's map now equals mesh.ply
-  if (!ctx.outDir().empty()) {
-    writeMeshAndTables(mapper, worker.frameTiming(), worker.rounds(), ctx.outDir());
-    if (settings.baseline_wanted && !worker.baselineWritten()) writeUncorrectedMesh(mapper, ctx.outDir());
+  const std::string worker_error = inbox.workerError();
+  if (!worker_error.empty()) {
+    // As the tracker: the outputs first, so that what was fused is kept; then
+    // the worker's error, which a second failure while writing must not hide.
+    try {
+      finishAndWrite(ctx, settings, mapper, worker, mesh, inbox, false);
+    } catch (...) {
+      spdlog::error("{}", currentExceptionLine());
+    }
+    throw Error(worker_error);
   }
+  finishAndWrite(ctx, settings, mapper, worker, mesh, inbox, clean);
   if (clean) publishDone(ctx, inbox.endFrame());
-  recordStats(ctx, mapper, settings.params, inbox.counts(), mesh.stats());
   if (clean) mapper.removeStore();
 }
 

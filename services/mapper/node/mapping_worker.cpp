@@ -4,6 +4,8 @@
 
 #include <exception>
 
+#include "rekon/common/error.hpp"
+
 namespace rekon::mapper {
 
 MappingWorker::MappingWorker(ServiceContext& ctx, Mapper& mapper, Inbox& inbox, MeshPublisher& mesh)
@@ -21,8 +23,8 @@ void MappingWorker::run() {
       process(*w);
       inbox_.finished(std::holds_alternative<FrameWork>(*w), mapper_.counters());
       mesh_.tick(mapper_);
-    } catch (const std::exception& e) {  // rekon::Error, or OpenCV's for a broken image
-      inbox_.failed(e.what());
+    } catch (...) {  // rekon::Error, OpenCV's for a broken image, or any other: a std::terminate would lose the mesh
+      inbox_.failed(currentExceptionLine());
       ctx_.requestStop();
       return;
     }
