@@ -3,7 +3,9 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <memory>
 #include <numbers>
+#include <vector>
 
 #include "rekon/tracker/loop_closure.hpp"
 #include "synthetic_views.hpp"
@@ -208,18 +210,20 @@ TEST(LoopBothDirections, TheMeanIsTheMidpoint) {
   }
 }
 
+// Keyframes 10 m apart: no candidates, so a check aligns nothing.
+std::shared_ptr<const Keyframe> farApartKeyframe(int64_t id) {
+  auto kf = std::make_shared<Keyframe>();
+  kf->id = id;
+  kf->pose_world.translation() = Eigen::Vector3d(10.0 * static_cast<double>(id), 0.0, 0.0);
+  return kf;
+}
+
 TEST(LoopClosureWorker, AFullQueueDropsTheOldestChecks) {
   TrackerParams params;
   params.loop.queue_capacity = 2;
   int accepted = 0;
   LoopClosureWorker worker(params, [&](const LoopConstraint&) { ++accepted; }, /*start=*/false);
-  // Keyframes 10 m apart: no candidates, so a check aligns nothing.
-  for (int64_t id = 0; id < 5; ++id) {
-    auto kf = std::make_shared<Keyframe>();
-    kf->id = id;
-    kf->pose_world.translation() = Eigen::Vector3d(10.0 * static_cast<double>(id), 0.0, 0.0);
-    worker.submit(kf, std::nullopt);
-  }
+  for (int64_t id = 0; id < 5; ++id) worker.submit(farApartKeyframe(id), std::nullopt);
   // Five submitted into room for two: the checks of keyframes 0, 1, 2 went.
   EXPECT_EQ(worker.stats().checks_dropped, 3);
   worker.start();
@@ -227,6 +231,34 @@ TEST(LoopClosureWorker, AFullQueueDropsTheOldestChecks) {
   EXPECT_EQ(worker.checkedKeyframes(), (std::vector<int64_t>{3, 4}));
   EXPECT_EQ(worker.stats().keyframes_checked, 2);
   EXPECT_EQ(accepted, 0);
+}
+
+
+// A stalled worker (never started here) while keyframes keep coming: before,
+// only the checks were capped and every keyframe stayed queued (a job each,
+// holding its images), without limit. Now at most queue_capacity checks and
+// queue_capacity candidates wait; the oldest candidates are the ones dropped.
+TEST(LoopClosureWorker, AStalledWorkerHoldsAtMostTwiceTheQueueCapacityAndDropsTheOldestCandidates) {
+  TrackerParams params;
+  params.loop.queue_capacity = 2;
+  LoopClosureWorker worker(params, [](const LoopConstraint&) {}, /*start=*/false);
+  std::vector<std::weak_ptr<const Keyframe>> submitted;
+  for (int64_t id = 0; id < 10; ++id) {
+    auto kf = farApartKeyframe(id);
+    submitted.push_back(kf);
+    worker.submit(std::move(kf), std::nullopt);
+  }
+  std::vector<int64_t> held;  // keyframes the queue still holds
+  for (size_t id = 0; id < submitted.size(); ++id) {
+    if (!submitted[id].expired()) held.push_back(static_cast<int64_t>(id));
+  }
+  // Checks of 8 and 9 wait, 6 and 7 wait as candidates; 0-5 were let go.
+  EXPECT_EQ(held, (std::vector<int64_t>{6, 7, 8, 9}));
+  EXPECT_EQ(worker.stats().checks_dropped, 8);
+  EXPECT_EQ(worker.stats().candidates_dropped, 6);
+  worker.start();
+  ASSERT_TRUE(worker.waitUntilDrained(10000));
+  EXPECT_EQ(worker.checkedKeyframes(), (std::vector<int64_t>{8, 9}));
 }
 
 }  // namespace

@@ -328,21 +328,36 @@ void LoopClosureWorker::submit(std::shared_ptr<const Keyframe> keyframe,
   if (!detector_.params().enabled) return;  // nothing will ever be checked: keep no keyframes
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    if (waiting_checks_ >= detector_.params().queue_capacity) {
-      for (Job& j : queue_) {
-        if (!j.check) continue;
-        j.check = false;
-        --waiting_checks_;
-        ++stats_.checks_dropped;
-        spdlog::warn("loop-closure queue full ({} keyframes): dropped the check of keyframe {} ({} dropped so far)",
-                     detector_.params().queue_capacity, j.keyframe->id, stats_.checks_dropped);
-        break;
-      }
-    }
-    queue_.push_back(Job{std::move(keyframe), incoming, true});
-    waiting_checks_ += queue_.back().check;
+    if (waiting_checks_ >= detector_.params().queue_capacity) dropOldestCheck();
+    queue_.push_back(Job{std::move(keyframe), incoming, Kind::kCheck});
+    ++waiting_checks_;
   }
   wake_.notify_one();
+}
+
+// The oldest check goes (the newest keyframes are where the camera is now);
+// its keyframe stays queued as a candidate for later keyframes' checks.
+void LoopClosureWorker::dropOldestCheck() {
+  const auto job = std::find_if(queue_.begin(), queue_.end(), [](const Job& j) { return j.kind == Kind::kCheck; });
+  if (job == queue_.end()) return;
+  if (waiting_candidates_ >= detector_.params().queue_capacity) dropOldestCandidate();
+  job->kind = Kind::kCandidate;
+  --waiting_checks_;
+  ++waiting_candidates_;
+  ++stats_.checks_dropped;
+  spdlog::warn("loop-closure queue full ({} keyframes): dropped the check of keyframe {} ({} dropped so far)",
+               detector_.params().queue_capacity, job->keyframe->id, stats_.checks_dropped);
+}
+
+// Only while the worker is stalled: the oldest waiting candidate goes, so that
+// the newer ones (nearer the keyframes still to be checked) stay.
+void LoopClosureWorker::dropOldestCandidate() {
+  const auto job = std::find_if(queue_.begin(), queue_.end(), [](const Job& j) { return j.kind == Kind::kCandidate; });
+  spdlog::warn("loop-closure worker stalled ({} keyframes wait): keyframe {} will not be a loop candidate ({} left out so far)",
+               queue_.size(), job->keyframe->id, stats_.candidates_dropped + 1);
+  queue_.erase(job);
+  --waiting_candidates_;
+  ++stats_.candidates_dropped;
 }
 
 void LoopClosureWorker::addStored(std::shared_ptr<const Keyframe> keyframe,
@@ -350,7 +365,7 @@ void LoopClosureWorker::addStored(std::shared_ptr<const Keyframe> keyframe,
   if (!detector_.params().enabled) return;
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    queue_.push_back(Job{std::move(keyframe), incoming, false});
+    queue_.push_back(Job{std::move(keyframe), incoming, Kind::kStored});
   }
   wake_.notify_one();
 }
@@ -389,7 +404,8 @@ void LoopClosureWorker::run() {
       if (stop_) return;
       job = std::move(queue_.front());
       queue_.pop_front();
-      waiting_checks_ -= job.check;
+      waiting_checks_ -= job.kind == Kind::kCheck;
+      waiting_candidates_ -= job.kind == Kind::kCandidate;
       busy_ = true;
     }
     const auto t0 = std::chrono::steady_clock::now();
@@ -397,7 +413,7 @@ void LoopClosureWorker::run() {
     try {  // an exception must not end the tracker (std::terminate): this keyframe's loops are lost, one line says why
       detector_.addKeyframe(job.keyframe, job.incoming);
       std::vector<LoopConstraint> accepted;
-      if (job.check) accepted = detector_.detect(job.keyframe->id, local);
+      if (job.kind == Kind::kCheck) accepted = detector_.detect(job.keyframe->id, local);
       for (const LoopConstraint& c : accepted) on_accept_(c);
     } catch (...) {
       spdlog::error("loop closure check of keyframe {} failed, no loop edges from it: {}", job.keyframe->id,
@@ -406,7 +422,7 @@ void LoopClosureWorker::run() {
     const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     {
       std::lock_guard<std::mutex> lock(mutex_);
-      if (job.check) {
+      if (job.kind == Kind::kCheck) {
         checked_.push_back(job.keyframe->id);
         stats_.keyframes_checked += local.keyframes_checked;
         stats_.candidates += local.candidates;

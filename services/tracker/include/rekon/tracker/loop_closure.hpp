@@ -72,6 +72,7 @@ struct LoopClosureStats {
   int64_t rejected = 0;
   int64_t candidates_skipped = 0;  // beyond max_candidates
   int64_t checks_dropped = 0;      // keyframes whose check the full queue dropped
+  int64_t candidates_dropped = 0;  // keyframes whose check was dropped and that the full queue then left out as candidates
   double check_ms = 0.0;           // wall time of all checks
 };
 
@@ -160,8 +161,10 @@ class LoopClosureWorker {
 
   void start();
   // Queues a new keyframe's check; when queue_capacity checks already wait,
-  // the oldest waiting one is dropped with a warning (its keyframe is still
-  // added as a candidate).
+  // the oldest waiting one is dropped with a warning (its keyframe still waits,
+  // to be added as a candidate). When queue_capacity such keyframes wait too
+  // (the worker is stalled), the oldest of them is dropped as well, warned and
+  // counted: a queue never holds more than 2 x queue_capacity new keyframes.
   void submit(std::shared_ptr<const Keyframe> keyframe, const std::optional<OdometryConstraint>& incoming);
   // A keyframe of an earlier run (a continued session): a candidate, never checked itself.
   void addStored(std::shared_ptr<const Keyframe> keyframe, const std::optional<OdometryConstraint>& incoming);
@@ -174,19 +177,26 @@ class LoopClosureWorker {
   std::vector<int64_t> checkedKeyframes() const;
 
  private:
+  // kCheck: a new keyframe, added and checked; kCandidate: a new keyframe
+  // whose check was dropped, only added; kStored: from an earlier run, only
+  // added (never dropped: a session's keyframes are finite and wanted).
+  enum class Kind { kCheck, kCandidate, kStored };
   struct Job {
     std::shared_ptr<const Keyframe> keyframe;
     std::optional<OdometryConstraint> incoming;
-    bool check = true;
+    Kind kind = Kind::kCheck;
   };
   void run();
+  // Under mutex_: room in the full queue for one more new keyframe.
+  void dropOldestCheck();
+  void dropOldestCandidate();
 
   LoopClosureDetector detector_;
   AcceptFn on_accept_;
   mutable std::mutex mutex_;
   std::condition_variable wake_, drained_;
   std::deque<Job> queue_;
-  int waiting_checks_ = 0;
+  int waiting_checks_ = 0, waiting_candidates_ = 0;
   bool busy_ = false, stop_ = false, started_ = false;
   LoopClosureStats stats_;
   std::vector<int64_t> checked_;
