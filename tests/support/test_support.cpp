@@ -34,11 +34,28 @@ TempDir::TempDir() {
   path_ = tmpl;
 }
 
+namespace {
+
+// Whether what the folder served has failed so far: the running test, else
+// (a suite's folder, removed in TearDownTestSuite) the running suite, else
+// the whole program.
+bool failedSoFar() {
+  const auto* unit = ::testing::UnitTest::GetInstance();
+  if (unit->current_test_info() != nullptr) return ::testing::Test::HasFailure();
+  if (const auto* suite = unit->current_test_suite()) return suite->Failed();
+  return unit->Failed();
+}
+
+}  // namespace
+
 TempDir::~TempDir() {
-  if (std::getenv("REKON_KEEP_TEST_DIRS") == nullptr) {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
+  if (std::getenv("REKON_KEEP_TEST_DIRS") != nullptr) return;
+  if (failedSoFar()) {
+    std::fprintf(stderr, "kept %s for the failure's evidence\n", path_.c_str());
+    return;
   }
+  std::error_code ec;
+  fs::remove_all(path_, ec);
 }
 
 std::string binDir() { return REKON_BIN_DIR; }

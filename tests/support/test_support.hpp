@@ -17,7 +17,11 @@ std::string sharedDataset(const std::string& name);
   const std::string var = ::rekon::test::sharedDataset(name);                                \
   if (var.empty()) GTEST_SKIP() << "../shared/data/" << (name) << " is absent: skipping (real-data test)"
 
-// A new empty folder under the system temp dir, removed when the object dies.
+// A new empty folder under the system temp dir, removed when the object dies,
+// unless the test (or, for a suite's folder, the suite) it served has failed:
+// then it is kept, with its service logs, stats and run.out, and its path is
+// printed ("kept PATH for the failure's evidence"). REKON_KEEP_TEST_DIRS=1
+// keeps every folder.
 class TempDir {
  public:
   TempDir();
