@@ -1,9 +1,17 @@
 #!/usr/bin/env bash
 # Runs `rekon run` and kills one of its services with SIGKILL mid-run: once
-# the mapper's keyframe store holds MIN_KEYFRAMES KF keyframes. Prints
-# "killed rekon-SERVICE" when it did; exits with rekon run's status. SERVICE
-# "all" kills rekon run and every service at once (its session), as a power
-# switch would, but with the page cache kept: prints "killed all".
+# the mapper's keyframe store holds MIN_KEYFRAMES KF keyframes. SERVICE "all"
+# kills rekon run and every service at once (its session), as a power switch
+# would, but with the page cache kept.
+#
+# The kill is exact, even at the last KF keyframe (which the mapper stores
+# only in its final pass, just before it exits): once the store is one short,
+# each check first stops the service (SIGSTOP), so the count read and the
+# SIGKILL meet a live process that cannot move on in between.
+#
+# Prints "killed rekon-SERVICE ..." ("killed all ...") only when the kill
+# landed (for a service: rekon run reported it killed by signal 9) and exits
+# with rekon run's status; else prints "nothing killed: WHY" and exits 125.
 # usage: kill_during_run.sh BIN_DIR SERVICE MIN_KEYFRAMES OUT [rekon run options...]
 set -u
 bin=$1 service=$2 min=$3 out=$4
@@ -11,22 +19,80 @@ shift 4
 mkdir -p "$out"
 setsid timeout 240 "$bin/rekon" run --out "$out" "$@" > "$out/run.out" 2>&1 &
 run=$!  # the session of timeout, rekon run and its services
-for _ in $(seq 1 1200); do  # 120 s at most
-  kill -0 "$run" 2> /dev/null || break
+
+# KF keyframes in the run's store now (0 before it exists, once removed, or
+# while a stopped writer holds its lock).
+stored() {
+  local segment
   segment=$(sed -n 's/^ *store_segment: *"\{0,1\}\([^"]*\)"\{0,1\} *$/\1/p' "$out/config.yaml" 2> /dev/null)
-  if [ -n "$segment" ]; then
-    n=$(timeout 10 "$bin/rekon" keyframes --list --segment "$segment" 2> /dev/null | sed -n 's/^store [^ ]*: \([0-9]*\) keyframes.*/\1/p')
-    if [ "${n:-0}" -ge "$min" ]; then
-      if [ "$service" = all ]; then
-        # The session setsid made: rekon run and its services (each in a process group of its own).
-        pkill -9 -s "$run" && echo "killed all (session $run) with $n KF keyframes stored"
-        break
-      fi
-      pid=$(sed -n "s/.*started rekon-$service (pid \([0-9]*\)).*/\1/p" "$out/run.out" | tail -1)
-      kill -9 "$pid" && echo "killed rekon-$service (pid $pid) with $n KF keyframes stored"
-      break
-    fi
+  [ -n "$segment" ] || { echo 0; return; }
+  timeout 2 "$bin/rekon" keyframes --list --segment "$segment" 2> /dev/null |
+    sed -n 's/^store [^ ]*: \([0-9]*\) keyframes.*/\1/p' | grep . || echo 0
+}
+
+# The pid of the newest instance of the service, "" before it started.
+pidOf() { sed -n "s/.*started rekon-$service (pid \([0-9]*\)).*/\1/p" "$out/run.out" | tail -1; }
+
+# Waits (1 s at most) until every thread of the process is stopped by
+# SIGSTOP, hence alive and still: not running, not a zombie, not gone.
+stopped() {
+  local states
+  for _ in $(seq 1 50); do
+    states=$(sed 's/.*) //' /proc/"$1"/task/*/stat 2> /dev/null | cut -d' ' -f1 | sort -u)
+    [ "$states" = T ] && return 0
+    [ -n "$states" ] || return 1
+    sleep 0.02
+  done
+  return 1
+}
+
+# One check: once the store holds MIN_KEYFRAMES, kills the service (or the
+# session) and sets `killed`; returns 1 while it has not. From one short on
+# (`near`) the service runs only between checks.
+near=""
+tryKill() {
+  local n pid
+  if [ "$service" = all ]; then
+    n=$(stored)
+    [ "$n" -ge "$min" ] || return 1
+    # The session setsid made: rekon run and its services (each in a process group of its own).
+    pkill -9 -s "$run" && killed="all (session $run) with $n KF keyframes stored"
+    return 0
   fi
-  sleep 0.1
+  [ -n "$near" ] || [ "$(stored)" -ge $((min - 1)) ] || return 1
+  near=1
+  pid=$(pidOf)
+  [ -n "$pid" ] && kill -STOP "$pid" 2> /dev/null && stopped "$pid" || { kill -CONT "$pid" 2> /dev/null; return 1; }
+  n=$(stored)
+  if [ "$n" -ge "$min" ]; then
+    kill -9 "$pid" && killed="rekon-$service (pid $pid) with $n KF keyframes stored"
+    return 0
+  fi
+  kill -CONT "$pid" 2> /dev/null
+  return 1
+}
+
+# Why the fault was not injected, or "" when it was.
+missed() {
+  if [ -z "$killed" ]; then
+    echo "the run ended before its store held $min KF keyframes with rekon-$service alive"
+  elif [ "$service" != all ] && ! grep -q "rekon-$service was killed by signal 9" "$out/run.out"; then
+    echo "SIGKILL was sent to $killed, but rekon run did not report it killed"
+  fi
+}
+
+killed=""
+for _ in $(seq 1 6000); do  # 120 s at most
+  kill -0 "$run" 2> /dev/null || break
+  tryKill && break
+  sleep 0.02
 done
 wait "$run"
+rc=$?
+why=$(missed)
+if [ -n "$why" ]; then
+  echo "nothing killed: $why"
+  exit 125
+fi
+echo "killed $killed"
+exit $rc

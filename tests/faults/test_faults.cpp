@@ -95,7 +95,7 @@ size_t lineCount(const std::string& path) {
 using rekon::test::leftoverSegments;
 
 struct Faulty {
-  int rc = -1;
+  int rc = -1;  // rekon run's exit status (125: the kill script killed nothing)
   std::string output;  // the kill script's and rekon run's
 };
 
@@ -130,12 +130,16 @@ TEST(Faults, KilledMapperIsRestartedAndItsMeshMatchesAnUninterruptedRun) {
 // Killed once it stored the last KF keyframe (5 of the room's 90 frames): its
 // resume point is past the last frame, so nothing is sent again, but the
 // player announces the end of the stream again (it once waited for ever).
+// The mapper stores the last one in its final pass, moments before it exits:
+// the kill script holds it stopped while it counts, so the kill lands.
 TEST(Faults, MapperKilledAfterTheLastFrameGetsTheEndOfTheStreamAgain) {
   rekon::test::TempDir dir;
   const std::string out = dir / "run";
   const Faulty f = runKilling("mapper", out, "", 5);
   ASSERT_NE(f.output.find("killed rekon-mapper"), std::string::npos) << f.output;
+  ASSERT_NE(f.output.find("with 5 KF keyframes stored"), std::string::npos) << f.output;
   ASSERT_EQ(f.rc, 0) << f.output << readText(out + "/player.log");
+  EXPECT_NE(readText(out + "/stats.json").find("\"restarts\": {\"mapper\":1}"), std::string::npos) << f.output;
   EXPECT_NE(readText(out + "/player.log").find("sending frames 90..89 again"), std::string::npos)
       << readText(out + "/player.log");
   EXPECT_NEAR(corrOf(out), corrOf(baseline().run), 0.00002) << readText(out + "/mapper.log");

@@ -112,16 +112,40 @@ TEST_F(SessionRun, ASecondRunNeverWritesOverTheSession) {
   EXPECT_EQ(readText(session() + "/session.yaml"), yaml);
 }
 
+struct Killed {
+  int rc = -1;      // rekon run's exit status (125: nothing was killed)
+  std::string log;  // the kill script's output and rekon run's
+};
+
 // tests/faults/kill_during_run.sh: SERVICE killed with SIGKILL once the
 // mapper's store holds 3 KF keyframes ("all": every process at once).
-std::string runKilling(const std::string& service, const rekon::test::TempDir& dir) {
+Killed runKilling(const std::string& service, const rekon::test::TempDir& dir) {
   EXPECT_EQ(runCommand("timeout 120 " + binDir() + "/rekon synth --scene room --frames " + std::to_string(kFrames) +
                        " --out " + (dir / "room")), 0);
-  std::string out;
-  runCommand(rekon::test::inNetns() + " " + rekon::test::sourceDir() + "/tests/faults/kill_during_run.sh " + binDir() +
-                 " " + service + " 3 " + (dir / "run") + " --dataset " + (dir / "room") + " --session " + (dir / "session"),
-             &out);
-  return out + "\nrekon run:\n" + readText(dir / "run/run.out");
+  Killed k;
+  k.rc = runCommand(rekon::test::inNetns() + " " + rekon::test::sourceDir() + "/tests/faults/kill_during_run.sh " +
+                        binDir() + " " + service + " 3 " + (dir / "run") + " --dataset " + (dir / "room") +
+                        " --session " + (dir / "session"),
+                    &k.log);
+  k.log += "\nrekon run:\n" + readText(dir / "run/run.out");
+  return k;
+}
+
+// A restartable service killed: rekon run restarted it once (its own line and
+// its stats say so) and the run ended well.
+void expectRestartedOnce(const Killed& k, const std::string& service, const rekon::test::TempDir& dir) {
+  EXPECT_EQ(k.rc, 0) << k.log;
+  EXPECT_NE(k.log.find("restarted rekon-" + service + " (pid"), std::string::npos) << k.log;
+  const std::string stats = readText(dir / "run/stats.json");
+  EXPECT_NE(stats.find("\"restarts\": {\"" + service + "\":1}"), std::string::npos) << stats;
+}
+
+// A service that cannot be restarted killed: the run stopped naming it, with a failure status.
+void expectStoppedNaming(const Killed& k, const std::string& service) {
+  EXPECT_NE(k.rc, 0) << k.log;
+  EXPECT_NE(k.rc, 125) << k.log;
+  EXPECT_NE(k.log.find("rekon-" + service + " was killed by signal 9"), std::string::npos) << k.log;
+  EXPECT_NE(k.log.find("the run was stopped"), std::string::npos) << k.log;
 }
 
 // A run killed whole, or one whose tracker was killed, leaves its shared
@@ -158,8 +182,8 @@ void expectContinues(const rekon::test::TempDir& dir) {
 // (at least the 3 the store held, less any in flight), re-meshes and continues.
 TEST(SessionKilled, ARunKilledWholeLeavesASessionThatOpensAndRemeshes) {
   rekon::test::TempDir dir;
-  const std::string log = runKilling("all", dir);
-  ASSERT_NE(log.find("killed all"), std::string::npos) << log;
+  const Killed k = runKilling("all", dir);
+  ASSERT_NE(k.log.find("killed all"), std::string::npos) << k.log;
   std::string out;
   ASSERT_EQ(runCommand(binDir() + "/rekon remesh " + (dir / "session") + " --out " + (dir / "remesh.ply"), &out), 0) << out;
   EXPECT_GE(valueAfter(out, "keyframes"), 2) << out;
@@ -173,8 +197,9 @@ TEST(SessionKilled, ARunKilledWholeLeavesASessionThatOpensAndRemeshes) {
 // session, which then re-meshes into the run's mesh and continues.
 TEST(SessionKilled, AMapperRestartedMidRunGoesOnWritingTheSameSession) {
   rekon::test::TempDir dir;
-  const std::string log = runKilling("mapper", dir);
-  ASSERT_NE(log.find("killed rekon-mapper"), std::string::npos) << log;
+  const Killed k = runKilling("mapper", dir);
+  ASSERT_NE(k.log.find("killed rekon-mapper"), std::string::npos) << k.log;
+  expectRestartedOnce(k, "mapper", dir);
   std::string out;
   ASSERT_EQ(runCommand(binDir() + "/rekon remesh " + (dir / "session") + " --out " + (dir / "remesh.ply"), &out), 0) << out;
   const double same = corr(dir / "remesh.ply", dir / "run/mesh.ply");
@@ -189,8 +214,10 @@ TEST(SessionKilled, RunsWithTheTrackerOrTheOptimiserKilledLeaveSessionsThatConti
   for (const std::string service : {"tracker", "optimiser"}) {
     SCOPED_TRACE(service);
     rekon::test::TempDir dir;
-    const std::string log = runKilling(service, dir);
-    ASSERT_NE(log.find("killed rekon-" + service), std::string::npos) << log;
+    const Killed k = runKilling(service, dir);
+    ASSERT_NE(k.log.find("killed rekon-" + service), std::string::npos) << k.log;
+    if (service == "tracker") expectStoppedNaming(k, service);
+    else expectRestartedOnce(k, service, dir);
     removeLeftovers(dir);
     expectContinues(dir);
   }
