@@ -5,6 +5,7 @@
 #include <sys/resource.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <condition_variable>
 #include <filesystem>
@@ -39,6 +40,14 @@ std::string hostName() {
   return buf;
 }
 
+rekon_msgs::done_t doneMessage(const std::string& service, int64_t last_frame_id) {
+  rekon_msgs::done_t done{};
+  done.service = service;
+  done.pid = getpid();
+  done.last_frame_id = last_frame_id;
+  return done;
+}
+
 double peakRssMb() {
   rusage usage{};
   getrusage(RUSAGE_SELF, &usage);
@@ -48,6 +57,7 @@ double peakRssMb() {
 struct ServiceContext::Threads {
   std::atomic<bool> stop_requested{false};
   std::atomic<bool> threads_stop{false};
+  std::atomic<bool> exited_sent{false};
   std::mutex state_mutex;
   std::condition_variable state_changed;  // wakes the heartbeat thread: a new state goes out at once
   std::string state = "starting";
@@ -72,7 +82,8 @@ rekon_msgs::service_stats_t statsMessage(const std::string& service, const JsonO
 
 ServiceContext::ServiceContext(std::string name, Config config, std::string out_dir, const ArgParser& args)
     : name_(std::move(name)), config_(std::move(config)), out_dir_(std::move(out_dir)), args_(args),
-      bus_(makeBus(BusOptions::fromConfig(config_))), threads_(std::make_unique<Threads>()) {
+      bus_(makeBus(BusOptions::fromConfig(config_))), lifecycle_(LifecycleTimes::fromConfig(config_)),
+      threads_(std::make_unique<Threads>()) {
   bus_->subscribe<rekon_msgs::shutdown_t>(channel::kShutdown, [this](const rekon_msgs::shutdown_t& m) {
     spdlog::info("shutdown requested ({})", m.reason);
     requestStop();
@@ -121,31 +132,45 @@ void ServiceContext::start() {
     }
   });
   threads_->heartbeat_thread = std::thread([this] {
-    const std::string host = hostName();
-    auto last_live = std::chrono::steady_clock::now();
-    while (!threads_->threads_stop.load()) {
-      if (std::chrono::steady_clock::now() - last_live >= std::chrono::seconds(1)) {
-        last_live = std::chrono::steady_clock::now();
-        publishLive();
-      }
-      rekon_msgs::heartbeat_t hb{};
-      hb.service = name_;
-      hb.pid = getpid();
-      hb.host = host;
-      hb.utime = nowMicros();
-      hb.last_frame_id = last_frame_.load();
-      {
-        std::lock_guard<std::mutex> lock(threads_->state_mutex);
-        hb.state = threads_->state;
-      }
-      bus_->publish(channel::kHeartbeat, hb);
-      // Every 0.5 s, and at once when the state changes (a player waiting
-      // for its consumers starts as soon as they are running).
-      std::unique_lock<std::mutex> lock(threads_->state_mutex);
-      threads_->state_changed.wait_for(lock, std::chrono::milliseconds(500),
-                                       [&] { return threads_->threads_stop.load() || threads_->state != hb.state; });
+    try {
+      heartbeatLoop();
+    } catch (...) {  // peers will see this instance fall silent; the service stops with its outputs
+      spdlog::error("heartbeat thread: {}", currentExceptionLine());
+      requestStop();
     }
   });
+}
+
+rekon_msgs::heartbeat_t ServiceContext::heartbeat() const {
+  static const std::string host = hostName();
+  rekon_msgs::heartbeat_t hb{};
+  hb.service = name_;
+  hb.pid = getpid();
+  hb.host = host;
+  hb.utime = nowMicros();
+  hb.last_frame_id = last_frame_.load();
+  std::lock_guard<std::mutex> lock(threads_->state_mutex);
+  hb.state = threads_->state;
+  return hb;
+}
+
+void ServiceContext::heartbeatLoop() {
+  const auto interval = std::chrono::duration_cast<std::chrono::milliseconds>(
+      std::chrono::duration<double>(lifecycle_.heartbeat_s));
+  auto last_live = std::chrono::steady_clock::now();
+  while (!threads_->threads_stop.load()) {
+    if (std::chrono::steady_clock::now() - last_live >= std::chrono::seconds(1)) {
+      last_live = std::chrono::steady_clock::now();
+      publishLive();
+    }
+    const rekon_msgs::heartbeat_t hb = heartbeat();
+    bus_->publish(channel::kHeartbeat, hb);
+    // Every heartbeat_s, and at once when the state changes (a player waiting
+    // for its consumers starts as soon as they are running).
+    std::unique_lock<std::mutex> lock(threads_->state_mutex);
+    threads_->state_changed.wait_for(lock, interval,
+                                     [&] { return threads_->threads_stop.load() || threads_->state != hb.state; });
+  }
 }
 
 void ServiceContext::stopThreads() {
@@ -156,6 +181,19 @@ void ServiceContext::stopThreads() {
   threads_->state_changed.notify_all();
   if (threads_->bus_thread.joinable()) threads_->bus_thread.join();
   if (threads_->heartbeat_thread.joinable()) threads_->heartbeat_thread.join();
+  // Said once: this instance handles no message any more. Watchers count a
+  // done instance as finished only after this (or its silence), so that one
+  // killed after its done_t is waited for until its restart is done.
+  if (threads_->exited_sent.exchange(true)) return;
+  {
+    std::lock_guard<std::mutex> lock(threads_->state_mutex);
+    threads_->state = "exited";
+  }
+  try {
+    bus_->publish(channel::kHeartbeat, heartbeat());
+  } catch (...) {
+    spdlog::warn("the exit heartbeat was not published: {}", currentExceptionLine());
+  }
 }
 
 void ServiceContext::writeStats() {
@@ -171,30 +209,84 @@ void ServiceContext::writeStats() {
   stats_.save((std::filesystem::path(out_dir_) / (name_ + "_stats.json")).string());
 }
 
-PeerWatch::PeerWatch(Bus& bus) {
-  bus.subscribe<rekon_msgs::heartbeat_t>(channel::kHeartbeat, [this](const rekon_msgs::heartbeat_t& hb) {
-    std::vector<std::function<void(const std::string&, int)>> call;
-    int instance = 0;
-    {
-      std::lock_guard<std::mutex> lock(mutex_);
-      Peer& p = peers_[hb.service];
-      p.last_heartbeat = Clock::now();
-      p.host = hb.host;
-      p.state = hb.state;
-      // "starting" has not subscribed yet: it counts as alive, not as an instance to serve.
-      if (hb.state != "starting" && hb.pid != p.pid) {
-        p.pid = hb.pid;
-        p.done = false;
-        instance = ++p.instances;
-        if (instance > 1) call = callbacks_;
-      }
-    }
-    for (const auto& f : call) f(hb.service, instance);
-  });
+LifecycleTimes LifecycleTimes::fromConfig(const Config& config) {
+  const double load = config.getDouble("lifecycle.load_factor");
+  if (!(load >= 1.0)) throw Error("lifecycle.load_factor must be 1 or more (it only ever lengthens the timeouts)");
+  auto seconds = [&](const std::string& key) {
+    const double s = config.getDouble("lifecycle." + key);
+    if (!(s > 0.0)) throw Error("lifecycle." + key + " must be a positive number of seconds");
+    return s * load;
+  };
+  LifecycleTimes t;
+  t.heartbeat_s = config.getDouble("lifecycle.heartbeat_s");  // the pace, not a wait: not scaled
+  if (!(t.heartbeat_s > 0.0)) throw Error("lifecycle.heartbeat_s must be a positive number of seconds");
+  t.silence_s = seconds("silence_s");
+  t.silence_gaps = config.getDouble("lifecycle.silence_gaps");
+  if (!(t.silence_gaps >= 2.0)) throw Error("lifecycle.silence_gaps must be 2 or more");
+  t.peer_seen_s = seconds("peer_seen_s");
+  t.replay_answer_s = seconds("replay_answer_s");
+  if (t.silence_s < 4 * t.heartbeat_s) throw Error("lifecycle.silence_s must be at least 4 heartbeats (lifecycle.heartbeat_s)");
+  return t;
+}
+
+PeerWatch::PeerWatch(Bus& bus, LifecycleTimes times) : times_(times) {
+  bus.subscribe<rekon_msgs::heartbeat_t>(channel::kHeartbeat,
+                                         [this](const rekon_msgs::heartbeat_t& hb) { onHeartbeat(hb); });
   bus.subscribe<rekon_msgs::done_t>(channel::kDone, [this](const rekon_msgs::done_t& m) {
     std::lock_guard<std::mutex> lock(mutex_);
-    peers_[m.service].done = true;
+    Peer& p = peers_[m.service];
+    if (current(p, m.service, m.pid)) p.done = true;
   });
+}
+
+Incarnations::Seen Incarnations::note(const std::string& service, int pid) {
+  auto [it, first] = current_.try_emplace(service, pid);
+  if (first || it->second == pid) return first ? Seen::kNew : Seen::kCurrent;
+  std::set<int>& superseded = superseded_[service];
+  if (superseded.count(pid) > 0) return Seen::kSuperseded;
+  superseded.insert(it->second);
+  it->second = pid;
+  return Seen::kNew;
+}
+
+bool PeerWatch::current(Peer& p, const std::string& service, int pid) {
+  switch (incarnations_.note(service, pid)) {
+    case Incarnations::Seen::kSuperseded:
+      return false;  // a late message of an instance that was replaced
+    case Incarnations::Seen::kNew: {
+      const int instances = p.instances;
+      p = Peer{};
+      p.pid = pid;
+      p.instances = instances;
+      return true;
+    }
+    case Incarnations::Seen::kCurrent:
+      break;
+  }
+  return true;
+}
+
+void PeerWatch::onHeartbeat(const rekon_msgs::heartbeat_t& hb) {
+  std::vector<std::function<void(const std::string&, int)>> call;
+  int instance = 0;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    Peer& p = peers_[hb.service];
+    if (!current(p, hb.service, hb.pid)) return;
+    const auto now = Clock::now();
+    if (p.last_heartbeat != Clock::time_point{}) p.longest_gap = std::max(p.longest_gap, now - p.last_heartbeat);
+    p.last_heartbeat = now;
+    p.host = hb.host;
+    p.state = hb.state;
+    p.exited = hb.state == "exited";
+    // "starting" has not subscribed yet: current and alive, but not an instance to serve yet.
+    if (hb.state != "starting" && !p.served) {
+      p.served = true;
+      instance = ++p.instances;
+      if (instance > 1) call = callbacks_;
+    }
+  }
+  for (const auto& f : call) f(hb.service, instance);
 }
 
 void PeerWatch::onNewInstance(std::function<void(const std::string&, int)> f) {
@@ -210,6 +302,12 @@ std::optional<PeerWatch::Peer> PeerWatch::peer(const std::string& service) const
   return it->second;
 }
 
+bool PeerWatch::silent(const Peer& p) const {
+  const auto base = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(times_.silence_s));
+  const auto gaps = std::chrono::duration_cast<Clock::duration>(p.longest_gap * times_.silence_gaps);
+  return p.last_heartbeat != Clock::time_point{} && Clock::now() - p.last_heartbeat > std::max(base, gaps);
+}
+
 bool PeerWatch::alive(const std::string& service, double silence_s) const {
   std::lock_guard<std::mutex> lock(mutex_);
   auto it = peers_.find(service);
@@ -217,20 +315,39 @@ bool PeerWatch::alive(const std::string& service, double silence_s) const {
          Clock::now() - it->second.last_heartbeat < std::chrono::duration<double>(silence_s);
 }
 
-bool PeerWatch::finished(const std::vector<std::string>& names, double silence_s) const {
-  const auto silence = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(silence_s));
+bool PeerWatch::alive(const std::string& service) const {
   std::lock_guard<std::mutex> lock(mutex_);
-  for (const auto& n : names) {
-    auto it = peers_.find(n);
-    if (it == peers_.end() || it->second.done) continue;
-    if (it->second.last_heartbeat != Clock::time_point{} && Clock::now() - it->second.last_heartbeat > silence) continue;
-    return false;
-  }
-  return true;
+  auto it = peers_.find(service);
+  return it != peers_.end() && it->second.last_heartbeat != Clock::time_point{} && !silent(it->second);
 }
 
-void PeerWatch::waitUntilFinished(const std::vector<std::string>& names, double silence_s, const ServiceContext& ctx) const {
-  while (!ctx.stopRequested() && !finished(names, silence_s)) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+bool PeerWatch::gone(const std::string& service) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  auto it = peers_.find(service);
+  return it != peers_.end() && silent(it->second);
+}
+
+bool PeerWatch::done(const std::string& service) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  auto it = peers_.find(service);
+  return it != peers_.end() && it->second.done;
+}
+
+bool PeerWatch::finishedLocked(const std::string& name) const {
+  auto it = peers_.find(name);
+  if (it == peers_.end()) return true;  // not part of this run
+  const Peer& p = it->second;
+  if (p.last_heartbeat == Clock::time_point{}) return p.done;  // a stand-in without heartbeats
+  return (p.done && p.exited) || silent(p);
+}
+
+bool PeerWatch::finished(const std::vector<std::string>& names) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return std::all_of(names.begin(), names.end(), [&](const std::string& n) { return finishedLocked(n); });
+}
+
+void PeerWatch::waitUntilFinished(const std::vector<std::string>& names, const ServiceContext& ctx) const {
+  while (!ctx.stopRequested() && !finished(names)) std::this_thread::sleep_for(std::chrono::milliseconds(50));
 }
 
 int runInContext(ServiceContext& ctx, const std::function<void(ServiceContext&)>& body) {

@@ -146,6 +146,7 @@ int main(int argc, char** argv) {
   writeMessage(messages, "seed_shutdown", 9, shutdown);
   rekon_msgs::done_t done{};
   done.service = "tracker";
+  done.pid = 4244;
   done.last_frame_id = 59;
   writeMessage(messages, "seed_done", 10, done);
   rekon_msgs::resume_point_t resume{};
@@ -160,6 +161,7 @@ int main(int argc, char** argv) {
   writeMessage(messages, "seed_replay_request", 12, request);
   rekon_msgs::replay_end_t replay_end{};
   replay_end.service = "optimiser";
+  replay_end.pid = 4243;
   replay_end.request_id = 1;
   replay_end.keyframes = 3;
   replay_end.graph_version = -1;

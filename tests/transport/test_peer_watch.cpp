@@ -5,6 +5,7 @@
 
 #include <chrono>
 #include <string>
+#include <thread>
 
 #include "rekon/common/bus.hpp"
 #include "rekon/common/service.hpp"
@@ -53,15 +54,15 @@ TEST(PeerWatch, ADoneAloneIsNoPeerUntilItsHeartbeatComes) {
   sender.publish(channel::kDone, done);
   ASSERT_TRUE(dispatchUntil(watched, dones, 0));
   EXPECT_FALSE(peers.peer("tracker").has_value());
-  EXPECT_FALSE(peers.alive("tracker", PeerWatch::kSilenceS));
-  EXPECT_TRUE(peers.finished({"tracker"}, PeerWatch::kSilenceS));  // done
+  EXPECT_FALSE(peers.alive("tracker"));
+  EXPECT_TRUE(peers.finished({"tracker"}));  // done
 
   // "starting" makes it alive but no instance yet (it has not subscribed).
   sender.publish(channel::kHeartbeat, heartbeat("tracker", 4242, "starting"));
   ASSERT_TRUE(dispatchUntil(watched, heartbeats, 0));
   ASSERT_TRUE(peers.peer("tracker").has_value());
   EXPECT_EQ(peers.peer("tracker")->instances, 0);
-  EXPECT_TRUE(peers.alive("tracker", PeerWatch::kSilenceS));
+  EXPECT_TRUE(peers.alive("tracker"));
 
   sender.publish(channel::kHeartbeat, heartbeat("tracker", 4242, "running"));
   ASSERT_TRUE(dispatchUntil(watched, heartbeats, 1));
@@ -69,7 +70,7 @@ TEST(PeerWatch, ADoneAloneIsNoPeerUntilItsHeartbeatComes) {
   EXPECT_EQ(peers.peer("tracker")->pid, 4242);
   // A new instance is not done, whatever the one before it said.
   EXPECT_FALSE(peers.peer("tracker")->done);
-  EXPECT_FALSE(peers.finished({"tracker"}, PeerWatch::kSilenceS));
+  EXPECT_FALSE(peers.finished({"tracker"}));
 }
 
 // A new pid is a restart: counted, and announced to onNewInstance.
@@ -97,3 +98,102 @@ TEST(PeerWatch, ANewPidIsANewInstance) {
 }
 
 }  // namespace
+
+namespace {
+
+rekon_msgs::done_t doneOf(const std::string& service, int pid) {
+  rekon_msgs::done_t d{};
+  d.service = service;
+  d.pid = pid;
+  d.last_frame_id = 89;
+  return d;
+}
+
+// A watcher and a sender on the bus, with counters to dispatch up to.
+struct Watched {
+  LcmBus sender{BusOptions{}}, watched{BusOptions{}};
+  PeerWatch peers;
+  int messages = 0;
+  explicit Watched(rekon::LifecycleTimes times = {}) : peers(watched, times) {
+    watched.subscribe<rekon_msgs::done_t>(channel::kDone, [&](const rekon_msgs::done_t&) { ++messages; });
+    watched.subscribe<rekon_msgs::heartbeat_t>(channel::kHeartbeat, [&](const rekon_msgs::heartbeat_t&) { ++messages; });
+  }
+  template <class Msg>
+  bool send(const char* channel, const Msg& m) {
+    const int before = messages;
+    sender.publish(channel, m);
+    return dispatchUntil(watched, messages, before);
+  }
+};
+
+}  // namespace
+
+// Issue 25, finding 1: the optimiser was done and killed while it lingered;
+// its restart's first heartbeat ("starting") must supersede that done at
+// once (it did only on "running", and a tracker that saw the optimiser
+// finished in between stopped serving the replay the restart needed: the hang).
+TEST(PeerWatch, ARestartsStartingHeartbeatSupersedesTheDoneOfTheKilledInstance) {
+  if (!rekon::test::insideNetns()) return;
+  Watched w;
+  ASSERT_TRUE(w.send(channel::kHeartbeat, heartbeat("optimiser", 100, "running")));
+  ASSERT_TRUE(w.send(channel::kDone, doneOf("optimiser", 100)));
+  EXPECT_TRUE(w.peers.done("optimiser"));
+  ASSERT_TRUE(w.send(channel::kHeartbeat, heartbeat("optimiser", 200, "starting")));
+  EXPECT_FALSE(w.peers.done("optimiser"));
+  EXPECT_FALSE(w.peers.finished({"optimiser"}));
+  EXPECT_EQ(w.peers.peer("optimiser")->pid, 200);
+}
+
+// A done_t or heartbeat of the killed instance that arrives after its
+// successor's first heartbeat (another socket, another order) counts for nothing.
+TEST(PeerWatch, LateMessagesOfASupersededInstanceCountForNothing) {
+  if (!rekon::test::insideNetns()) return;
+  Watched w;
+  ASSERT_TRUE(w.send(channel::kHeartbeat, heartbeat("optimiser", 100, "running")));
+  ASSERT_TRUE(w.send(channel::kHeartbeat, heartbeat("optimiser", 200, "starting")));
+  ASSERT_TRUE(w.send(channel::kDone, doneOf("optimiser", 100)));
+  ASSERT_TRUE(w.send(channel::kHeartbeat, heartbeat("optimiser", 100, "lingering")));
+  EXPECT_FALSE(w.peers.done("optimiser"));
+  EXPECT_EQ(w.peers.peer("optimiser")->pid, 200);
+  EXPECT_EQ(w.peers.peer("optimiser")->state, "starting");
+  ASSERT_TRUE(w.send(channel::kDone, doneOf("optimiser", 200)));
+  EXPECT_TRUE(w.peers.done("optimiser"));
+}
+
+// Done is not finished while the instance is alive and has not said it
+// exited: if it is killed now, its restart still needs its upstream.
+TEST(PeerWatch, ADoneInstanceIsFinishedOnlyOnceItHasExited) {
+  if (!rekon::test::insideNetns()) return;
+  Watched w;
+  ASSERT_TRUE(w.send(channel::kHeartbeat, heartbeat("mapper", 300, "running")));
+  ASSERT_TRUE(w.send(channel::kDone, doneOf("mapper", 300)));
+  EXPECT_TRUE(w.peers.done("mapper"));
+  EXPECT_FALSE(w.peers.finished({"mapper"}));
+  ASSERT_TRUE(w.send(channel::kHeartbeat, heartbeat("mapper", 300, "exited")));
+  EXPECT_TRUE(w.peers.finished({"mapper"}));
+  // Exited without done (an error): it may be restarted, so only silence finishes it.
+  ASSERT_TRUE(w.send(channel::kHeartbeat, heartbeat("optimiser", 301, "exited")));
+  EXPECT_FALSE(w.peers.finished({"optimiser"}));
+}
+
+// A loaded machine spaces heartbeats out: the silence that means "gone"
+// grows with the longest gap seen (silence_gaps x), so a slow peer is not
+// given up for a dead one. Silence 0.1 s, gaps of 0.5 s: gone only after 3 s.
+TEST(PeerWatch, SilenceScalesWithTheLongestGapBetweenHeartbeats) {
+  if (!rekon::test::insideNetns()) return;
+  rekon::LifecycleTimes times;
+  times.silence_s = 0.1;
+  times.silence_gaps = 6;
+  Watched w(times);
+  ASSERT_TRUE(w.send(channel::kHeartbeat, heartbeat("tracker", 400, "running")));
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  ASSERT_TRUE(w.send(channel::kHeartbeat, heartbeat("tracker", 400, "running")));
+  std::this_thread::sleep_for(std::chrono::milliseconds(600));
+  EXPECT_FALSE(w.peers.gone("tracker"));  // 0.6 s > silence_s, < 6 x 0.5 s
+  EXPECT_TRUE(w.peers.alive("tracker"));
+  // A peer never spaced out is gone after silence_s.
+  ASSERT_TRUE(w.send(channel::kHeartbeat, heartbeat("mapper", 401, "running")));
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  EXPECT_TRUE(w.peers.gone("mapper"));
+  EXPECT_TRUE(w.peers.finished({"mapper"}));
+}

@@ -118,7 +118,7 @@ CameraParams CameraParams::fromConfig(const Config& config) {
 
 void runCamera(ServiceContext& ctx, const CameraParams& params) {
   ConsumerWatch watch(ctx.bus());
-  PeerWatch peers(ctx.bus());
+  PeerWatch peers(ctx.bus(), ctx.lifecycle());
   StopThreadsOnExit stop_threads(ctx);  // after `watch` and `peers`: their handlers run on the bus thread
   // The device opens once its consumers listen: a camera cannot be paused,
   // so frames captured before would only be dropped.
@@ -150,7 +150,7 @@ void runCamera(ServiceContext& ctx, const CameraParams& params) {
   announceEndOfStream(ctx.bus(), eos);
   // The frame ring lives as long as the sender: stay until the consumers are done with it.
   ctx.setState("lingering");
-  peers.waitUntilFinished(params.wait_for, PeerWatch::kSilenceS, ctx);
+  peers.waitUntilFinished(params.wait_for, ctx);
 }
 
 }  // namespace rekon::camera

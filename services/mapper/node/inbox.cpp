@@ -11,7 +11,7 @@
 namespace rekon::mapper {
 
 Inbox::Inbox(ServiceContext& ctx, size_t max_queued_frames, bool drop_when_full)
-    : ctx_(ctx), max_queued_(max_queued_frames), drop_when_full_(drop_when_full) {}
+    : ctx_(ctx), max_queued_(max_queued_frames), drop_when_full_(drop_when_full), peers_(ctx.bus(), ctx.lifecycle()) {}
 
 void Inbox::subscribe() {
   Bus& bus = ctx_.bus();
@@ -23,7 +23,6 @@ void Inbox::subscribe() {
                                             [this](const rekon_msgs::graph_update_t& m) { onGraphUpdate(m); });
   bus.subscribe<rekon_msgs::end_of_stream_t>(channel::kEndOfStream,
                                              [this](const rekon_msgs::end_of_stream_t& m) { onEndOfStream(m); });
-  bus.subscribe<rekon_msgs::done_t>(channel::kDone, [this](const rekon_msgs::done_t& m) { onDone(m); });
 }
 
 void Inbox::onFrame(const rekon_msgs::frame_t& msg) {
@@ -136,15 +135,6 @@ void Inbox::onEndOfStream(const rekon_msgs::end_of_stream_t& m) {
   end_frame_ = m.last_frame_id;
 }
 
-void Inbox::onDone(const rekon_msgs::done_t& m) {
-  std::lock_guard<std::mutex> lock(mutex_);
-  if (m.service == "optimiser" && !optimiser_done_) {
-    spdlog::info("the optimiser is done");
-    optimiser_done_ = true;
-  }
-  if (m.service == "tracker") tracker_done_ = true;
-}
-
 void Inbox::ack(int64_t frame_id) {
   rekon_msgs::frame_ack_t a{};
   a.service = ctx_.name();
@@ -207,9 +197,16 @@ void Inbox::failed(const std::string& error) {
 }
 
 bool Inbox::streamOver(bool wait_for_optimiser, bool queue_baseline) {
+  // Done as the current instances say it (PeerWatch): a done_t of an
+  // optimiser killed and restarted since does not end the stream.
+  const bool tracker_done = peers_.done("tracker");
+  const bool optimiser_done = peers_.done("optimiser");
   std::lock_guard<std::mutex> lock(mutex_);
-  const bool frames_done = end_frame_ != kNoEndYet && (tracker_done_ || last_resolved_ >= end_frame_);
-  if (end_frame_ != kNoEndYet && (wait_for_optimiser ? optimiser_done_ : frames_done)) return true;
+  const bool frames_done = end_frame_ != kNoEndYet && (tracker_done || last_resolved_ >= end_frame_);
+  if (end_frame_ != kNoEndYet && (wait_for_optimiser ? optimiser_done : frames_done)) {
+    if (optimiser_done) spdlog::info("the optimiser is done");
+    return true;
+  }
   if (frames_done && queue_baseline && !baseline_queued_) {
     baseline_queued_ = true;
     queue_.push_back(BaselineWork{});  // after every frame's work

@@ -26,7 +26,6 @@
 #include "rekon/common/rgbd_frame.hpp"
 #include "rekon/common/service.hpp"
 #include "rekon/mapper/mapper.hpp"
-#include "rekon_msgs/done_t.hpp"
 #include "rekon_msgs/end_of_stream_t.hpp"
 #include "rekon_msgs/frame_t.hpp"
 #include "rekon_msgs/graph_update_t.hpp"
@@ -116,7 +115,6 @@ class Inbox {
   void onKeyframe(const rekon_msgs::keyframe_t& msg);
   void onGraphUpdate(const rekon_msgs::graph_update_t& msg);
   void onEndOfStream(const rekon_msgs::end_of_stream_t& m);
-  void onDone(const rekon_msgs::done_t& m);
   void ack(int64_t frame_id);
   // Under the lock: moves a frame whose images and pose both arrived into the queue.
   void join(int64_t id);
@@ -135,6 +133,7 @@ class Inbox {
   std::set<int64_t> dropped_when_full_;  // images dropped on arrival whose tracked frame has not come yet
   GraphUpdateFilter filter_;  // each update carries every pose: only the newest matters
   FrameReceiver receiver_;
+  PeerWatch peers_;  // whose done_t counts: the current instances' only
 
   std::mutex mutex_;
   std::condition_variable work_ready_, idle_;
@@ -146,7 +145,6 @@ class Inbox {
   bool busy_ = false, stop_worker_ = false;
   int64_t end_frame_ = kNoEndYet;
   int64_t last_resolved_ = -1;  // newest frame joined or given up on
-  bool optimiser_done_ = false, tracker_done_ = false;
   InboxCounts counts_;
   bool baseline_queued_ = false;
   std::string worker_error_;

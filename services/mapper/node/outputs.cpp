@@ -56,9 +56,7 @@ void writeMeshAndTables(const Mapper& mapper, const std::vector<FrameTiming>& fr
 }
 
 void publishDone(ServiceContext& ctx, int64_t last_frame_id) {
-  rekon_msgs::done_t done{};
-  done.service = ctx.name();
-  done.last_frame_id = last_frame_id;
+  const rekon_msgs::done_t done = doneMessage(ctx.name(), last_frame_id);
   for (int i = 0; i < 3; ++i) {  // UDP multicast may drop one
     ctx.bus().publish(channel::kDone, done);
     std::this_thread::sleep_for(std::chrono::milliseconds(50));

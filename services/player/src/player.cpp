@@ -56,7 +56,7 @@ class Player {
   Player(ServiceContext& ctx, const PlayerParams& params)
       : ctx_(ctx), params_(params), dataset_(openDataset(params)), first_(params.first_frame),
         end_(static_cast<int64_t>(dataset_.size())), count_(dataset_.size() - static_cast<size_t>(first_)),
-        ahead_(dataset_, params.decode_threads, end_), watch_(ctx.bus()), peers_(ctx.bus()), stop_threads_(ctx),
+        ahead_(dataset_, params.decode_threads, end_), watch_(ctx.bus()), peers_(ctx.bus(), ctx.lifecycle()), stop_threads_(ctx),
         acked_pacing_(!params.wait_for.empty()) {
     spdlog::info("dataset {}: {} frames, {}x{}, {:.1f} s", params.dataset, count_, dataset_.intrinsics().width,
                  dataset_.intrinsics().height, dataset_.timestamp(dataset_.size() - 1) - dataset_.timestamp(first_));
@@ -107,7 +107,7 @@ class Player {
                     " s (last acknowledged: " + std::to_string(watch_.acked(silent)) + "); is it alive? see its log");
       }
       // A dead consumer is not helped by frames; the launcher restarts it or stops the run.
-      if (newest_sent_ >= 0 && peers_.alive(silent, 2.0)) {
+      if (newest_sent_ >= 0 && peers_.alive(silent)) {
         spdlog::debug("no acknowledgement from rekon-{} for {:.0f} s: sending frame {} again", silent, kResendAfterS,
                       newest_sent_);
         send(newest_sent_, ahead_.load(newest_sent_));
@@ -248,7 +248,7 @@ class Player {
   // frames again (from the ring, which lives as long as the sender).
   void linger() {
     ctx_.setState("lingering");
-    while (acked_pacing_ && !ctx_.stopRequested() && !peers_.finished(params_.wait_for, PeerWatch::kSilenceS)) {
+    while (acked_pacing_ && !ctx_.stopRequested() && !peers_.finished(params_.wait_for)) {
       const int64_t restarts = restarts_;
       const int64_t next = params_.live ? end_ : handleRestarts(end_);  // a live source does not rewind
       // Also when nothing is left to send (a consumer restarted after it had

@@ -71,10 +71,7 @@ void publishTracked(Bus& bus, const ReplayTracked& t) {
 }
 
 void publishDone(Bus& bus, const std::string& service, int64_t last_frame) {
-  rekon_msgs::done_t d{};
-  d.service = service;
-  d.last_frame_id = last_frame;
-  bus.publish(channel::kDone, d);
+  bus.publish(channel::kDone, doneMessage(service, last_frame));
 }
 
 // The script driven by the frames the player announces (on the bus thread);

@@ -57,15 +57,13 @@ void finish(ServiceContext& ctx, const Inbox& inbox, History& history, LoopClosu
   spdlog::info("end of stream: waiting for the loop-closure checks");
   while (!loops.waitUntilDrained(kDrainPollMs) && !ctx.stopRequested()) history.serveReplays();
   history.markDone();
-  rekon_msgs::done_t done{};
-  done.service = "tracker";
-  done.last_frame_id = inbox.endFrame();
+  const rekon_msgs::done_t done = doneMessage("tracker", inbox.endFrame());
   for (int i = 0; i < kDoneRepeats; ++i) {
     if (i > 0) std::this_thread::sleep_for(kDoneGap);
     ctx.bus().publish(channel::kDone, done);
   }
   ctx.setState("lingering");
-  while (!ctx.stopRequested() && !peers.finished({"optimiser", "mapper"}, PeerWatch::kSilenceS)) {
+  while (!ctx.stopRequested() && !peers.finished({"optimiser", "mapper"})) {
     history.serveReplays();
     std::this_thread::sleep_for(kPoll);
   }
@@ -78,7 +76,7 @@ void runTrackerService(ServiceContext& ctx) {
   History history(ctx.bus());
   LoopClosureWorker loops(params, [&history](const LoopConstraint& c) { history.publishLoopConstraint(c); });
   TrackingWorker worker(params, TrackerSession::fromConfig(ctx.config()), history, loops);
-  PeerWatch peers(ctx.bus());
+  PeerWatch peers(ctx.bus(), ctx.lifecycle());
   Inbox inbox(ctx, worker, history, loops);
   StopThreadsOnExit stop_threads(ctx);  // before the state above dies: the bus handlers use it
   inbox.subscribe();

@@ -35,7 +35,7 @@ void runViewer(ServiceContext& ctx, const ViewerParams& params) {
   while (!ctx.stopRequested()) {
     ctx.setLive("clients", static_cast<double>(server.counts().websocket_clients));
     ctx.setLive("blocks", static_cast<double>(state.counts().blocks));
-    state.markSilent(PeerWatch::kSilenceS);
+    state.markSilent(ctx.lifecycle().silence_s);
     std::this_thread::sleep_for(std::chrono::milliseconds(100));
   }
   ctx.setState("finishing");

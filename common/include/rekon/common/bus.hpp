@@ -21,7 +21,7 @@ namespace rekon {
 class Config;
 
 // Bump when any messages/*.lcm changes.
-inline constexpr int32_t kSchemaVersion = 1;
+inline constexpr int32_t kSchemaVersion = 2;  // 2: instance pids on done_t and replay_end_t
 
 // Channel names (after the prefix), one place for all of them.
 namespace channel {

@@ -35,10 +35,11 @@ class ConsumerWatch {
       // frames sent while it is still "starting" would be lost to it.
       if (hb.state == "starting") return;
       std::lock_guard<std::mutex> lock(mutex_);
+      const bool seen_before = hosts_.count(hb.service) > 0;
+      const Incarnations::Seen seen = incarnations_.note(hb.service, hb.pid);
+      if (seen == Incarnations::Seen::kSuperseded) return;  // a killed instance's late heartbeat
+      if (seen == Incarnations::Seen::kNew && seen_before) restarted_.insert(hb.service);
       hosts_[hb.service] = hb.host;
-      auto& pid = pids_[hb.service];
-      if (pid != 0 && pid != hb.pid) restarted_.insert(hb.service);
-      pid = hb.pid;
       changed_.notify_all();
     });
     bus.subscribe<rekon_msgs::resume_point_t>(channel::kResumePoint, [this](const rekon_msgs::resume_point_t& r) {
@@ -127,7 +128,7 @@ class ConsumerWatch {
     std::unique_lock<std::mutex> lock(mutex_);
     const auto deadline = Clock::now() + std::chrono::duration<double>(timeout_s);
     while (!ctx.stopRequested()) {
-      auto it = resume_points_.find({service, pids_[service]});
+      auto it = resume_points_.find({service, incarnations_.current(service)});
       if (it != resume_points_.end()) return it->second;
       if (Clock::now() > deadline) break;
       changed_.wait_for(lock, std::chrono::milliseconds(50));
@@ -154,7 +155,7 @@ class ConsumerWatch {
   std::mutex mutex_;
   std::condition_variable changed_;
   std::map<std::string, std::string> hosts_;
-  std::map<std::string, int> pids_;
+  Incarnations incarnations_;  // of the services seen past "starting"
   std::map<std::string, int64_t> acked_;
   std::set<std::string> restarted_;
   std::map<std::pair<std::string, int>, int64_t> resume_points_;  // (service, pid) -> first missing frame
