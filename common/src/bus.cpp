@@ -87,6 +87,9 @@ namespace {
 // net.core.rmem_max).
 constexpr const char* kRecvBufOption = "recv_buf_size=4194304";
 
+// Messages of one channel waiting for dispatch at most (liblcm's default: 30).
+constexpr int kQueueCapacity = 1024;
+
 std::string withReceiveBuffer(const std::string& url) {
   if (url.rfind("udpm://", 0) != 0 || url.find("recv_buf_size") != std::string::npos) return url;
   return url + (url.find('?') == std::string::npos ? "?" : "&") + kRecvBufOption;
@@ -126,7 +129,11 @@ void LcmBus::subscribeRaw(const std::string& name, std::function<void(const void
   // LCM channel names are regular expressions; ours are plain words.
   std::string pattern = channel(name);
   pattern.insert(0, 1, '^').push_back('$');
-  lcm_subscribe(impl_->lcm, pattern.c_str(), trampoline, sub.get());
+  lcm_subscription_t* subscription = lcm_subscribe(impl_->lcm, pattern.c_str(), trampoline, sub.get());
+  // liblcm drops a message when 30 of its channel wait to be dispatched (its
+  // default): a replay batch or a burst of tracked frames while this process
+  // was not scheduled lost most of a batch that way.
+  if (subscription) lcm_subscription_set_queue_capacity(subscription, kQueueCapacity);
   impl_->subscriptions.push_back(std::move(sub));
 }
 

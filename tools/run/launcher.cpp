@@ -310,8 +310,7 @@ class Supervisor {
       spdlog::warn("{}; restarting it ({} of at most {} restarts, run.max_restarts)", how, c.restarts() + 1,
                    plan_.max_restarts);
       // The mapper continues from its keyframe store; the optimiser rebuilds from the tracker's replay.
-      const std::vector<std::string> extra =
-          c.name() == "mapper" ? std::vector<std::string>{"--set", "mapper.resume=true"} : std::vector<std::string>{};
+      const std::vector<std::string> extra = {"--set", c.name() == "mapper" ? "mapper.resume=true" : "optimiser.restarted=true"};
       try {
         c.restart(extra);
         spdlog::info("restarted rekon-{} (pid {})", c.name(), c.pid());

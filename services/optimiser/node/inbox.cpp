@@ -1,6 +1,7 @@
 #include "inbox.hpp"
 
 #include <spdlog/spdlog.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <string>
@@ -42,7 +43,7 @@ void Inbox::subscribe(PeerWatch& peers) {
   bus.subscribe<rekon_msgs::tracked_frame_t>(channel::kTrackedFramesResent,
                                              [this](const rekon_msgs::tracked_frame_t& m) { onTrackedFrame(m); });
   bus.subscribe<rekon_msgs::replay_end_t>(channel::kReplayEnd, [this](const rekon_msgs::replay_end_t& m) {
-    if (m.service != ctx_.name()) return;
+    if (m.service != ctx_.name() || m.pid != getpid()) return;  // another requester's, or a killed instance's
     {
       std::lock_guard<std::mutex> lock(mutex_);
       replay_end_ = m;

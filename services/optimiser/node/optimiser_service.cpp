@@ -46,20 +46,27 @@ void continueSession(ServiceContext& ctx, const Inbox& inbox, GraphWorker& worke
 // Until the upstream's done (or a stop): applies what the inbox queued and,
 // when it brought new edges, optimises within the background budget and
 // publishes the graph update.
-void optimiseWhileStreaming(ServiceContext& ctx, Inbox& inbox, GraphWorker& worker, SessionGraph& session) {
+// A tracker that falls silent for good before its done_t sends nothing more:
+// the final step goes on with what arrived.
+void optimiseWhileStreaming(ServiceContext& ctx, const PeerWatch& peers, Inbox& inbox, GraphWorker& worker,
+                            SessionGraph& session) {
   for (;;) {
     bool done = false;
     const bool new_edges = worker.apply(inbox.waitForGraphItems(kIdleWait, &done));
     if (done || ctx.stopRequested()) return;
+    if (peers.gone(kUpstreamService)) {
+      spdlog::error("rekon-tracker fell silent before its done_t; final optimisation with what arrived");
+      return;
+    }
     if (new_edges) optimiseAndPublish(ctx, inbox, worker, session);
   }
 }
 
-void publishFinal(Bus& bus, const rekon_msgs::graph_update_t& final_update, const rekon_msgs::done_t& done,
+void publishFinal(Bus& bus, const std::optional<rekon_msgs::graph_update_t>& final_update, const rekon_msgs::done_t& done,
                   const OptimiserServiceParams& params) {
-  for (int i = 0; i < params.final_repeats; ++i) {
+  for (int i = 0; final_update && i < params.final_repeats; ++i) {
     if (i > 0) std::this_thread::sleep_for(std::chrono::milliseconds(params.final_repeat_gap_ms));
-    bus.publish(channel::kGraphUpdates, final_update);
+    bus.publish(channel::kGraphUpdates, *final_update);
   }
   for (int i = 0; i < params.final_repeats; ++i) {
     if (i > 0) std::this_thread::sleep_for(std::chrono::milliseconds(params.final_repeat_gap_ms));
@@ -74,7 +81,8 @@ void lingerForTheMapper(ServiceContext& ctx, const PeerWatch& peers, Inbox& inbo
                         const rekon_msgs::graph_update_t& final_update, const rekon_msgs::done_t& done,
                         const OptimiserServiceParams& params) {
   ctx.setState("lingering");
-  while (!ctx.stopRequested() && !peers.finished({"mapper"}, PeerWatch::kSilenceS)) {
+  spdlog::info("final graph update and done_t sent; staying until rekon-mapper is finished");
+  while (!ctx.stopRequested() && !peers.finished({"mapper"})) {
     if (inbox.takeMapperRestarted()) {
       spdlog::info("sending the final graph update and done again for the restarted mapper");
       publishFinal(ctx.bus(), final_update, done, params);
@@ -88,7 +96,7 @@ void lingerForTheMapper(ServiceContext& ctx, const PeerWatch& peers, Inbox& inbo
 void runOptimiserService(ServiceContext& ctx) {
   const OptimiserServiceParams params = optimiserParamsFromConfig(ctx.config());
   Inbox inbox(ctx, params.information_scale);
-  PeerWatch peers(ctx.bus());
+  PeerWatch peers(ctx.bus(), ctx.lifecycle());
   StopThreadsOnExit stop_threads(ctx);  // before `inbox` dies: the bus handlers write into it
   inbox.subscribe(peers);
   ctx.setState("running");
@@ -100,21 +108,23 @@ void runOptimiserService(ServiceContext& ctx) {
   GraphWorker worker(params.graph);
   SessionGraph session(ctx.config());
   continueSession(ctx, inbox, worker, session);
-  ReplayClient replays(ctx, inbox);
-  recoverAtStart(ctx, peers, replays, inbox, worker);
-  optimiseWhileStreaming(ctx, inbox, worker, session);
+  ReplayClient replays(ctx, peers, inbox);
+  if (!recoverAtStart(ctx, peers, replays, inbox, worker)) {
+    // Nothing to add, but a mapper may wait for the optimiser's current instance.
+    publishFinal(ctx.bus(), std::nullopt, doneMessage(ctx.name(), -1), params);
+    return;
+  }
+  optimiseWhileStreaming(ctx, peers, inbox, worker, session);
 
   ctx.setState("finishing");
-  fillWhatWasLost(ctx, peers, replays, inbox, worker);
+  fillWhatWasLost(ctx, replays, inbox, worker);
   const rekon_msgs::graph_update_t final_update = worker.optimise(true, inbox.lastFrameId());
   session.afterOptimisation(worker.graph(), true);
   const Inbox::Final final_state = inbox.takeFinal();
   worker.countRejected(final_state.rejected);
   const size_t trajectory_frames = writeTrajectoryAndTiming(ctx, worker, final_state.frames);
 
-  rekon_msgs::done_t done{};
-  done.service = ctx.name();
-  done.last_frame_id = final_state.last_frame_id;
+  const rekon_msgs::done_t done = doneMessage(ctx.name(), final_state.last_frame_id);
   publishFinal(ctx.bus(), final_update, done, params);
   lingerForTheMapper(ctx, peers, inbox, final_update, done, params);
   setStats(ctx, worker, trajectory_frames);

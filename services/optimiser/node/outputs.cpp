@@ -21,6 +21,28 @@ void writeTiming(const std::vector<GraphWorker::Timing>& timing, const std::stri
   if (!out) throw Error("cannot write " + path + "; check that the output folder is writable");
 }
 
+// A restarted optimiser's trajectory replaces the one its predecessor wrote
+// only when it covers at least as many frames (a replay cut short by a
+// vanished tracker must not undo a complete run); each file is written
+// beside and renamed, so a kill never leaves half of one.
+bool keepsTheBetter(const ServiceContext& ctx, const Trajectory& trajectory, const std::filesystem::path& path) {
+  if (!ctx.config().getBool("optimiser.restarted") || !std::filesystem::exists(path)) return true;
+  size_t before = 0;
+  try {
+    before = readTumTrajectory(path.string()).size();
+  } catch (const Error& e) {
+    spdlog::warn("the earlier {} is unreadable ({}); replacing it", path.string(), e.what());
+    return true;
+  }
+  if (trajectory.size() >= before) {
+    spdlog::info("restarted: {} frame poses replace the {} the earlier instance wrote", trajectory.size(), before);
+    return true;
+  }
+  spdlog::warn("restarted: this instance has {} frame poses, the earlier instance's {} has {}; kept that one",
+               trajectory.size(), path.string(), before);
+  return false;
+}
+
 }  // namespace
 
 size_t writeTrajectoryAndTiming(const ServiceContext& ctx, const GraphWorker& worker,
@@ -28,12 +50,16 @@ size_t writeTrajectoryAndTiming(const ServiceContext& ctx, const GraphWorker& wo
   size_t missing = 0;
   const Trajectory trajectory = frameTrajectory(worker.graph(), frames, &missing);
   if (missing > 0) spdlog::error("{} tracked frames name a keyframe the graph never received; left out", missing);
-  if (!ctx.outDir().empty()) {
-    const std::string path = (std::filesystem::path(ctx.outDir()) / "trajectory.txt").string();
-    writeTumTrajectory(trajectory, path);
-    spdlog::info("wrote {} optimised frame poses to {}", trajectory.size(), path);
-    writeTiming(worker.timing(), (std::filesystem::path(ctx.outDir()) / "optimiser_timing.csv").string());
-  }
+  if (ctx.outDir().empty()) return trajectory.size();
+  const std::filesystem::path path = std::filesystem::path(ctx.outDir()) / "trajectory.txt";
+  if (!keepsTheBetter(ctx, trajectory, path)) return trajectory.size();
+  const std::filesystem::path beside = path.string() + ".new";
+  writeTumTrajectory(trajectory, beside.string());
+  const std::filesystem::path timing = std::filesystem::path(ctx.outDir()) / "optimiser_timing.csv";
+  writeTiming(worker.timing(), timing.string() + ".new");
+  std::filesystem::rename(beside, path);
+  std::filesystem::rename(timing.string() + ".new", timing);
+  spdlog::info("wrote {} optimised frame poses to {}", trajectory.size(), path.string());
   return trajectory.size();
 }
 

@@ -4,6 +4,7 @@
 #include <unistd.h>
 
 #include <chrono>
+#include <limits>
 #include <thread>
 
 #include "rekon_msgs/replay_request_t.hpp"
@@ -13,11 +14,11 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-// A request unanswered this long is sent again, at most kReplayTries times.
-constexpr double kReplayAnswerS = 2.0;
-constexpr int kReplayTries = 4;
-// How long a starting optimiser listens for the tracker's heartbeat.
-constexpr double kTrackerSeenS = 1.5;
+// Messages per batch: a few milliseconds of the tracker's main thread, and a
+// burst any socket buffer takes.
+constexpr int32_t kBatchItems = 200;
+// A cursor past anything the tracker will ever have: the answer carries only its totals.
+constexpr int64_t kNoItems = std::numeric_limits<int64_t>::max();
 // A restarted optimiser numbers its graph updates from the newest version the
 // tracker saw plus this, so that consumers (which ignore versions they have
 // seen) take them even when the tracker missed the last few updates.
@@ -27,34 +28,69 @@ Clock::time_point secondsFromNow(double s) {
   return Clock::now() + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(s));
 }
 
+struct Have {
+  int64_t keyframes, constraints, frames;
+};
+
+Have have(const Inbox& inbox, const GraphWorker& worker) {
+  return {static_cast<int64_t>(worker.keyframesSeen()), static_cast<int64_t>(worker.constraintsSeen()),
+          static_cast<int64_t>(inbox.trackedFrameCount())};
+}
+
 }  // namespace
 
-std::optional<rekon_msgs::replay_end_t> ReplayClient::request() {
+std::optional<rekon_msgs::replay_end_t> ReplayClient::batch(const ReplayCursor& from) {
   rekon_msgs::replay_request_t req{};
   req.service = ctx_.name();
   req.pid = getpid();
-  req.request_id = ++request_id_;
-  for (int attempt = 0; attempt < kReplayTries && !ctx_.stopRequested(); ++attempt) {
+  req.next_keyframe = from.keyframe;
+  req.next_constraint = from.constraint;
+  req.next_frame_id = from.frame_id;
+  req.max_items = kBatchItems;
+  while (!ctx_.stopRequested() && peers_.alive(kUpstreamService)) {  // nobody else answers
+    req.request_id = ++request_id_;  // a late answer to an earlier ask is not taken for this one
     ctx_.bus().publish(channel::kReplayRequest, req);
-    if (auto end = inbox_.waitForReplayEnd(req.request_id, secondsFromNow(kReplayAnswerS))) return end;
+    if (auto end = inbox_.waitForReplayEnd(req.request_id, secondsFromNow(ctx_.lifecycle().replay_answer_s))) return end;
+    spdlog::warn("no answer from rekon-tracker to a replay batch within {:.1f} s (lifecycle.replay_answer_s); asking again",
+                 ctx_.lifecycle().replay_answer_s);
   }
   return std::nullopt;
 }
 
-void recoverAtStart(ServiceContext& ctx, const PeerWatch& peers, ReplayClient& replays, Inbox& inbox,
+std::optional<rekon_msgs::replay_end_t> ReplayClient::totals() {
+  ReplayCursor nothing{kNoItems, kNoItems, kNoItems};
+  return batch(nothing);
+}
+
+std::optional<rekon_msgs::replay_end_t> ReplayClient::replay(ReplayCursor from) {
+  for (;;) {
+    auto end = batch(from);
+    if (!end || end->complete) return end;
+    from = {end->next_keyframe, end->next_constraint, end->next_frame_id};
+  }
+}
+
+bool recoverAtStart(ServiceContext& ctx, const PeerWatch& peers, ReplayClient& replays, Inbox& inbox,
                     GraphWorker& worker) {
-  const auto wait_until = secondsFromNow(kTrackerSeenS);
+  const bool restarted = ctx.config().getBool("optimiser.restarted");
+  const auto wait_until = secondsFromNow(ctx.lifecycle().peer_seen_s);
   while (!peers.peer(kUpstreamService) && Clock::now() < wait_until && !ctx.stopRequested())
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   const auto tracker = peers.peer(kUpstreamService);
-  if (!tracker || tracker->instances == 0) return;
-  const auto end = replays.request();
-  if (!end) return;
+  if (!tracker && restarted) {
+    spdlog::warn("restarted, but no rekon-tracker heartbeat within {:.1f} s (it has finished and exited): nothing to "
+                 "rebuild from; the outputs already written stay as they are",
+                 ctx.lifecycle().peer_seen_s);
+    return false;
+  }
+  if (!tracker || tracker->instances == 0) return true;
+  const auto end = replays.replay({});
+  if (!end) return true;
   // A version the tracker saw from us (the previous run's graph, published at
   // once with session.continue) does not make this optimiser a restart.
   if (end->graph_version > worker.version()) {
     worker.continueVersionsAfter(end->graph_version + kRestartVersionGap);
-    spdlog::warn("the tracker has seen graph version {}: this optimiser is a restart; rebuilding from its replay "
+    spdlog::warn("the tracker has seen graph version {}: this optimiser is a restart; rebuilt from its replay "
                  "({} keyframes, {} constraints, {} tracked frames)",
                  end->graph_version, end->keyframes, end->constraints, end->tracked_frames);
   }
@@ -63,25 +99,31 @@ void recoverAtStart(ServiceContext& ctx, const PeerWatch& peers, ReplayClient& r
     spdlog::info("the tracker finished before this optimiser started: final optimisation after the replay");
     inbox.setUpstreamDone();
   }
+  return true;
 }
 
-void fillWhatWasLost(ServiceContext& ctx, const PeerWatch& peers, ReplayClient& replays, Inbox& inbox,
-                     GraphWorker& worker) {
-  for (int round = 0; round < kReplayTries && !ctx.stopRequested() && peers.alive(kUpstreamService, PeerWatch::kSilenceS);
-       ++round) {
-    const auto end = replays.request();
-    worker.apply(inbox.takeGraphItems());
-    if (!end) break;  // no tracker answers (e.g. it died): optimise what we have
-    const size_t frames = inbox.trackedFrameCount();
-    if (static_cast<int64_t>(worker.keyframesSeen()) >= end->keyframes &&
-        static_cast<int64_t>(worker.constraintsSeen()) >= end->constraints &&
-        static_cast<int64_t>(frames) >= end->tracked_frames)
-      break;
+void fillWhatWasLost(ServiceContext& ctx, ReplayClient& replays, Inbox& inbox, GraphWorker& worker) {
+  auto totals = replays.totals();
+  while (totals && !ctx.stopRequested()) {
+    const Have now = have(inbox, worker);
+    const Have missing{totals->keyframes - now.keyframes, totals->constraints - now.constraints,
+                       totals->tracked_frames - now.frames};
+    if (missing.keyframes <= 0 && missing.constraints <= 0 && missing.frames <= 0) break;
     spdlog::warn("missing after the stream: {} keyframes, {} constraints, {} tracked frames of the tracker's; "
                  "asking for them again",
-                 end->keyframes - static_cast<int64_t>(worker.keyframesSeen()),
-                 end->constraints - static_cast<int64_t>(worker.constraintsSeen()),
-                 end->tracked_frames - static_cast<int64_t>(frames));
+                 missing.keyframes, missing.constraints, missing.frames);
+    // A lost message can be anywhere: the kinds with something missing are
+    // replayed from their start, the others not at all.
+    const ReplayCursor from{missing.keyframes > 0 ? 0 : totals->keyframes,
+                            missing.constraints > 0 ? 0 : totals->constraints,
+                            missing.frames > 0 ? 0 : totals->last_frame_id + 1};
+    totals = replays.replay(from);
+    worker.apply(inbox.takeGraphItems());
+    const Have after = have(inbox, worker);
+    if (after.keyframes == now.keyframes && after.constraints == now.constraints && after.frames == now.frames) {
+      spdlog::error("a whole replay brought nothing new; optimising what arrived");
+      break;
+    }
   }
   if (worker.constraintsWaiting() > 0)
     spdlog::error("{} constraints name a keyframe that never arrived; left out", worker.constraintsWaiting());

@@ -13,10 +13,9 @@
 namespace rekon::tracker {
 namespace {
 
-// A replay is paced (a pause after every kReplayBurst messages) so that no
-// receiver's socket buffer overflows on a loaded machine.
-constexpr int kReplayBurst = 20;
-constexpr auto kReplayPause = std::chrono::milliseconds(2);
+// A batch at most this long, whatever a request asks: its messages go out
+// back to back (about 300 bytes each), well within a receiver's socket buffer.
+constexpr int32_t kMaxReplayBatch = 256;
 
 // An odometry or loop constraint (the same fields) as it goes on the bus.
 template <class Edge>
@@ -93,39 +92,54 @@ void History::addReplayRequest(const rekon_msgs::replay_request_t& request) {
 
 void History::serveReplays() {
   std::vector<rekon_msgs::replay_request_t> requests;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    requests.swap(requests_);
+  }
+  for (const auto& r : requests) serveBatch(r);
+}
+
+void History::serveBatch(const rekon_msgs::replay_request_t& r) {
   std::vector<rekon_msgs::keyframe_t> keyframes;
   std::vector<rekon_msgs::constraint_t> constraints;
   std::vector<rekon_msgs::tracked_frame_t> tracked;
   rekon_msgs::replay_end_t end{};
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    if (requests_.empty()) return;
-    requests.swap(requests_);
-    keyframes = keyframes_;
-    constraints = constraints_;
-    for (const auto& [id, tf] : tracked_) tracked.push_back(tf);
-    end.keyframes = static_cast<int64_t>(keyframes.size());
-    end.constraints = static_cast<int64_t>(constraints.size());
-    end.tracked_frames = static_cast<int64_t>(tracked.size());
+    // Keyframes first, then constraints (each edge's keyframes before it),
+    // then tracked frames, from the requester's cursor, max_items in all.
+    size_t budget = static_cast<size_t>(std::clamp(r.max_items, 0, kMaxReplayBatch));
+    const auto take = [&budget](const auto& from, int64_t next, auto& into) {
+      for (size_t i = static_cast<size_t>(std::max<int64_t>(0, next)); i < from.size() && budget > 0; ++i, --budget)
+        into.push_back(from[i]);
+      return std::max<int64_t>(0, next) + static_cast<int64_t>(into.size());
+    };
+    end.next_keyframe = take(keyframes_, r.next_keyframe, keyframes);
+    end.next_constraint = take(constraints_, r.next_constraint, constraints);
+    end.next_frame_id = r.next_frame_id;
+    for (auto it = tracked_.lower_bound(r.next_frame_id); it != tracked_.end() && budget > 0; ++it, --budget) {
+      tracked.push_back(it->second);
+      end.next_frame_id = it->first + 1;
+    }
+    end.complete = end.next_keyframe >= static_cast<int64_t>(keyframes_.size()) &&
+                   end.next_constraint >= static_cast<int64_t>(constraints_.size()) &&
+                   (tracked_.empty() || end.next_frame_id > tracked_.rbegin()->first);
+    end.keyframes = static_cast<int64_t>(keyframes_.size());
+    end.constraints = static_cast<int64_t>(constraints_.size());
+    end.tracked_frames = static_cast<int64_t>(tracked_.size());
     end.last_frame_id = tracked_.empty() ? -1 : tracked_.rbegin()->first;
     end.graph_version = graph_version_;
     end.done = done_;
   }
-  // Requests that came together are answered with one replay.
-  int n = 0;
-  auto pace = [&] {
-    if (++n % kReplayBurst == 0) std::this_thread::sleep_for(kReplayPause);
-  };
-  for (const auto& m : keyframes) bus_.publish(channel::kKeyframesResent, m), pace();
-  for (const auto& m : constraints) bus_.publish(channel::kConstraintsResent, m), pace();
-  for (const auto& m : tracked) bus_.publish(channel::kTrackedFramesResent, m), pace();
-  for (const auto& r : requests) {
-    end.service = r.service;
-    end.request_id = r.request_id;
-    bus_.publish(channel::kReplayEnd, end);
-  }
-  spdlog::info("replayed {} keyframes, {} constraints and {} tracked frames for rekon-{}", keyframes.size(),
-               constraints.size(), tracked.size(), requests.front().service);
+  for (const auto& m : keyframes) bus_.publish(channel::kKeyframesResent, m);
+  for (const auto& m : constraints) bus_.publish(channel::kConstraintsResent, m);
+  for (const auto& m : tracked) bus_.publish(channel::kTrackedFramesResent, m);
+  end.service = r.service;
+  end.pid = r.pid;
+  end.request_id = r.request_id;
+  bus_.publish(channel::kReplayEnd, end);
+  spdlog::debug("replayed {} keyframes, {} constraints and {} tracked frames for rekon-{} (pid {}){}", keyframes.size(),
+                constraints.size(), tracked.size(), r.service, r.pid, end.complete ? ": complete" : "");
 }
 
 void History::noteGraphVersion(int64_t version) {

@@ -40,9 +40,9 @@ class History {
 
   // Replay requests wait for serveReplays(), called from the main thread.
   void addReplayRequest(const rekon_msgs::replay_request_t& request);
-  // Answers the waiting replay requests: every keyframe, then every
-  // constraint (so that each edge's keyframes come first), then every tracked
-  // frame, on the *_RESENT channels, and a replay_end_t with the totals.
+  // Answers the waiting replay requests, each with one batch from its cursor
+  // (messages/recovery.lcm) on the *_RESENT channels and a replay_end_t with
+  // the next cursor and the totals.
   void serveReplays();
 
   // What a replay_end_t reports besides the totals: the newest graph version
@@ -58,6 +58,7 @@ class History {
   bool noteMapperPid(int pid);
 
  private:
+  void serveBatch(const rekon_msgs::replay_request_t& request);
   Bus& bus_;
   std::mutex mutex_;
   std::vector<rekon_msgs::keyframe_t> keyframes_;
