@@ -28,7 +28,10 @@ bool skipped(const fs::path& dir) {
   return name.rfind("build", 0) == 0 || name == ".git" || name == "node_modules";
 }
 
-std::vector<std::string> sourcesUnder(const fs::path& root) {
+bool isCMake(const fs::path& p) { return p.filename() == "CMakeLists.txt" || p.extension() == ".cmake"; }
+
+// The files under root (relative to it) that `keep` takes, build folders left out.
+std::vector<std::string> filesUnder(const fs::path& root, bool (*keep)(const fs::path&)) {
   std::vector<std::string> files;
   if (!fs::is_directory(root)) return files;
   for (auto it = fs::recursive_directory_iterator(root); it != fs::recursive_directory_iterator(); ++it) {
@@ -36,11 +39,13 @@ std::vector<std::string> sourcesUnder(const fs::path& root) {
       it.disable_recursion_pending();
       continue;
     }
-    if (it->is_regular_file() && isSource(it->path())) files.push_back(it->path().lexically_relative(root).generic_string());
+    if (it->is_regular_file() && keep(it->path())) files.push_back(it->path().lexically_relative(root).generic_string());
   }
   std::sort(files.begin(), files.end());
   return files;
 }
+
+std::vector<std::string> sourcesUnder(const fs::path& root) { return filesUnder(root, isSource); }
 
 std::vector<std::string> includesOf(const fs::path& file) {
   static const std::regex kInclude(R"re(^\s*#\s*include\s*["<]([^">]+)[">])re");
@@ -74,9 +79,10 @@ bool allowed(const std::string& from, const std::string& owner, const std::strin
   if (from == "messages") return false;
   if (owner == "messages") return true;
   if (from == "common") return false;
-  if (from == "cuda")
-    return owner == "common" ||
-           (owner == "services/mapper" && (link ? kCudaMayLink.count(what) : kCudaMayInclude.count(fs::path(what).filename().string())));
+  if (from == "cuda") {
+    const bool kernels = link ? kCudaMayLink.count(what) > 0 : kCudaMayInclude.count(fs::path(what).filename().string()) > 0;
+    return owner == "common" || (owner == "services/mapper" && kernels);
+  }
   if (link && from == "services/mapper" && owner == "cuda") return true;  // the volume's CUDA backend
   return owner == "common";  // a service: common, messages and its own folder
 }
@@ -115,28 +121,13 @@ std::vector<CMakeCall> cmakeCalls(const fs::path& file) {
   return calls;
 }
 
-std::vector<std::string> cmakeFilesUnder(const fs::path& root) {
-  std::vector<std::string> files;
-  for (auto it = fs::recursive_directory_iterator(root); it != fs::recursive_directory_iterator(); ++it) {
-    if (it->is_directory() && skipped(it->path())) {
-      it.disable_recursion_pending();
-      continue;
-    }
-    const std::string name = it->path().filename().string();
-    if (it->is_regular_file() && (name == "CMakeLists.txt" || it->path().extension() == ".cmake"))
-      files.push_back(it->path().lexically_relative(root).generic_string());
-  }
-  std::sort(files.begin(), files.end());
-  return files;
-}
-
 // One target linking others, where the link is written.
 struct Link {
   std::string file, target;
   std::vector<std::string> libs;
 };
 
-// The targets a call defines ("" for none); rekon_add_service_node(NAME
+// The targets a call defines (none for most calls); rekon_add_service_node(NAME
 // [LIBS ...]) defines rekon_NAME_node (linking rekon_NAME, rekon_common and
 // LIBS) and rekon-NAME.
 std::vector<std::string> definedBy(const CMakeCall& c) {
@@ -160,7 +151,7 @@ std::vector<Link> linksOf(const CMakeCall& c, const std::string& file) {
 void checkLinks(const fs::path& root, Scan& scan) {
   std::map<std::string, std::string> owner;  // target -> layer of the file defining it
   std::vector<Link> links;
-  for (const std::string& f : cmakeFilesUnder(root)) {
+  for (const std::string& f : filesUnder(root, isCMake)) {
     const std::string layer = layerOf(f);
     for (const CMakeCall& c : cmakeCalls(root / f)) {
       for (const std::string& t : definedBy(c)) owner.emplace(t, layer);
@@ -212,7 +203,7 @@ Scan scan(const std::string& root_dir) {
         if (!allowed(from, owner, include, false)) scan.violations.push_back({f, include, owner, ""});
     }
   }
-  if (fs::is_directory(root)) checkLinks(root, scan);
+  checkLinks(root, scan);
   return scan;
 }
 
