@@ -6,6 +6,7 @@
 #include <sstream>
 
 #include "rekon/common/error.hpp"
+#include "rekon/common/files.hpp"
 
 namespace rekon {
 namespace {
@@ -74,11 +75,7 @@ std::string JsonObject::str(int indent, int depth) const {
   return out.str();
 }
 
-void JsonObject::save(const std::string& path) const {
-  std::ofstream out(path);
-  out << str() << "\n";
-  if (!out) throw Error(path + ": cannot write JSON; check the output folder");
-}
+void JsonObject::save(const std::string& path) const { writeFileAtomically(path, str() + "\n"); }
 
 std::string keyValueLine(const std::vector<std::pair<std::string, double>>& values) {
   std::string line;

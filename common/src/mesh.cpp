@@ -5,19 +5,22 @@
 #include <sstream>
 
 #include "rekon/common/error.hpp"
+#include "rekon/common/files.hpp"
 
 namespace rekon {
 
+// Written beside and renamed (writeFileAtomically): a process killed while
+// it writes leaves the previous mesh, never half of one.
 void writePly(const Mesh& mesh, const std::string& path) {
-  std::ofstream out(path, std::ios::binary);
-  if (!out) throw Error(path + ": cannot write mesh; check the output folder");
   const bool colored = mesh.colors.size() == mesh.vertices.size() && !mesh.vertices.empty();
-  out << "ply\nformat binary_little_endian 1.0\ncomment rekon\nelement vertex " << mesh.vertices.size()
-      << "\nproperty float x\nproperty float y\nproperty float z\n";
-  if (colored) out << "property uchar red\nproperty uchar green\nproperty uchar blue\n";
-  out << "element face " << mesh.triangles.size() << "\nproperty list uchar int vertex_indices\nend_header\n";
-  std::vector<char> buf;
-  buf.reserve(mesh.vertices.size() * 15 + mesh.triangles.size() * 13);
+  std::ostringstream header;
+  header << "ply\nformat binary_little_endian 1.0\ncomment rekon\nelement vertex " << mesh.vertices.size()
+         << "\nproperty float x\nproperty float y\nproperty float z\n";
+  if (colored) header << "property uchar red\nproperty uchar green\nproperty uchar blue\n";
+  header << "element face " << mesh.triangles.size() << "\nproperty list uchar int vertex_indices\nend_header\n";
+  const std::string head = header.str();
+  std::vector<char> buf(head.begin(), head.end());
+  buf.reserve(head.size() + mesh.vertices.size() * 15 + mesh.triangles.size() * 13);
   auto put = [&buf](const void* p, size_t n) { buf.insert(buf.end(), static_cast<const char*>(p), static_cast<const char*>(p) + n); };
   for (size_t i = 0; i < mesh.vertices.size(); ++i) {
     put(mesh.vertices[i].data(), 12);
@@ -28,8 +31,7 @@ void writePly(const Mesh& mesh, const std::string& path) {
     put(&n, 1);
     put(t.data(), 12);
   }
-  out.write(buf.data(), static_cast<std::streamsize>(buf.size()));
-  if (!out) throw Error(path + ": write failed; check free disk space");
+  writeFileAtomically(path, std::string_view(buf.data(), buf.size()));
 }
 
 namespace {

@@ -10,6 +10,7 @@
 #include <sstream>
 
 #include "rekon/common/error.hpp"
+#include "rekon/common/files.hpp"
 #include "rekon/common/pose_text.hpp"
 
 namespace rekon {
@@ -90,11 +91,10 @@ std::string poseText(const Pose& pose) {
 }
 
 void writeTumTrajectory(const Trajectory& trajectory, const std::string& path) {
-  std::ofstream out(path);
-  if (!out) throw Error(path + ": cannot write trajectory; check the output folder");
+  std::ostringstream out;
   out << "# timestamp tx ty tz qx qy qz qw\n" << std::fixed << std::setprecision(6);
   for (const auto& s : trajectory) out << s.timestamp << ' ' << poseText(s.pose) << '\n';
-  if (!out) throw Error(path + ": write failed; check free disk space");
+  writeFileAtomically(path, out.str());  // a kill mid-write leaves the previous file whole
 }
 
 int nearestInTime(const Trajectory& trajectory, double timestamp, double max_difference) {

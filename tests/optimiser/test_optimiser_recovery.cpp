@@ -203,7 +203,7 @@ TEST(OptimiserRecovery, ARestartThatRebuildsLessKeepsTheEarlierTrajectory) {
   EXPECT_EQ(posesIn(dir / "trajectory.txt"), 400u);
   EXPECT_NE(test::readText(dir / "optimiser.log").find("kept that one"), std::string::npos)
       << test::readText(dir / "optimiser.log");
-  EXPECT_FALSE(std::ifstream(dir / "trajectory.txt.new").good());
+  EXPECT_FALSE(std::ifstream(dir / "trajectory.txt.tmp").good());
 }
 
 // With the tracker finished and gone there is nothing to rebuild from: the

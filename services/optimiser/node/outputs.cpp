@@ -4,7 +4,7 @@
 
 #include <algorithm>
 #include <filesystem>
-#include <fstream>
+#include <sstream>
 #include <string>
 
 #include "rekon/common/error.hpp"
@@ -15,16 +15,16 @@ namespace rekon::optimiser {
 namespace {
 
 void writeTiming(const std::vector<GraphWorker::Timing>& timing, const std::string& path) {
-  std::ofstream out(path);
+  std::ostringstream out;
   out << "frame_id,ms,keyframes,graph_version\n";
   for (const auto& t : timing) out << t.last_frame_id << ',' << t.ms << ',' << t.keyframes << ',' << t.version << '\n';
-  if (!out) throw Error("cannot write " + path + "; check that the output folder is writable");
+  writeFileAtomically(path, out.str());
 }
 
 // A restarted optimiser's trajectory replaces the one its predecessor wrote
 // only when it covers at least as many frames (a replay cut short by a
-// vanished tracker must not undo a complete run); each file is written
-// beside and renamed, so a kill never leaves half of one.
+// vanished tracker must not undo a complete run). Every file is written
+// beside and renamed (writeTumTrajectory), so a kill never leaves half of one.
 bool keepsTheBetter(const ServiceContext& ctx, const Trajectory& trajectory, const std::filesystem::path& path) {
   if (!ctx.config().getBool("optimiser.restarted") || !std::filesystem::exists(path)) return true;
   size_t before = 0;
@@ -53,12 +53,8 @@ size_t writeTrajectoryAndTiming(const ServiceContext& ctx, const GraphWorker& wo
   if (ctx.outDir().empty()) return trajectory.size();
   const std::filesystem::path path = std::filesystem::path(ctx.outDir()) / "trajectory.txt";
   if (!keepsTheBetter(ctx, trajectory, path)) return trajectory.size();
-  const std::filesystem::path beside = path.string() + ".new";
-  writeTumTrajectory(trajectory, beside.string());
-  const std::filesystem::path timing = std::filesystem::path(ctx.outDir()) / "optimiser_timing.csv";
-  writeTiming(worker.timing(), timing.string() + ".new");
-  std::filesystem::rename(beside, path);
-  std::filesystem::rename(timing.string() + ".new", timing);
+  writeTumTrajectory(trajectory, path.string());
+  writeTiming(worker.timing(), (std::filesystem::path(ctx.outDir()) / "optimiser_timing.csv").string());
   spdlog::info("wrote {} optimised frame poses to {}", trajectory.size(), path.string());
   return trajectory.size();
 }
