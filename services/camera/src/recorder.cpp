@@ -42,8 +42,8 @@ struct Recorder::State {
     try {
       writeNetpbm((dir / "rgb" / (stamp + ".ppm")).string(), f.color);
       writeNetpbm((dir / "depth" / (stamp + ".pgm")).string(), f.depth);
-    } catch (const Error& e) {
-      *error = e.what();
+    } catch (...) {  // any failure of this frame's files (a full disk, an encoder's exception) is one line
+      *error = currentExceptionLine();
       return false;
     }
     rgb_index << stamp << " rgb/" << stamp << ".ppm\n" << std::flush;

@@ -411,7 +411,18 @@ void Server::start() {
   Impl& m = *impl_;
   m.state.setListener([&m](const Update& u) { net::post(m.ioc, [&m, u] { m.broadcast(u); }); });
   m.accept();
-  m.thread = std::thread([&m] { m.ioc.run(); });
+  m.thread = std::thread([&m] {
+    // One connection's handler that throws costs that connection, not the
+    // viewer (an exception out of this thread was std::terminate).
+    for (;;) {
+      try {
+        m.ioc.run();
+        return;
+      } catch (...) {
+        spdlog::error("viewer: a connection handler failed, the server goes on: {}", currentExceptionLine());
+      }
+    }
+  });
 }
 
 void Server::stop() {
