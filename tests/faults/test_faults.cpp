@@ -172,6 +172,34 @@ TEST(Faults, KilledOptimiserRebuildsItsGraphFromTheTrackerAndTheTrajectoryMatche
 // too, so a tracker behind the clock loses no frame from the ring's 8 slots.
 TEST(Faults, OptimiserKilledMidStreamRebuildsAndTheTrajectoryMatches) { expectOptimiserRebuilt("--set player.rate=1"); }
 
+// Issue 25, finding 1: the optimiser killed after its done_t, while it
+// lingers for the mapper (held stopped by the script until the kill, so the
+// moment is certain). The killed instance's done_t must not stand for its
+// restart's: the tracker keeps serving until the restart is done and has
+// exited, the restart rebuilds from the whole replay and goes to its final
+// step, and the run ends on its own (it hung for 120 s). Silence 30 s: the
+// mapper's stop is not taken for its exit.
+TEST(Faults, OptimiserKilledAfterItsDoneIsRestartedAndTheRunFinishes) {
+  rekon::test::TempDir dir;
+  const std::string out = dir / "run";
+  std::string output;
+  const int rc = runCommand(inNetns() + " " + rekon::test::sourceDir() + "/tests/faults/kill_optimiser_after_done.sh " +
+                                bin() + " " + out + " --dataset " + baseline().data + " --set lifecycle.silence_s=30",
+                            &output);
+  output += "\nrekon run:\n" + readText(out + "/run.out");
+  ASSERT_NE(output.find("killed rekon-optimiser"), std::string::npos) << output;
+  ASSERT_EQ(rc, 0) << output;
+  EXPECT_NE(readText(out + "/stats.json").find("\"restarts\": {\"optimiser\":1}"), std::string::npos) << output;
+  const std::string optimiser_log = readText(out + "/optimiser.log");
+  const std::string logs = "optimiser.log:\n" + optimiser_log + "tracker.log:\n" + readText(out + "/tracker.log");
+  EXPECT_NE(optimiser_log.find("rebuilt from its replay"), std::string::npos) << logs;
+  EXPECT_NE(optimiser_log.find("the tracker finished before this optimiser started"), std::string::npos) << logs;
+  EXPECT_EQ(lineCount(out + "/trajectory.txt"), static_cast<size_t>(kFrames)) << logs;
+  EXPECT_NEAR(ateOf(out), ateOf(baseline().run), 0.000002);  // the bound of expectOptimiserRebuilt
+  EXPECT_TRUE(fs::exists(out + "/mesh.ply") && fs::file_size(out + "/mesh.ply") > 1000) << output;
+  EXPECT_EQ(leftoverSegments(out), std::vector<std::string>{});
+}
+
 // A dead tracker or player cannot be replaced mid-stream: the run stops,
 // says which service died, exits non-zero, and keeps what was made so far.
 void expectStoppedNaming(const std::string& service) {

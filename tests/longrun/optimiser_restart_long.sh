@@ -10,8 +10,8 @@
 #     published (optimiser_stats.json against tracker_stats.json);
 #   - the trajectory has every tracked frame, and its ATE against the ground
 #     truth and against the uninterrupted run.
-# Not in ctest: 10 325 frames (2 corridor laps, generated into OUT unless
-# present; about 8 GB of PNGs) take about 10 minutes on 2 cores.
+# Not in ctest: FRAMES (default 6 000) of the 2-lap corridor, with its
+# revisits (generated into OUT unless DATASET is given; about 5 GB of PNGs).
 #
 #   tests/longrun/optimiser_restart_long.sh OUT [DATASET] [BIN_DIR]
 set -euo pipefail
@@ -22,10 +22,10 @@ out=$(cd "$out" && pwd)
 data=${2:-$out/corridor_2laps}
 bin=$(cd "${3:-$here/../../build/bin}" && pwd)
 netns=$here/../support/in_netns.sh
-[ -f "$data/rgb.txt" ] || "$bin/rekon" synth --scene corridor --laps 2 --out "$data"
+[ -f "$data/rgb.txt" ] || "$bin/rekon" synth --scene corridor --laps 2 --frames "${FRAMES:-6000}" --out "$data"
 data=$(cd "$data" && pwd)
 frames=$(grep -vc '^#' "$data/rgb.txt")
-sets=(--set run.services="[player, tracker, optimiser]" --set player.wait_for="[tracker]")
+sets=(--set 'run.services=[player, tracker, optimiser]' --set 'player.wait_for=[tracker]')
 
 run_clean() {
   local dir=$out/uninterrupted start
