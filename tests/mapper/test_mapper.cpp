@@ -316,6 +316,51 @@ TEST(KeyframeStore, ARestartedMapperRebuildsTheSameVolume) {
   EXPECT_THROW(store::KeyframeStore::openExisting(p.store.segment), Error);
 }
 
+// closeKeyframe() stores a KF keyframe before it integrates it (tens of ms
+// on a loaded machine), and the mapper can die in between: the kill test
+// kills it at the first moment the store holds 2 KF keyframes, which lands
+// there about 1 run in 3. Its frames are not sent again (the resume point is
+// after them), so the restarted mapper must integrate it itself, at the pose
+// the old one was about to use: its DVO keyframe's pose in the store. It
+// once counted it restored and never integrated it: 4004 voxel blocks
+// instead of 4195 in Faults.KilledMapperIsRestartedAndItsMeshMatchesAnUninterruptedRun.
+TEST(KeyframeStore, AKeyframeStoredButNotYetIntegratedWhenTheMapperDiedIsIntegratedByItsRestart) {
+  MapperParams p = testParams();
+  p.use_store = true;
+  p.resume = true;
+  p.store.segment = "rekon_test_unintegrated_" + std::to_string(getpid());
+  p.store.size_mb = 64;
+  store::KeyframeStore::remove(p.store.segment);
+  // The uninterrupted mapper: 12 frames, kappa 4, every KF keyframe closed and integrated.
+  Mapper uninterrupted(testParams());
+  play(uninterrupted, 12);
+  uninterrupted.flush();
+  ASSERT_EQ(uninterrupted.keyframes().size(), 3u);
+  {
+    Mapper killed(p);
+    play(killed, 12);  // two KF keyframes closed and integrated, the third open
+    ASSERT_EQ(killed.keyframes().size(), 2u);
+  }
+  // The third as the killed mapper's closeKeyframe() left it: stored, never integrated.
+  store::KeyframeStore::openOrCreate(p.store, testCamera())->add(uninterrupted.keyframes()[2].kf);
+
+  Mapper restarted(p);
+  EXPECT_EQ(restarted.counters().restored_keyframes, 3);
+  EXPECT_EQ(restarted.firstMissingFrame(), 12);  // its frames are not sent again
+  ASSERT_EQ(restarted.keyframes().size(), 3u);
+  EXPECT_TRUE(restarted.keyframes()[2].integrated);
+  EXPECT_EQ(restarted.volume().stats().blocks, uninterrupted.volume().stats().blocks);
+  const Difference d = compare(snapshot(uninterrupted.volume()), snapshot(restarted.volume()));
+  EXPECT_GT(d.observed, 10000);
+  EXPECT_EQ(d.weight_or_sdf, 0);      // the same keyframes at the same poses: the same integer sums
+  EXPECT_LE(d.max_color_levels, 2u);  // colors: rounding of another integration order
+  // Recorded as integrated: a second restart integrates it once, at that pose.
+  const auto infos = store::KeyframeStore::openExisting(p.store.segment)->list();
+  ASSERT_EQ(infos.size(), 3u);
+  EXPECT_TRUE(infos[2].integrated);
+  restarted.removeStore();
+}
+
 TEST(KeyframeStore, AFullStoreIsAnErrorNamingTheSetting) {
   MapperParams p = testParams();
   p.use_store = true;

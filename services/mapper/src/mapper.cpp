@@ -98,9 +98,33 @@ void Mapper::restoreFromStore() {
     }
     keyframes_.push_back(std::move(rec));
     if (infos[i].integrated) integrateRestored(keyframes_.back(), infos[i].integrated_pose);
+    else integrateStoredOnly(keyframes_.back());
     ++counters_.restored_keyframes;
     if ((i + 1) % 20 == 0) spdlog::info("rebuilt {} of {} keyframes", i + 1, infos.size());
   }
+}
+
+void Mapper::integrateStoredOnly(KeyframeRecord& rec) {
+  // closeKeyframe() stores a KF keyframe before it integrates it: the old
+  // instance died in between. Its frames are before the resume point and are
+  // not sent again, so it is integrated here, at the pose the old instance
+  // was about to use (its DVO keyframe's pose, in the store).
+  const auto pose = currentPose(rec.kf);
+  if (!pose) {
+    spdlog::warn("keyframe store: KF keyframe {} (frames {}..{}) was never integrated and its DVO keyframe {} has no "
+                 "pose; it is integrated once one comes", rec.kf.id, rec.kf.first_frame_id, rec.kf.last_frame_id,
+                 rec.kf.anchor_keyframe_id);
+    return;
+  }
+  spdlog::info("keyframe store: KF keyframe {} (frames {}..{}) was stored but not yet integrated when the mapper "
+               "stopped; integrated now", rec.kf.id, rec.kf.first_frame_id, rec.kf.last_frame_id);
+  integrateRestored(rec, *pose);
+  if (store_) store_->setIntegratedPose(rec.kf.id, *pose);
+}
+
+void Mapper::integratePendingRestored() {
+  for (KeyframeRecord& rec : keyframes_)
+    if (!rec.integrated && currentPose(rec.kf)) integrateStoredOnly(rec);
 }
 
 void Mapper::integrateRestored(KeyframeRecord& rec, const Pose& pose) {
@@ -162,6 +186,11 @@ void Mapper::ensureCamera(const Intrinsics& k) {
   if (params_.use_store && !store_) {
     store_ = store::KeyframeStore::openOrCreate(params_.store, k);
     spdlog::info("keyframe store '{}' created ({} MiB)", params_.store.segment, params_.store.size_mb);
+    // The DVO keyframes placed before the first frame (the first one's
+    // keyframe_t comes before it): a restart needs their poses too.
+    for (const auto& [id, pose] : estimates_)
+      if (!graph_poses_.count(id)) store_->setAnchorPose(id, pose);
+    for (const auto& [id, pose] : graph_poses_) store_->setAnchorPose(id, pose);
   }
   if (!params_.session_dir.empty() && !session_) {
     store::SessionInfo info;
@@ -301,6 +330,7 @@ ReintegrationRound Mapper::applyGraphUpdate(const std::vector<std::pair<int64_t,
     if (store_) store_->setAnchorPose(id, pose);
   }
   ++counters_.graph_updates;
+  integratePendingRestored();  // a restored keyframe whose DVO keyframe had no pose yet
   // Before this run's first KF keyframe the session's files stay as they were
   // (a continued run that stops early leaves its session untouched).
   if (firstMissingFrame() >= 0) writeAnchorPoses();
@@ -319,6 +349,7 @@ void Mapper::flush() { closeKeyframe(); }
 
 std::vector<ReintegrationRound> Mapper::finish() {
   closeKeyframe();
+  integratePendingRestored();
   std::vector<ReintegrationRound> rounds;
   if (params_.mode == ReintegrationMode::kNone) {
     spdlog::info("final pass skipped (mapper.reintegration: none)");

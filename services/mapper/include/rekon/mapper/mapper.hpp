@@ -154,6 +154,11 @@ class Mapper {
   void continueSession();
   // A keyframe restored from the store or the session, integrated at `pose`.
   void integrateRestored(KeyframeRecord& rec, const Pose& pose);
+  // A keyframe the store holds but the old instance never integrated (it
+  // died between storing and integrating it): integrated at its current
+  // pose, recorded in the store; left for later when its anchor has none.
+  void integrateStoredOnly(KeyframeRecord& rec);
+  void integratePendingRestored();
 
   MapperParams params_;
   std::unique_ptr<volume::TsdfVolume> volume_;
