@@ -8,6 +8,8 @@
 // of a fused frame was later counted as dropped.
 #include <gtest/gtest.h>
 
+#include <unistd.h>
+
 #include <chrono>
 #include <functional>
 #include <set>
@@ -15,6 +17,7 @@
 #include <thread>
 
 #include "mapper_service.hpp"
+#include "rekon/mapper/store/keyframe_store.hpp"
 #include "rekon/common/bus.hpp"
 #include "rekon/common/cli.hpp"
 #include "rekon/common/config.hpp"
@@ -146,6 +149,110 @@ TEST(MapperResend, FramesSentAgainAreNeitherQueuedTwiceNorDroppedAndEveryFrameIs
   EXPECT_EQ(test::jsonInt(stats, "kf_keyframes"), kFrames / 4) << stats;
 }
 
+
+// A restarted mapper (its keyframe store holds frames 0..7) resumes at frame
+// 8, and the player sends every frame from there again once it hears of the
+// restart. Before that it may send its newest frame again (acknowledgements
+// stalled while the mapper was dead), and the new instance, subscribed
+// already, gets that frame first, with its tracked frame (the tracker answers
+// a frame sent again with its stored result, once per mapper instance). The
+// mapper fused it first, took every frame before it for a copy and dropped
+// them all (Faults.KilledMapperIsRestartedAndItsMeshMatchesAnUninterruptedRun:
+// "frame 73: DVO keyframe 3 has no pose yet", 16 of 50 frames fused).
+TEST(MapperResume, AFrameSentBeforeThePlayerHeardOfTheRestartWaitsForItsTurn) {
+  test::TempDir dir;
+  synth::SequenceOptions sequence;
+  sequence.scene = "room";
+  sequence.frames = kFrames;
+  synth::writeSequence(sequence, dir / "room");
+  const TumDataset data(dir / "room");
+  const std::string segment = "rekon_test_resume_" + std::to_string(getpid());
+  const Config config = Config::load("", {"lcm.url=memory://mapper_resume", "mapper.kappa=4",
+                                          "mapper.wait_for_optimiser=false", "mapper.use_store=true",
+                                          "mapper.resume=true", "mapper.store_segment=" + segment,
+                                          "mapper.store_mb=64", "mapper.write_uncorrected_mesh=false"});
+  MemoryBus bus(BusOptions::fromConfig(config));
+  std::set<int> running;  // the pids of mapper instances that said so
+  std::set<int64_t> acked;
+  bus.subscribe<rekon_msgs::heartbeat_t>(channel::kHeartbeat, [&](const rekon_msgs::heartbeat_t& m) {
+    if (m.service == "mapper" && m.state == "running") running.insert(m.pid);
+  });
+  bus.subscribe<rekon_msgs::frame_ack_t>(channel::kFrameAck, [&](const rekon_msgs::frame_ack_t& m) {
+    if (m.service == "mapper") acked.insert(m.frame_id);
+  });
+  const auto spinFor = [&](double seconds) {
+    const auto end = Clock::now() + std::chrono::duration<double>(seconds);
+    while (Clock::now() < end) bus.handle(5);
+  };
+  const auto waitUntil = [&](const std::function<bool()>& condition) {
+    const auto deadline = Clock::now() + std::chrono::seconds(60);
+    while (!condition() && Clock::now() < deadline) bus.handle(20);
+    return condition();
+  };
+  FrameSender sender(bus, TransportMode::kLcm, "", FrameRingLayout{});
+  const Trajectory& gt = data.groundTruth();
+  const auto sendKeyframe = [&] {
+    rekon_msgs::keyframe_t kf{};
+    kf.keyframe_id = 0;
+    kf.timestamp = data.timestamp(0);
+    kf.pose_world = toMsg(gt.front().pose);
+    bus.publish(channel::kKeyframes, kf);
+  };
+  const auto sendImage = [&](int i) {
+    const EncodedFrame encoded = data.loadEncoded(static_cast<size_t>(i));
+    sender.send(data.decode(static_cast<size_t>(i), encoded), data.intrinsics(), &encoded);
+  };
+  const auto sendTracked = [&](int i) {
+    rekon_msgs::tracked_frame_t t{};
+    t.frame_id = i;
+    t.timestamp = data.timestamp(static_cast<size_t>(i));
+    t.keyframe_id = 0;
+    t.pose_in_keyframe = toMsg(gt.front().pose.inverse() * gt[static_cast<size_t>(i)].pose);
+    bus.publish(channel::kTrackedFrames, t);
+  };
+  store::KeyframeStore::remove(segment);
+  {
+    // The first instance fuses frames 0..7 (two KF keyframes at kappa 4) and
+    // is stopped before the end: its store stays.
+    InProcessService first("mapper", config, dir / "first", mapper::runMapperService);
+    ASSERT_TRUE(waitUntil([&] { return !running.empty(); })) << "the mapper never said it was running";
+    sendKeyframe();
+    for (int i = 0; i < 8; ++i) sendImage(i), sendTracked(i), spinFor(0.02);
+    ASSERT_TRUE(waitUntil([&] { return acked.size() == 8; }));
+    spinFor(0.5);
+  }
+  ASSERT_EQ(store::KeyframeStore::openExisting(segment)->size(), 2u);
+
+  running.clear();
+  acked.clear();
+  InProcessService restarted("mapper", config, dir / "out", mapper::runMapperService);
+  ASSERT_TRUE(waitUntil([&] { return !running.empty(); })) << "the restarted mapper never said it was running";
+  sendKeyframe();
+  // Frame 11 first: sent before the player heard of the restart, its result republished.
+  sendImage(11), sendTracked(11), spinFor(0.2);
+  EXPECT_EQ(acked.count(11), 0u) << "acknowledged, the player would take it as read and overrun the ring";
+  // The player's rewind: 8..15, each once (the tracker sent 11's result already).
+  for (int i = 8; i < kFrames; ++i) {
+    sendImage(i);
+    if (i != 11) sendTracked(i);
+    spinFor(0.02);
+  }
+  ASSERT_TRUE(waitUntil([&] { return acked.size() == static_cast<size_t>(kFrames - 8); }));
+  rekon_msgs::end_of_stream_t end{};
+  end.last_frame_id = kFrames - 1;
+  end.frames = kFrames;
+  for (int i = 0; i < 3; ++i) bus.publish(channel::kEndOfStream, end), spinFor(0.05);
+  ASSERT_EQ(restarted.join(), 0);
+
+  // Frames 8..15 fused in order into two KF keyframes, as without the restart.
+  const std::string stats = test::readText(dir / "out/mapper_stats.json");
+  EXPECT_EQ(test::jsonInt(stats, "restored_keyframes"), 2) << stats;
+  EXPECT_EQ(test::jsonInt(stats, "frames_fused"), kFrames - 8) << stats;
+  EXPECT_EQ(test::jsonInt(stats, "frames_dropped"), 0) << stats;
+  EXPECT_EQ(test::jsonInt(stats, "frames_before_resume"), 1) << stats;
+  EXPECT_EQ(test::jsonInt(stats, "kf_keyframes"), 2) << stats;
+  store::KeyframeStore::remove(segment);
+}
 
 // A frame from another camera (its fx changed) makes the mapping worker
 // throw. Before, the service threw that error before writing anything: the

@@ -13,6 +13,36 @@ namespace rekon::mapper {
 Inbox::Inbox(ServiceContext& ctx, size_t max_queued_frames, bool drop_when_full)
     : ctx_(ctx), max_queued_(max_queued_frames), drop_when_full_(drop_when_full), peers_(ctx.bus(), ctx.lifecycle()) {}
 
+namespace {
+// A restarted mapper drops frames past its resume point for at most this long
+// after the first one: the frame source rewinds within a heartbeat of the
+// restart; longer, the resume point's own frame was lost on the way.
+constexpr double kResumeWaitS = 5.0;
+}  // namespace
+
+void Inbox::resumeFrom(int64_t first_missing_frame) {
+  if (first_missing_frame < 0) return;
+  std::lock_guard<std::mutex> lock(mutex_);
+  last_resolved_ = first_missing_frame - 1;  // in the store: a copy of one is not fused again
+  awaiting_frame_ = first_missing_frame;
+}
+
+bool Inbox::beforeResume(int64_t id) {
+  if (awaiting_frame_ < 0 || id < awaiting_frame_) return false;  // before it: in the store, a copy
+  const auto now = std::chrono::steady_clock::now();
+  const bool rewound = id == awaiting_frame_ || (newest_before_resume_ >= 0 && id < newest_before_resume_) ||
+                       (newest_before_resume_ >= 0 &&
+                        std::chrono::duration<double>(now - first_before_resume_).count() > kResumeWaitS);
+  if (rewound) {
+    awaiting_frame_ = -1;
+    return false;
+  }
+  if (newest_before_resume_ < 0) first_before_resume_ = now;
+  newest_before_resume_ = std::max(newest_before_resume_, id);
+  ++counts_.frames_before_resume;
+  return true;
+}
+
 void Inbox::subscribe() {
   Bus& bus = ctx_.bus();
   bus.subscribe<rekon_msgs::frame_t>(channel::kFrames, [this](const rekon_msgs::frame_t& m) { onFrame(m); });
@@ -29,6 +59,11 @@ void Inbox::onFrame(const rekon_msgs::frame_t& msg) {
   std::optional<bool> again_ack;  // set for a frame sent again: whether to acknowledge it now
   {
     std::lock_guard<std::mutex> lock(mutex_);
+    if (beforeResume(msg.frame_id)) {
+      spdlog::info("frame {} came before frame {}, the resume point: sent before the restart was heard of; it comes "
+                   "again in order", msg.frame_id, awaiting_frame_);
+      return;
+    }
     if (seen(msg.frame_id)) {
       // Sent again: the first copy is (or was) in the work. Acknowledged
       // again unless its acknowledgement is still held back.

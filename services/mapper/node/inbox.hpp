@@ -68,6 +68,9 @@ struct InboxCounts {
   // while acknowledgements stall): neither stored nor counted as dropped.
   int64_t frames_received_again = 0;
   int64_t coalesced_updates = 0;
+  // Frames past the resume point that came before it (Inbox::resumeFrom):
+  // sent before the source heard of the restart, and sent again after.
+  int64_t frames_before_resume = 0;
 };
 
 class Inbox {
@@ -77,6 +80,15 @@ class Inbox {
   // `drop_when_full`: beyond max_queued_frames a frame is acknowledged and
   // dropped (a live source cannot wait), instead of its acknowledgement held.
   Inbox(ServiceContext& ctx, size_t max_queued_frames, bool drop_when_full);
+  // A restarted mapper, before subscribe(): its frames resume at
+  // `first_missing_frame` (Mapper::firstMissingFrame(); -1: a first start).
+  // Frames before it are in the keyframe store: never fused again. Until that
+  // frame comes, a later one is one the frame source sent before it heard of
+  // the restart (its newest frame again, while acknowledgements stalled): it
+  // is dropped unacknowledged, as the source sends it again in order after
+  // the resume point; fused first, it made every frame between look like a
+  // copy and dropped them.
+  void resumeFrom(int64_t first_missing_frame);
   // Call after the StopThreadsOnExit that guards everything the handlers use.
   void subscribe();
 
@@ -126,6 +138,9 @@ class Inbox {
   // A frame whose images came before, or that was joined or given up on.
   bool seen(int64_t id) const { return id <= last_resolved_ || images_.count(id) > 0; }
   bool ackDeferred(int64_t id) const;
+  // Under the lock: whether the image of `id` came before the resume point's
+  // own frame (then dropped); ends the wait once the source has rewound.
+  bool beforeResume(int64_t id);
 
   ServiceContext& ctx_;
   const size_t max_queued_;
@@ -147,6 +162,13 @@ class Inbox {
   int64_t last_resolved_ = -1;  // newest frame joined or given up on
   InboxCounts counts_;
   bool baseline_queued_ = false;
+  // Inbox::resumeFrom: the frame a restarted mapper waits for first (-1: none
+  // or it came), and the newest frame dropped while waiting, with when the
+  // first was (a source that lost the resume point's frame itself rewound
+  // all the same: an older frame, or kResumeWaitS, ends the wait).
+  int64_t awaiting_frame_ = -1;
+  int64_t newest_before_resume_ = -1;
+  std::chrono::steady_clock::time_point first_before_resume_{};
   std::string worker_error_;
   MapperCounters progress_;  // the worker's copy after each piece of work, for the progress log
 };

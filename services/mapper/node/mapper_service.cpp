@@ -118,6 +118,7 @@ void runMapperService(ServiceContext& ctx) {
   MeshPublisher mesh(ctx, settings.mesh, settings.params.volume);
   MappingWorker worker(ctx, mapper, inbox, mesh);
   StopThreadsOnExit stop_threads(ctx);  // before the state above dies: the bus handlers use it
+  inbox.resumeFrom(mapper.firstMissingFrame());
   inbox.subscribe();
   mesh.subscribe();
   std::thread worker_thread([&] { worker.run(); });

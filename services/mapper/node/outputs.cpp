@@ -93,6 +93,7 @@ void recordStats(ServiceContext& ctx, const Mapper& mapper, const MapperParams& 
       .set("frames_dropped", static_cast<long long>(inbox.dropped_frames))
       .set("frames_dropped_when_full", static_cast<long long>(inbox.dropped_when_full))
       .set("frames_received_again", static_cast<long long>(inbox.frames_received_again))
+      .set("frames_before_resume", static_cast<long long>(inbox.frames_before_resume))
       .set("kf_keyframes", static_cast<long long>(c.kf_keyframes))
       .set("integrations", static_cast<long long>(c.integrations))
       .set("deintegrations", static_cast<long long>(c.deintegrations))
