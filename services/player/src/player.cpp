@@ -106,8 +106,12 @@ class Player {
         throw Error("rekon-" + silent + " acknowledged no frame for " + std::to_string(int(params_.wait_timeout_s)) +
                     " s (last acknowledged: " + std::to_string(watch_.acked(silent)) + "); is it alive? see its log");
       }
-      // A dead consumer is not helped by frames; the launcher restarts it or stops the run.
-      if (newest_sent_ >= 0 && peers_.alive(silent)) {
+      // A dead consumer is not helped by frames; the launcher restarts it or
+      // stops the run. Nor is one whose new instance is still starting: once
+      // running it gets every frame from its resume point, in order (the
+      // newest first reached a restarted mapper before its resume point).
+      const std::optional<PeerWatch::Peer> peer = peers_.peer(silent);
+      if (newest_sent_ >= 0 && peers_.alive(silent) && peer && peer->served) {
         spdlog::debug("no acknowledgement from rekon-{} for {:.0f} s: sending frame {} again", silent, kResendAfterS,
                       newest_sent_);
         send(newest_sent_, ahead_.load(newest_sent_));
