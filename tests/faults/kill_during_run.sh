@@ -10,6 +10,9 @@
 # apart), and each check reads the count with the service stopped (SIGSTOP),
 # so the SIGKILL meets a live process holding what was counted.
 #
+# Every check holds the player stopped (SIGSTOP) while it counts, so the
+# stream advances only between checks, however slow a check is.
+#
 # Prints "killed rekon-SERVICE ..." ("killed all ...") only when the kill
 # landed (for a service: rekon run reported it killed by signal 9) and exits
 # with rekon run's status; else prints "nothing killed: WHY" and exits 125.
@@ -27,12 +30,12 @@ stored() {
   local segment
   segment=$(sed -n 's/^ *store_segment: *"\{0,1\}\([^"]*\)"\{0,1\} *$/\1/p' "$out/config.yaml" 2> /dev/null)
   [ -n "$segment" ] || { echo 0; return; }
-  timeout 2 "$bin/rekon" keyframes --list --segment "$segment" 2> /dev/null |
+  timeout 20 "$bin/rekon" keyframes --list --segment "$segment" 2> /dev/null |
     sed -n 's/^store [^ ]*: \([0-9]*\) keyframes.*/\1/p' | grep . || echo 0
 }
 
-# The pid of the newest instance of the service, "" before it started.
-pidOf() { sed -n "s/.*started rekon-$service (pid \([0-9]*\)).*/\1/p" "$out/run.out" | tail -1; }
+# The pid of the newest instance of service $1, "" before it started.
+pidOf() { sed -n "s/.*started rekon-$1 (pid \([0-9]*\)).*/\1/p" "$out/run.out" | tail -1; }
 
 # Waits (1 s at most) until every thread of the process is stopped by
 # SIGSTOP, hence alive and still: not running, not a zombie, not gone.
@@ -62,7 +65,7 @@ tryKill() {
   fi
   [ -n "$near" ] || [ "$(stored)" -ge $((min - 1)) ] || return 1
   near=1
-  pid=$(pidOf)
+  pid=$(pidOf "$service")
   [ -n "$pid" ] && kill -STOP "$pid" 2> /dev/null && stopped "$pid" || { kill -CONT "$pid" 2> /dev/null; return 1; }
   n=$(stored)
   if [ "$n" -ge "$min" ]; then
@@ -82,10 +85,23 @@ missed() {
   fi
 }
 
+# Every check holds the player stopped, so the stream cannot run ahead of a
+# check however slowly `rekon keyframes` starts on a loaded machine (it took
+# longer than a whole 90-frame run under stress, and the kill was missed).
+checkHoldingThePlayer() {
+  local player rc
+  player=$(pidOf player)
+  [ -n "$player" ] && kill -STOP "$player" 2> /dev/null && stopped "$player"
+  tryKill
+  rc=$?
+  [ -n "$player" ] && kill -CONT "$player" 2> /dev/null
+  return $rc
+}
+
 killed=""
 while kill -0 "$run" 2> /dev/null; do  # until the run ends (its timeout ends it)
-  tryKill && break
-  sleep 0.02
+  checkHoldingThePlayer && break
+  sleep 0.1
 done
 wait "$run"
 rc=$?
