@@ -96,6 +96,7 @@ struct LiveOutlet::State {
     int64_t oldest_in_window;
     {
       std::lock_guard<std::mutex> lock(mutex);
+      if (consumers.empty()) return true;  // nobody acknowledges: nothing to wait for
       if (unacked.size() < in_flight) return true;
       oldest_in_window = unacked[unacked.size() - in_flight];
     }
@@ -175,6 +176,8 @@ LiveOutlet::LiveOutlet(ServiceContext& ctx, FrameSender& sender, ConsumerWatch& 
   ctx.bus().subscribe<rekon_msgs::tracked_frame_t>(channel::kTrackedFrames, [weak](const rekon_msgs::tracked_frame_t& m) {
     if (auto state = weak.lock()) state->onTracked(m);
   });
+  // Both counts from the start, in the live STATS as in stats.json.
+  for (const char* key : {"frames_captured", "frames_sent", "frames_dropped", "frames_skipped_late"}) ctx.setLive(key, 0.0);
   state_->thread = std::thread([s = state_.get()] { s->run(); });
 }
 
@@ -214,6 +217,13 @@ void LiveOutlet::offer(RgbdFrame frame, const Intrinsics& k, double age_s) {
   state_->wake.notify_all();
 }
 
+void LiveOutlet::skippedLate(int64_t n) {
+  if (n <= 0) return;
+  std::lock_guard<std::mutex> lock(state_->mutex);
+  state_->counts.skipped_late += n;
+  state_->ctx.setLive("frames_skipped_late", static_cast<double>(state_->counts.skipped_late));
+}
+
 void LiveOutlet::finish(double timeout_s) {
   // Let the sender pass on the frame still waiting, if the consumers take it.
   const auto deadline = Clock::now() + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(timeout_s));
@@ -227,6 +237,7 @@ void LiveOutlet::finish(double timeout_s) {
   {
     std::lock_guard<std::mutex> lock(state_->mutex);
     if (state_->waiting) ++state_->counts.dropped;
+    state_->ctx.setLive("frames_dropped", static_cast<double>(state_->counts.dropped));
     state_->waiting.reset();
     state_->stopping = true;
   }
@@ -251,7 +262,8 @@ void LiveOutlet::writeStats(JsonObject& stats) const {
   const Counts& c = state_->counts;
   stats.set("frames_captured", static_cast<long long>(c.offered))
       .set("frames_sent", static_cast<long long>(c.sent))
-      .set("frames_dropped", static_cast<long long>(c.dropped));
+      .set("frames_dropped", static_cast<long long>(c.dropped))
+      .set("frames_skipped_late", static_cast<long long>(c.skipped_late));
   const LatencyHistogram& h = state_->latency;
   stats.set("latency_samples", static_cast<long long>(h.count()));
   if (h.count() > 0) stats.set("latency_ms_p50", h.quantile(0.5)).set("latency_ms_p95", h.quantile(0.95));

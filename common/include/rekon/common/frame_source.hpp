@@ -3,8 +3,8 @@
 // frames: waiting for its consumers, choosing the transport, announcing the
 // end of the stream, and, for a source that cannot wait (a camera, or the
 // player with `pacing: live`), the live outlet: the newest frame wins, no
-// queue grows, and frames the consumers were not ready for are dropped and
-// counted.
+// queue grows, frames the consumers were not ready for are dropped and
+// counted, and so are the frames the source itself was too late to take.
 #include <memory>
 #include <string>
 #include <vector>
@@ -41,6 +41,12 @@ void announceEndOfStream(Bus& bus, const rekon_msgs::end_of_stream_t& eos);
 // capture times of the frames in flight.
 // Also measures the capture-to-pose latency: from a frame's capture time to
 // the tracker's tracked_frame_t for it, as this process receives it.
+// Two counts say what never reached the consumers, the same for every live
+// source: `frames_skipped_late`, frames whose time passed before the source
+// could take them (a starved or slow source: the player behind its clock, the
+// camera's capture thread behind its driver), never offered; and
+// `frames_dropped`, frames offered that the consumers were not ready for.
+// frames_captured (offered) = frames_sent + frames_dropped.
 // An exception on the sending thread (a frame larger than the ring slot, a
 // bus error) ends that thread and requests a stop; the next offer() or
 // finish() throws it on the source's thread, whose service logs it as one
@@ -48,7 +54,7 @@ void announceEndOfStream(Bus& bus, const rekon_msgs::end_of_stream_t& eos);
 class LiveOutlet {
  public:
   struct Counts {
-    int64_t offered = 0, sent = 0, dropped = 0, newest_sent = -1;
+    int64_t offered = 0, sent = 0, dropped = 0, skipped_late = 0, newest_sent = -1;
   };
 
   LiveOutlet(ServiceContext& ctx, FrameSender& sender, ConsumerWatch& watch, std::vector<std::string> consumers,
@@ -60,11 +66,13 @@ class LiveOutlet {
   // `age_s`: seconds since the frame was captured (a driver's delay);
   // `frame.id` is kept (ids of dropped frames are gaps downstream).
   void offer(RgbdFrame frame, const Intrinsics& k, double age_s = 0.0);
+  // `n` more frames were skipped for lateness (never offered).
+  void skippedLate(int64_t n);
   // Sends the waiting frame, then waits up to `timeout_s` until the
   // consumers acknowledged every frame sent, and stops the sending thread.
   void finish(double timeout_s);
   Counts counts() const;
-  // frames_captured, frames_sent, frames_dropped and, once a pose came back,
+  // frames_captured, frames_sent, frames_dropped, frames_skipped_late and, once a pose came back,
   // latency_ms_p50 / latency_ms_p95 / latency_samples.
   void writeStats(JsonObject& stats) const;
 
