@@ -76,7 +76,10 @@ class Player {
     else playToEnd(first_);
     reportPlayed();
     linger();
-    ctx_.stats().set("frames_sent_again", static_cast<long long>(resent_)).set("rewinds", static_cast<long long>(rewinds_));
+    ctx_.stats()
+        .set("frames_sent_again", static_cast<long long>(resent_))
+        .set("rewinds", static_cast<long long>(rewinds_))
+        .set("frames_decoded_unused", static_cast<long long>(ahead_.unused()));
   }
 
  private:
@@ -158,11 +161,15 @@ class Player {
     }
   }
 
+  // Frame `id`'s recorded time after the first one, divided by the rate.
+  double scheduledSeconds(int64_t id) const {
+    return (dataset_.timestamp(static_cast<size_t>(id)) - dataset_.timestamp(static_cast<size_t>(first_))) / params_.rate;
+  }
+
   // Sleeps until frame `id`'s recorded time (divided by the rate) after the start.
   void sleepUntilRecorded(int64_t id) const {
-    const double at_s =
-        (dataset_.timestamp(static_cast<size_t>(id)) - dataset_.timestamp(static_cast<size_t>(first_))) / params_.rate;
-    std::this_thread::sleep_until(start_ + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(at_s)));
+    std::this_thread::sleep_until(start_ + std::chrono::duration_cast<Clock::duration>(
+                                               std::chrono::duration<double>(scheduledSeconds(id))));
   }
 
   // Sends frames [from, to): paced by acknowledgements, and by the recorded
@@ -189,25 +196,58 @@ class Player {
   }
 
   // pacing: live: each frame at its recorded time, never waiting for the
-  // consumers: a frame they are not ready for is dropped (the newest wins),
-  // as from a camera. A restarted consumer goes on from the next frame.
+  // consumers, as from a camera: a frame they are not ready for is dropped
+  // (the newest wins). Nor does a camera slow down when the computer is busy:
+  // when the player is behind its clock (decoding slower than the rate, a
+  // starved process) the frames whose time has passed are skipped, never
+  // decoded, and the newest one due is sent. A restarted consumer goes on
+  // from the next frame.
   void playLive() {
     LiveOutlet outlet(ctx_, *sender_, watch_, params_.wait_for, params_.live_in_flight);
+    int64_t last = -1;
     for (int64_t id = first_; id < end_ && !ctx_.stopRequested(); ++id) {
       sleepUntilRecorded(id);
-      outlet.offer(ahead_.take(id).frame, dataset_.intrinsics());
+      const int64_t due = newestDue(id);
+      outlet.skippedLate(due - id);
+      id = due;
+      const auto decode_start = Clock::now();
+      LoadedFrame loaded = ahead_.take(id);
+      decode_max_s_ = std::max(decode_max_s_, ConsumerWatch::secondsSince(decode_start));
+      // Late by the time it goes out (decoding included): as a camera driver's delay.
+      const double late_s = std::max(0.0, ConsumerWatch::secondsSince(start_) - scheduledSeconds(id));
+      behind_clock_max_s_ = std::max(behind_clock_max_s_, late_s);
+      outlet.offer(std::move(loaded.frame), dataset_.intrinsics(), late_s);
+      last = id;
       ++sent_;
       reportProgress(id + 1);
     }
+    live_wall_s_ = ConsumerWatch::secondsSince(start_);
+    if (last >= 0) behind_clock_end_s_ = live_wall_s_ - scheduledSeconds(last);
     outlet.finish(params_.wait_timeout_s);
     outlet.writeStats(ctx_.stats());
     const LiveOutlet::Counts c = outlet.counts();
-    spdlog::info("live pacing: {} frames sent, {} dropped (the consumers were not ready)", c.sent, c.dropped);
+    spdlog::info("live pacing: {} frames sent, {} dropped (the consumers were not ready), {} skipped (their time had "
+                 "passed; the player was up to {:.0f} ms behind its clock)",
+                 c.sent, c.dropped, c.skipped_late, 1e3 * behind_clock_max_s_);
+    ctx_.stats()
+        .set("behind_clock_s_max", behind_clock_max_s_)
+        .set("behind_clock_s_end", behind_clock_end_s_)
+        .set("decode_s_max", decode_max_s_);
     newest_sent_ = c.newest_sent;
     eos_.last_frame_id = newest_sent_;
     eos_.frames = c.sent;
-    eos_.duration_s = sequenceSeconds(dataset_, static_cast<size_t>(first_), static_cast<size_t>(sent_));
+    // The recorded time played through, skipped frames included.
+    eos_.duration_s = last < first_ ? 0.0
+                                    : sequenceSeconds(dataset_, static_cast<size_t>(first_),
+                                                      static_cast<size_t>(last - first_ + 1));
     announceEndOfStream(ctx_.bus(), eos_);
+  }
+
+  // The newest frame from `id` on whose recorded time has come.
+  int64_t newestDue(int64_t id) const {
+    const double now_s = ConsumerWatch::secondsSince(start_);
+    while (id + 1 < end_ && scheduledSeconds(id + 1) <= now_s) ++id;
+    return id;
   }
 
   void reportProgress(int64_t next) {
@@ -236,8 +276,11 @@ class Player {
     announceEndOfStream(ctx_.bus(), eos_);
   }
 
+  // wall_seconds: live, until the last frame went out (the clock's time; the
+  // consumers' acknowledgements after it are theirs); else until every frame
+  // was acknowledged.
   void reportPlayed() {
-    const double wall = ConsumerWatch::secondsSince(start_);
+    const double wall = params_.live ? live_wall_s_ : ConsumerWatch::secondsSince(start_);
     const char* transport = mode_ == TransportMode::kShm ? "shm" : "lcm";
     spdlog::info("played {} frames in {:.2f} s ({:.1f} frames/s, transport {})", sent_, wall,
                  static_cast<double>(sent_) / std::max(wall, 1e-9), transport);
@@ -278,6 +321,9 @@ class Player {
   int64_t newest_sent_ = -1, sent_ = 0, resent_ = 0, rewinds_ = 0;
   int64_t restarts_ = 0;  // restarted consumers handled
   Clock::time_point start_, last_report_;
+  // pacing: live: when the last frame went out, how late the frames went out
+  // (the most, the last), and the longest a frame took to load and decode.
+  double live_wall_s_ = 0, behind_clock_max_s_ = 0, behind_clock_end_s_ = 0, decode_max_s_ = 0;
   rekon_msgs::end_of_stream_t eos_{};
 };
 
