@@ -20,7 +20,6 @@ using Clock = std::chrono::steady_clock;
 struct CaptureEnd {
   std::string lost;
   int64_t frames = 0;
-  int64_t replaced_in_driver = 0;
   double first_timestamp = 0, last_timestamp = 0;
 };
 
@@ -31,6 +30,7 @@ CaptureEnd capture(ServiceContext& ctx, CameraSource& source, LiveOutlet& outlet
   const Intrinsics k = source.intrinsics();
   auto last_report = Clock::now();
   const auto start = last_report;
+  int64_t replaced_before = 0;
   while (!ctx.stopRequested() && (max_frames <= 0 || end.frames < max_frames)) {
     Capture c = source.next(0.5);
     if (c.status == Capture::Status::kTimeout) continue;
@@ -43,6 +43,12 @@ CaptureEnd capture(ServiceContext& ctx, CameraSource& source, LiveOutlet& outlet
       end.lost = c.reason;
       break;
     }
+    // Frames the driver replaced before this loop took them: the loop was
+    // late for them (a starved process), as the player skips frames whose
+    // time has passed.
+    const int64_t replaced = source.framesReplaced();
+    outlet.skippedLate(replaced - replaced_before);
+    replaced_before = replaced;
     c.frame.id = end.frames++;
     if (end.frames == 1) end.first_timestamp = c.frame.timestamp;
     end.last_timestamp = c.frame.timestamp;
@@ -51,24 +57,21 @@ CaptureEnd capture(ServiceContext& ctx, CameraSource& source, LiveOutlet& outlet
     if (std::chrono::duration<double>(Clock::now() - last_report).count() > 2.0) {
       last_report = Clock::now();
       const auto n = outlet.counts();
-      spdlog::info("captured {} frames ({:.1f} frames/s), sent {}, dropped {}", n.offered,
+      spdlog::info("captured {} frames ({:.1f} frames/s), sent {}, dropped {}, skipped late {}", n.offered,
                    static_cast<double>(n.offered) / std::chrono::duration<double>(last_report - start).count(), n.sent,
-                   n.dropped);
+                   n.dropped, n.skipped_late);
     }
   }
-  end.replaced_in_driver = source.framesReplaced();
+  outlet.skippedLate(source.framesReplaced() - replaced_before);
   return end;
 }
 
 void writeStats(ServiceContext& ctx, const CameraParams& params, const CaptureEnd& end, const LiveOutlet& outlet,
                 const Recorder* recorder, TransportMode mode) {
   JsonObject& stats = ctx.stats();
+  // frames_skipped_late: those the driver replaced before the capture loop took them.
   outlet.writeStats(stats);
   const LiveOutlet::Counts c = outlet.counts();
-  // The driver's own drops (newest wins there too) count as captured and dropped.
-  stats.set("frames_captured", static_cast<long long>(c.offered + end.replaced_in_driver))
-      .set("frames_dropped", static_cast<long long>(c.dropped + end.replaced_in_driver))
-      .set("frames_replaced_in_driver", static_cast<long long>(end.replaced_in_driver));
   const double span = end.frames > 1 ? (end.last_timestamp - end.first_timestamp) * static_cast<double>(end.frames) /
                                            static_cast<double>(end.frames - 1)
                                      : 0.0;
@@ -139,7 +142,9 @@ void runCamera(ServiceContext& ctx, const CameraParams& params) {
   if (recorder) recorder->close();
   writeStats(ctx, params, end, outlet, recorder ? &*recorder : nullptr, mode);
   const LiveOutlet::Counts c = outlet.counts();
-  spdlog::info("captured {} frames: {} sent, {} dropped (the consumers were not ready){}", c.offered, c.sent, c.dropped,
+  spdlog::info("captured {} frames: {} sent, {} dropped (the consumers were not ready), {} skipped late (replaced in "
+               "the driver before they were taken){}",
+               c.offered, c.sent, c.dropped, c.skipped_late,
                recorder ? fmt::format(", {} recorded, {} not recorded (the disk did not keep up)", recorder->written(),
                                       recorder->dropped() + recorder->failed())
                         : "");

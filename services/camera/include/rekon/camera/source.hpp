@@ -60,8 +60,8 @@ class CameraSource {
   // One line for the log: driver, device, mode, registration in use.
   virtual std::string describe() const = 0;
   // Frames the device delivered that a newer one replaced before next()
-  // took them (a driver keeps only the newest): part of the captured and
-  // dropped counts.
+  // took them (a driver keeps only the newest; the capture loop was late):
+  // the camera's frames_skipped_late.
   virtual int64_t framesReplaced() const { return 0; }
 };
 
