@@ -158,7 +158,9 @@ TEST(CameraFreenect, RoomLiveThroughFakenectTracksMapsAndRecords) {
   rekon::test::TempDir dir;
   runCommand(binDir() + "/rekon synth --scene room --frames 150 --out " + (dir / "room"));
   const LiveRun r = runLive(dir / "room", 150, 0.025, 2.0, dir);
-  // fakenect plays every frame; the camera pairs depth and color and keeps them all.
+  // fakenect plays every frame; the camera pairs depth and color and takes
+  // them all, but those its driver replaced before the capture loop could
+  // (skipped late on a loaded machine).
   EXPECT_GE(r.captured + r.skipped_late, 147);
   EXPECT_EQ(r.recorded, r.captured);
   EXPECT_GE(r.frames, r.captured / 2);

@@ -223,6 +223,7 @@ class Player {
     }
     live_wall_s_ = ConsumerWatch::secondsSince(start_);
     if (last >= 0) behind_clock_end_s_ = live_wall_s_ - scheduledSeconds(last);
+    behind_clock_max_s_ = std::max(behind_clock_max_s_, behind_clock_end_s_);
     outlet.finish(params_.wait_timeout_s);
     outlet.writeStats(ctx_.stats());
     const LiveOutlet::Counts c = outlet.counts();
@@ -253,8 +254,11 @@ class Player {
   void reportProgress(int64_t next) {
     if (ConsumerWatch::secondsSince(last_report_) <= 2.0 && next != end_) return;
     last_report_ = Clock::now();
-    spdlog::info("frame {}/{} ({:.0f} %), {:.1f} frames/s", sent_, count_, 100.0 * static_cast<double>(sent_) / count_,
-                 sent_ / ConsumerWatch::secondsSince(start_));
+    // Live, the frames skipped for lateness are played through too.
+    const int64_t played = params_.live ? next - first_ : sent_;
+    spdlog::info("frame {}/{} ({:.0f} %), {:.1f} frames/s sent", played, count_,
+                 100.0 * static_cast<double>(played) / static_cast<double>(count_),
+                 static_cast<double>(sent_) / ConsumerWatch::secondsSince(start_));
   }
 
   // Plays (again) up to the end, lets consumers finish the frames in flight,
