@@ -20,10 +20,13 @@ namespace {
 constexpr double kResumeWaitS = 5.0;
 }  // namespace
 
+// Frames before the resume point are not marked as seen: the source sends
+// none of its own again after the restart (it rewinds to the resume point,
+// and before it heard of the restart it was past it), so one that comes is a
+// new stream's (a new player numbers from 0 again) and is fused.
 void Inbox::resumeFrom(int64_t first_missing_frame) {
   if (first_missing_frame < 0) return;
   std::lock_guard<std::mutex> lock(mutex_);
-  last_resolved_ = first_missing_frame - 1;  // in the store: a copy of one is not fused again
   awaiting_frame_ = first_missing_frame;
 }
 

@@ -82,8 +82,7 @@ class Inbox {
   Inbox(ServiceContext& ctx, size_t max_queued_frames, bool drop_when_full);
   // A restarted mapper, before subscribe(): its frames resume at
   // `first_missing_frame` (Mapper::firstMissingFrame(); -1: a first start).
-  // Frames before it are in the keyframe store: never fused again. Until that
-  // frame comes, a later one is one the frame source sent before it heard of
+  // Until that frame comes, a later one is one the frame source sent before it heard of
   // the restart (its newest frame again, while acknowledgements stalled): it
   // is dropped unacknowledged, as the source sends it again in order after
   // the resume point; fused first, it made every frame between look like a
