@@ -308,13 +308,6 @@ bool PeerWatch::silent(const Peer& p) const {
   return p.last_heartbeat != Clock::time_point{} && Clock::now() - p.last_heartbeat > std::max(base, gaps);
 }
 
-bool PeerWatch::alive(const std::string& service, double silence_s) const {
-  std::lock_guard<std::mutex> lock(mutex_);
-  auto it = peers_.find(service);
-  return it != peers_.end() && it->second.last_heartbeat != Clock::time_point{} &&
-         Clock::now() - it->second.last_heartbeat < std::chrono::duration<double>(silence_s);
-}
-
 bool PeerWatch::alive(const std::string& service) const {
   std::lock_guard<std::mutex> lock(mutex_);
   auto it = peers_.find(service);

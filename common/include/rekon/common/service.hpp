@@ -146,8 +146,7 @@ class PeerWatch {
   void onNewInstance(std::function<void(const std::string& service, int instance)> f);
   // A service whose heartbeat has been seen; nullopt before its first one.
   std::optional<Peer> peer(const std::string& service) const;
-  // A heartbeat from `service` within `silence_s` (default: the watch's silence for it).
-  bool alive(const std::string& service, double silence_s) const;
+  // Heartbeats seen, and not silent (see silent()).
   bool alive(const std::string& service) const;
   // Heartbeats were seen and have stopped for the watch's silence: gone for good.
   bool gone(const std::string& service) const;
