@@ -3,9 +3,7 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
-#include <chrono>
 #include <cstdint>
-#include <thread>
 
 #include "rekon/common/messages.hpp"
 #include "rekon_msgs/replay_end_t.hpp"

@@ -162,7 +162,6 @@ class PeerWatch {
   bool finished(const std::vector<std::string>& names) const;
   // Waits until finished(names) or ctx.stopRequested().
   void waitUntilFinished(const std::vector<std::string>& names, const class ServiceContext& ctx) const;
-  const LifecycleTimes& times() const { return times_; }
 
  private:
   void onHeartbeat(const rekon_msgs::heartbeat_t& hb);
