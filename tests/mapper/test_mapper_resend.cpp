@@ -69,13 +69,79 @@ class InProcessService {
   int status_ = -1;
 };
 
+// The room's kFrames frames and a memory:// bus to a mapper: what this test
+// hears of it (which instances said "running", which frames it acknowledged)
+// and what it sends it as the player and the tracker would, at the ground truth.
+class RoomOnBus {
+ public:
+  RoomOnBus(const test::TempDir& dir, const Config& config)
+      : data_(writeRoom(dir)), bus_(BusOptions::fromConfig(config)), sender_(bus_, TransportMode::kLcm, "", FrameRingLayout{}) {
+    bus_.subscribe<rekon_msgs::heartbeat_t>(channel::kHeartbeat, [this](const rekon_msgs::heartbeat_t& m) {
+      if (m.service == "mapper" && m.state == "running") running.insert(m.pid);
+    });
+    bus_.subscribe<rekon_msgs::frame_ack_t>(channel::kFrameAck, [this](const rekon_msgs::frame_ack_t& m) {
+      if (m.service == "mapper") acked.insert(m.frame_id);
+    });
+  }
+  std::set<int> running;  // pids; the handlers run on this thread (bus().handle)
+  std::set<int64_t> acked;
+  MemoryBus& bus() { return bus_; }
+  const TumDataset& data() const { return data_; }
+
+  void spinFor(double seconds) {
+    const auto end = Clock::now() + std::chrono::duration<double>(seconds);
+    while (Clock::now() < end) bus_.handle(5);
+  }
+  bool waitUntil(const std::function<bool()>& condition) {
+    const auto deadline = Clock::now() + std::chrono::seconds(60);
+    while (!condition() && Clock::now() < deadline) bus_.handle(20);
+    return condition();
+  }
+  // DVO keyframe 0 at the first frame's true pose.
+  void sendKeyframe() {
+    rekon_msgs::keyframe_t kf{};
+    kf.keyframe_id = 0;
+    kf.timestamp = data_.timestamp(0);
+    kf.pose_world = toMsg(data_.groundTruth().front().pose);
+    bus_.publish(channel::kKeyframes, kf);
+  }
+  void sendImage(int i, const Intrinsics& k) {
+    const EncodedFrame encoded = data_.loadEncoded(static_cast<size_t>(i));
+    sender_.send(data_.decode(static_cast<size_t>(i), encoded), k, &encoded);
+  }
+  void sendImage(int i) { sendImage(i, data_.intrinsics()); }
+  // Frame i tracked against keyframe 0, at its true pose.
+  void sendTracked(int i) {
+    const Trajectory& gt = data_.groundTruth();
+    rekon_msgs::tracked_frame_t t{};
+    t.frame_id = i;
+    t.timestamp = data_.timestamp(static_cast<size_t>(i));
+    t.keyframe_id = 0;
+    t.pose_in_keyframe = toMsg(gt.front().pose.inverse() * gt[static_cast<size_t>(i)].pose);
+    bus_.publish(channel::kTrackedFrames, t);
+  }
+  void sendEndOfStream() {
+    rekon_msgs::end_of_stream_t end{};
+    end.last_frame_id = kFrames - 1;
+    end.frames = kFrames;
+    for (int i = 0; i < 3; ++i) bus_.publish(channel::kEndOfStream, end), spinFor(0.05);
+  }
+
+ private:
+  static TumDataset writeRoom(const test::TempDir& dir) {
+    synth::SequenceOptions sequence;
+    sequence.scene = "room";
+    sequence.frames = kFrames;
+    synth::writeSequence(sequence, dir / "room");
+    return TumDataset(dir / "room");
+  }
+  TumDataset data_;
+  MemoryBus bus_;
+  FrameSender sender_;
+};
+
 TEST(MapperResend, FramesSentAgainAreNeitherQueuedTwiceNorDroppedAndEveryFrameIsAcknowledged) {
   test::TempDir dir;
-  synth::SequenceOptions sequence;
-  sequence.scene = "room";
-  sequence.frames = kFrames;
-  synth::writeSequence(sequence, dir / "room");
-  const TumDataset data(dir / "room");
 
   // max_queued_frames 2: the old count exceeded it after the first copies; the
   // short progress interval runs the progress log (the worker's counters read
@@ -84,61 +150,22 @@ TEST(MapperResend, FramesSentAgainAreNeitherQueuedTwiceNorDroppedAndEveryFrameIs
   const Config config = Config::load("", {"lcm.url=" + url, "mapper.max_queued_frames=2", "mapper.kappa=4",
                                           "mapper.wait_for_optimiser=false", "mapper.use_store=false",
                                           "mapper.write_uncorrected_mesh=false", "mapper.progress_interval_s=0.02"});
-  BusOptions options = BusOptions::fromConfig(config);
-  MemoryBus bus(options);
-  std::set<int64_t> acked;  // the handlers run on this thread (bus.handle)
-  bool running = false;
-  bus.subscribe<rekon_msgs::heartbeat_t>(channel::kHeartbeat, [&](const rekon_msgs::heartbeat_t& m) {
-    if (m.service == "mapper" && m.state == "running") running = true;
-  });
-  bus.subscribe<rekon_msgs::frame_ack_t>(channel::kFrameAck, [&](const rekon_msgs::frame_ack_t& m) {
-    if (m.service == "mapper") acked.insert(m.frame_id);
-  });
+  RoomOnBus room(dir, config);
   InProcessService service("mapper", config, dir / "out", mapper::runMapperService);
-  const auto spinFor = [&](double seconds) {
-    const auto end = Clock::now() + std::chrono::duration<double>(seconds);
-    while (Clock::now() < end) bus.handle(5);
-  };
-  const auto deadline = Clock::now() + std::chrono::seconds(60);
-  while (!running && Clock::now() < deadline) bus.handle(20);
-  ASSERT_TRUE(running) << "the mapper never said it was running";
+  ASSERT_TRUE(room.waitUntil([&] { return !room.running.empty(); })) << "the mapper never said it was running";
 
-  FrameSender sender(bus, TransportMode::kLcm, "", FrameRingLayout{});
-  const Trajectory& gt = data.groundTruth();
-  rekon_msgs::keyframe_t kf{};
-  kf.keyframe_id = 0;
-  kf.frame_id = 0;
-  kf.timestamp = data.timestamp(0);
-  kf.pose_world = toMsg(gt.front().pose);
-  bus.publish(channel::kKeyframes, kf);
+  room.sendKeyframe();
   for (int i = 0; i < kFrames; ++i) {
-    const EncodedFrame encoded = data.loadEncoded(static_cast<size_t>(i));
-    const RgbdFrame frame = data.decode(static_cast<size_t>(i), encoded);
-    for (int copy = 0; copy <= kCopiesWhileWaiting; ++copy) {
-      sender.send(frame, data.intrinsics(), &encoded);
-      spinFor(0.02);
-    }
-    rekon_msgs::tracked_frame_t t{};
-    t.frame_id = i;
-    t.timestamp = data.timestamp(static_cast<size_t>(i));
-    t.keyframe_id = 0;
-    t.pose_in_keyframe = toMsg(gt.front().pose.inverse() * gt[static_cast<size_t>(i)].pose);
-    bus.publish(channel::kTrackedFrames, t);
-    spinFor(0.05);
-    for (int copy = 0; copy < kCopiesAfterJoin; ++copy) {
-      sender.send(frame, data.intrinsics(), &encoded);
-      spinFor(0.02);
-    }
+    for (int copy = 0; copy <= kCopiesWhileWaiting; ++copy) room.sendImage(i), room.spinFor(0.02);
+    room.sendTracked(i);
+    room.spinFor(0.05);
+    for (int copy = 0; copy < kCopiesAfterJoin; ++copy) room.sendImage(i), room.spinFor(0.02);
   }
   // Every frame acknowledged once the mapper caught up (the stall left the
   // acknowledgements held back for good).
-  const auto ack_deadline = Clock::now() + std::chrono::seconds(60);
-  while (acked.size() < static_cast<size_t>(kFrames) && Clock::now() < ack_deadline) bus.handle(20);
-  EXPECT_EQ(acked.size(), static_cast<size_t>(kFrames));
-  rekon_msgs::end_of_stream_t end{};
-  end.last_frame_id = kFrames - 1;
-  end.frames = kFrames;
-  for (int i = 0; i < 3; ++i) bus.publish(channel::kEndOfStream, end), spinFor(0.05);
+  room.waitUntil([&] { return room.acked.size() >= static_cast<size_t>(kFrames); });
+  EXPECT_EQ(room.acked.size(), static_cast<size_t>(kFrames));
+  room.sendEndOfStream();
   ASSERT_EQ(service.join(), 0);
 
   // Each frame counted once: all fused, none dropped, every copy seen as one.
@@ -161,87 +188,41 @@ TEST(MapperResend, FramesSentAgainAreNeitherQueuedTwiceNorDroppedAndEveryFrameIs
 // "frame 73: DVO keyframe 3 has no pose yet", 16 of 50 frames fused).
 TEST(MapperResume, AFrameSentBeforeThePlayerHeardOfTheRestartWaitsForItsTurn) {
   test::TempDir dir;
-  synth::SequenceOptions sequence;
-  sequence.scene = "room";
-  sequence.frames = kFrames;
-  synth::writeSequence(sequence, dir / "room");
-  const TumDataset data(dir / "room");
   const std::string segment = "rekon_test_resume_" + std::to_string(getpid());
   const Config config = Config::load("", {"lcm.url=memory://mapper_resume", "mapper.kappa=4",
                                           "mapper.wait_for_optimiser=false", "mapper.use_store=true",
                                           "mapper.resume=true", "mapper.store_segment=" + segment,
                                           "mapper.store_mb=64", "mapper.write_uncorrected_mesh=false"});
-  MemoryBus bus(BusOptions::fromConfig(config));
-  std::set<int> running;  // the pids of mapper instances that said so
-  std::set<int64_t> acked;
-  bus.subscribe<rekon_msgs::heartbeat_t>(channel::kHeartbeat, [&](const rekon_msgs::heartbeat_t& m) {
-    if (m.service == "mapper" && m.state == "running") running.insert(m.pid);
-  });
-  bus.subscribe<rekon_msgs::frame_ack_t>(channel::kFrameAck, [&](const rekon_msgs::frame_ack_t& m) {
-    if (m.service == "mapper") acked.insert(m.frame_id);
-  });
-  const auto spinFor = [&](double seconds) {
-    const auto end = Clock::now() + std::chrono::duration<double>(seconds);
-    while (Clock::now() < end) bus.handle(5);
-  };
-  const auto waitUntil = [&](const std::function<bool()>& condition) {
-    const auto deadline = Clock::now() + std::chrono::seconds(60);
-    while (!condition() && Clock::now() < deadline) bus.handle(20);
-    return condition();
-  };
-  FrameSender sender(bus, TransportMode::kLcm, "", FrameRingLayout{});
-  const Trajectory& gt = data.groundTruth();
-  const auto sendKeyframe = [&] {
-    rekon_msgs::keyframe_t kf{};
-    kf.keyframe_id = 0;
-    kf.timestamp = data.timestamp(0);
-    kf.pose_world = toMsg(gt.front().pose);
-    bus.publish(channel::kKeyframes, kf);
-  };
-  const auto sendImage = [&](int i) {
-    const EncodedFrame encoded = data.loadEncoded(static_cast<size_t>(i));
-    sender.send(data.decode(static_cast<size_t>(i), encoded), data.intrinsics(), &encoded);
-  };
-  const auto sendTracked = [&](int i) {
-    rekon_msgs::tracked_frame_t t{};
-    t.frame_id = i;
-    t.timestamp = data.timestamp(static_cast<size_t>(i));
-    t.keyframe_id = 0;
-    t.pose_in_keyframe = toMsg(gt.front().pose.inverse() * gt[static_cast<size_t>(i)].pose);
-    bus.publish(channel::kTrackedFrames, t);
-  };
+  RoomOnBus room(dir, config);
   store::KeyframeStore::remove(segment);
   {
     // The first instance fuses frames 0..7 (two KF keyframes at kappa 4) and
     // is stopped before the end: its store stays.
     InProcessService first("mapper", config, dir / "first", mapper::runMapperService);
-    ASSERT_TRUE(waitUntil([&] { return !running.empty(); })) << "the mapper never said it was running";
-    sendKeyframe();
-    for (int i = 0; i < 8; ++i) sendImage(i), sendTracked(i), spinFor(0.02);
-    ASSERT_TRUE(waitUntil([&] { return acked.size() == 8; }));
-    spinFor(0.5);
+    ASSERT_TRUE(room.waitUntil([&] { return !room.running.empty(); })) << "the mapper never said it was running";
+    room.sendKeyframe();
+    for (int i = 0; i < 8; ++i) room.sendImage(i), room.sendTracked(i), room.spinFor(0.02);
+    ASSERT_TRUE(room.waitUntil([&] { return room.acked.size() == 8; }));
+    room.spinFor(0.5);
   }
   ASSERT_EQ(store::KeyframeStore::openExisting(segment)->size(), 2u);
 
-  running.clear();
-  acked.clear();
+  room.running.clear();
+  room.acked.clear();
   InProcessService restarted("mapper", config, dir / "out", mapper::runMapperService);
-  ASSERT_TRUE(waitUntil([&] { return !running.empty(); })) << "the restarted mapper never said it was running";
-  sendKeyframe();
+  ASSERT_TRUE(room.waitUntil([&] { return !room.running.empty(); })) << "the restarted mapper never said it was running";
+  room.sendKeyframe();
   // Frame 11 first: sent before the player heard of the restart, its result republished.
-  sendImage(11), sendTracked(11), spinFor(0.2);
-  EXPECT_EQ(acked.count(11), 0u) << "acknowledged, the player would take it as read and overrun the ring";
+  room.sendImage(11), room.sendTracked(11), room.spinFor(0.2);
+  EXPECT_EQ(room.acked.count(11), 0u) << "acknowledged, the player would take it as read and overrun the ring";
   // The player's rewind: 8..15, each once (the tracker sent 11's result already).
   for (int i = 8; i < kFrames; ++i) {
-    sendImage(i);
-    if (i != 11) sendTracked(i);
-    spinFor(0.02);
+    room.sendImage(i);
+    if (i != 11) room.sendTracked(i);
+    room.spinFor(0.02);
   }
-  ASSERT_TRUE(waitUntil([&] { return acked.size() == static_cast<size_t>(kFrames - 8); }));
-  rekon_msgs::end_of_stream_t end{};
-  end.last_frame_id = kFrames - 1;
-  end.frames = kFrames;
-  for (int i = 0; i < 3; ++i) bus.publish(channel::kEndOfStream, end), spinFor(0.05);
+  ASSERT_TRUE(room.waitUntil([&] { return room.acked.size() == static_cast<size_t>(kFrames - 8); }));
+  room.sendEndOfStream();
   ASSERT_EQ(restarted.join(), 0);
 
   // Frames 8..15 fused in order into two KF keyframes, as without the restart.
@@ -260,40 +241,20 @@ TEST(MapperResume, AFrameSentBeforeThePlayerHeardOfTheRestartWaitsForItsTurn) {
 // outputs are written first, then the service fails with the worker's error.
 TEST(MapperWorkerError, TheMeshOfTheFramesFusedBeforeIsWrittenAndTheServiceFails) {
   test::TempDir dir;
-  synth::SequenceOptions sequence;
-  sequence.scene = "room";
-  sequence.frames = kFrames;
-  synth::writeSequence(sequence, dir / "room");
-  const TumDataset data(dir / "room");
   const Config config = Config::load("", {"lcm.url=memory://mapper_worker_error", "mapper.kappa=4",
                                           "mapper.wait_for_optimiser=false", "mapper.use_store=false",
                                           "mapper.write_uncorrected_mesh=false"});
-  MemoryBus bus(BusOptions::fromConfig(config));
-  bool running = false;
-  bus.subscribe<rekon_msgs::heartbeat_t>(channel::kHeartbeat, [&](const rekon_msgs::heartbeat_t& m) {
-    if (m.service == "mapper" && m.state == "running") running = true;
-  });
+  RoomOnBus room(dir, config);
   InProcessService service("mapper", config, dir / "out", mapper::runMapperService);
-  const auto deadline = Clock::now() + std::chrono::seconds(60);
-  while (!running && Clock::now() < deadline) bus.handle(20);
-  ASSERT_TRUE(running) << "the mapper never said it was running";
+  ASSERT_TRUE(room.waitUntil([&] { return !room.running.empty(); })) << "the mapper never said it was running";
 
-  FrameSender sender(bus, TransportMode::kLcm, "", FrameRingLayout{});
-  const Trajectory& gt = data.groundTruth();
-  rekon_msgs::keyframe_t kf{};
-  kf.keyframe_id = 0;
-  kf.pose_world = toMsg(gt.front().pose);
-  bus.publish(channel::kKeyframes, kf);
+  room.sendKeyframe();
   for (int i = 0; i < kFrames; ++i) {
-    Intrinsics k = data.intrinsics();
+    Intrinsics k = room.data().intrinsics();
     if (i == kFrames - 1) k.fx *= 1.1;  // the last frame's camera is not the map's
-    sender.send(data.decode(static_cast<size_t>(i), data.loadEncoded(static_cast<size_t>(i))), k);
-    rekon_msgs::tracked_frame_t t{};
-    t.frame_id = i;
-    t.keyframe_id = 0;
-    t.pose_in_keyframe = toMsg(gt.front().pose.inverse() * gt[static_cast<size_t>(i)].pose);
-    bus.publish(channel::kTrackedFrames, t);
-    while (bus.handle(0)) {
+    room.sendImage(i, k);
+    room.sendTracked(i);
+    while (room.bus().handle(0)) {
     }
   }
   EXPECT_EQ(service.join(), 1) << "the worker's error fails the service";
