@@ -81,8 +81,9 @@ void runTrackerService(ServiceContext& ctx) {
   StopThreadsOnExit stop_threads(ctx);  // before the state above dies: the bus handlers use it
   inbox.subscribe();
   ctx.setState("running");
-  spdlog::info("tracking levels {}..{}, keyframe criterion {}", params.aligner.coarsest_level,
-               params.aligner.finest_level, params.keyframe.criterion);
+  spdlog::info("tracking levels {}..{} ({} after a gap over {} s), keyframe criterion {}",
+               params.aligner.coarsest_level, params.aligner.finest_level, params.aligner.gap_coarsest_level,
+               params.aligner.gap_coarse_s, params.keyframe.criterion);
 
   const bool ended = trackUntilEndOfStream(ctx, inbox, worker, history);
   ctx.setState("finishing");

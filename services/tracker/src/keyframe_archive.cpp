@@ -164,7 +164,7 @@ StoredKeyframe readKeyframe(const fs::path& path, const AlignerParams& params) {
   const size_t checked = r.offset();
   if (r.get<uint64_t>() != fnv1a64(bytes.data(), checked)) r.damaged("checksum mismatch");
   if (r.offset() != bytes.size()) r.damaged("trailing bytes");
-  kf->pyramid.restore(k, level, params.coarsest_level, std::move(intensity), std::move(depth));
+  kf->pyramid.restore(k, level, params.builtCoarsestLevel(k.width, k.height), std::move(intensity), std::move(depth));
   kf->reference = KeyframeReference(kf->pyramid, params);
   out.keyframe = std::move(kf);
   return out;

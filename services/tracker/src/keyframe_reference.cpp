@@ -101,7 +101,7 @@ void selectLevel(const PyramidLevel& src, const AlignerParams& p, KeyframeRefere
 }  // namespace
 
 KeyframeReference::KeyframeReference(const RgbdPyramid& pyramid, const AlignerParams& params)
-    : finest_(params.finest_level), coarsest_(params.coarsest_level) {
+    : finest_(params.finest_level), coarsest_(std::max(params.coarsest_level, pyramid.coarsestLevel())) {
   levels_.resize(coarsest_ + 1);
   for (int l = finest_; l <= coarsest_; ++l) selectLevel(pyramid.level(l), params, levels_[l]);
 }

@@ -22,6 +22,9 @@ void AlignerParams::validate() const {
   require(finest_level >= 0 && finest_level <= 6, "finest_level", finest_level, "between 0 and 6");
   require(coarsest_level >= finest_level && coarsest_level <= 6, "coarsest_level", coarsest_level,
           "between finest_level and 6");
+  require(gap_coarsest_level >= coarsest_level && gap_coarsest_level <= 6, "gap_coarsest_level", gap_coarsest_level,
+          "between coarsest_level and 6");
+  require(std::isfinite(gap_coarse_s) && gap_coarse_s > 0, "gap_coarse_s", gap_coarse_s, "positive");
   require(max_iterations >= 1, "max_iterations", max_iterations, "at least 1");
   require(std::isfinite(convergence_step) && convergence_step > 0, "convergence_step", convergence_step, "positive");
   require(std::isfinite(t_dof) && t_dof > 0, "t_dof", t_dof, "positive");
@@ -87,6 +90,12 @@ void LoopClosureParams::validate() const {
   require(queue_capacity >= 1, "loop_queue_capacity", queue_capacity, "at least 1");
 }
 
+int AlignerParams::builtCoarsestLevel(int width, int height) const {
+  int level = gap_coarsest_level;
+  while (level > coarsest_level && ((width >> level) < 8 || (height >> level) < 8)) --level;
+  return level;
+}
+
 void TrackerParams::validate() const {
   aligner.validate();
   keyframe.validate();
@@ -108,6 +117,8 @@ TrackerParams trackerParamsFromConfig(const Config& c) {
   p.aligner.max_depth_step = c.getDouble("tracker.max_depth_step");
   p.aligner.min_valid_pixels = c.getInt("tracker.min_valid_pixels");
   p.aligner.use_depth = c.getBool("tracker.use_depth");
+  p.aligner.gap_coarsest_level = c.getInt("tracker.gap_coarsest_level");
+  p.aligner.gap_coarse_s = c.getDouble("tracker.gap_coarse_s");
   p.keyframe.criterion = c.getString("tracker.keyframe_criterion");
   p.keyframe.entropy_ratio = c.getDouble("tracker.keyframe_entropy_ratio");
   p.keyframe.max_translation = c.getDouble("tracker.keyframe_max_translation");

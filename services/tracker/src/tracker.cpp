@@ -130,7 +130,7 @@ TrackResult Tracker::track(const RgbdFrame& frame, const Intrinsics& k) {
 
 TrackResult Tracker::trackFrame(const RgbdFrame& frame, const Intrinsics& k) {
   const auto& ap = params_.aligner;
-  current_.build(frame, k, ap.finest_level, ap.coarsest_level, ap.min_depth, ap.max_depth);
+  current_.build(frame, k, ap.finest_level, ap.builtCoarsestLevel(k.width, k.height), ap.min_depth, ap.max_depth);
 
   TrackResult r;
   r.frame_id = frame.id;
@@ -146,7 +146,7 @@ TrackResult Tracker::trackFrame(const RgbdFrame& frame, const Intrinsics& k) {
   AlignResult aligned;
   if (reason == LostReason::None) {
     const Pose prediction = last_in_keyframe_ * predictedMotion(frame.timestamp);
-    aligned = aligner_.align(keyframe_->reference, current_, prediction);
+    aligned = aligner_.align(keyframe_->reference, current_, prediction, coarsestLevelFor(frame.timestamp));
     reportAlignment(aligned, r);
     reason = alignmentLostReason(aligned, prediction);
   }
@@ -174,6 +174,12 @@ void Tracker::startTracking(const RgbdFrame& frame, LostReason reason, TrackResu
   r.state = TrackingState::Ok;
   r.new_keyframe = true;
   r.keyframe_id = keyframe_->id;
+}
+
+int Tracker::coarsestLevelFor(double timestamp) const {
+  const auto& ap = params_.aligner;
+  if (!(timestamp - last_good_timestamp_ > ap.gap_coarse_s)) return ap.coarsest_level;
+  return std::min(keyframe_->reference.coarsestLevel(), current_.coarsestLevel());
 }
 
 Pose Tracker::predictedMotion(double timestamp) const {

@@ -22,6 +22,8 @@ struct AlignerParams {
   static constexpr int kDefaultMinValidPixels = 150;
   static constexpr bool kDefaultUseDepth = true;
   static constexpr double kDefaultPhotometricWeight = 1.0;
+  static constexpr int kDefaultGapCoarsestLevel = 4;  // 40x30
+  static constexpr double kDefaultGapCoarseS = 0.1;
 
   int finest_level = kDefaultFinestLevel;
   int coarsest_level = kDefaultCoarsestLevel;
@@ -46,6 +48,16 @@ struct AlignerParams {
   // The tracker keeps 1; the loop detector's refinement lowers it (see
   // LoopClosureParams::refine_photometric_weight).
   double photometric_weight = kDefaultPhotometricWeight;
+  // A frame more than gap_coarse_s after the last good one (frames dropped
+  // or skipped) starts aligning on gap_coarsest_level instead: its motion
+  // from the prediction is larger, and a coarser level widens the basin.
+  int gap_coarsest_level = kDefaultGapCoarsestLevel;
+  double gap_coarse_s = kDefaultGapCoarseS;
+
+  // The coarsest level pyramids and keyframe references are built with for
+  // an image of `width` x `height`: gap_coarsest_level where it still has
+  // 8x8 pixels, never below coarsest_level.
+  int builtCoarsestLevel(int width, int height) const;
 
   // Throws rekon::Error naming the key for a value out of range.
   void validate() const;

@@ -146,6 +146,9 @@ class Tracker {
   // dropped in between (a live source drops frames; the motion grows with
   // the gap). Regular frames get velocity_ itself.
   Pose predictedMotion(double timestamp) const;
+  // The level a frame at `timestamp` starts aligning on: coarser after a gap
+  // (AlignerParams::gap_coarsest_level, as far as both pyramids reach).
+  int coarsestLevelFor(double timestamp) const;
 
   TrackerParams params_;
   DenseAligner aligner_;
