@@ -93,7 +93,7 @@ rekon_msgs::mesh_blocks_t makeMessage(const std::vector<BlockMesh>& blocks, size
   for (size_t i = begin; i < end; ++i) {
     const BlockMesh& b = blocks[i];
     m.blocks.push_back({b.x, b.y, b.z, b.version, static_cast<int32_t>(b.vertices.size()),
-                        static_cast<int32_t>(b.triangles.size())});
+                        static_cast<int32_t>(b.triangles.size()), static_cast<int8_t>(b.cause)});
     putVertices(b, p, raw);
     putTriangles(b, raw);
   }
@@ -187,6 +187,7 @@ void checkHeader(const rekon_msgs::mesh_blocks_t& m) {
       if (c < -kMaxMeshBlockCoord || c > kMaxMeshBlockCoord) bad(where + " lies absurdly far away");
     }
     if (b.version < 0) bad(where + " has a negative version");
+    if (b.cause < 0 || b.cause > kMaxBlockCause) bad(where + " has an unknown cause " + std::to_string(b.cause));
     if (b.num_vertices < 0 || b.num_vertices > kMaxBlockVertices || b.num_triangles < 0 ||
         b.num_triangles > kMaxMeshRawBytes / static_cast<int32_t>(kTriangleBytes)) {
       bad(where + " has impossible counts");
@@ -236,6 +237,7 @@ std::vector<BlockMesh> decodeMeshBlocks(const rekon_msgs::mesh_blocks_t& msg) {
     b.y = h.by;
     b.z = h.bz;
     b.version = h.version;
+    b.cause = static_cast<BlockCause>(h.cause);
     const double corner[3] = {h.bx * block_size, h.by * block_size, h.bz * block_size};
     b.vertices.resize(h.num_vertices);
     for (auto& v : b.vertices) {

@@ -5,11 +5,13 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <array>
 #include <chrono>
 #include <iostream>
 #include <cmath>
 #include <set>
 #include <string>
+#include <thread>
 #include <tuple>
 
 #include "mesh_publisher.hpp"
@@ -72,6 +74,7 @@ class MeshPublisherTest : public ::testing::Test {
       bytes_ += m.getEncodedSize();
       full_ += m.full ? 1 : 0;
       blocks_ += m.num_blocks;
+      for (const BlockMesh& b : decodeMeshBlocks(m)) ++causes_[static_cast<int>(b.cause)];
     });
   }
   void receiveAll() {
@@ -85,6 +88,7 @@ class MeshPublisherTest : public ::testing::Test {
   std::unique_ptr<Bus> subscriber_;
   MeshMap map_;
   int64_t bytes_ = 0, full_ = 0, blocks_ = 0;
+  std::array<int64_t, kMaxBlockCause + 1> causes_{};  // blocks received per cause
 };
 
 TEST_F(MeshPublisherTest, TheBudgetHoldsBlocksBackAndFinishSendsEveryOneSoTheSubscriberHasTheMapperMesh) {
@@ -106,7 +110,7 @@ TEST_F(MeshPublisherTest, TheBudgetHoldsBlocksBackAndFinishSendsEveryOneSoTheSub
   std::cout << "budgeted: " << bytes_ << " bytes in " << elapsed << " s (bound " << bound << ")\n";
   EXPECT_LE(static_cast<double>(bytes_), bound);
   EXPECT_GT(publisher.stats().pending, 0);
-  publisher.finish(mapper);
+  publisher.finish(mapper, BlockCause::kFinalPass);
   receiveAll();
   EXPECT_EQ(publisher.stats().pending, 0);
   std::cout << "with the rest after the final update: " << bytes_ << " bytes\n";
@@ -138,6 +142,36 @@ TEST_F(MeshPublisherTest, ARequestBringsAFullSnapshotOfEveryBlock) {
   EXPECT_GE(full_, 1);
   EXPECT_EQ(blocks_ - blocks_before, static_cast<int64_t>(mapper.volume().blockCoords().size()));
   EXPECT_EQ(publisher.stats().full_snapshots, 1);
+}
+
+// Issue 27: a viewer counts corrections, so every block says why it changed.
+// Fusion is new data; a graph update that re-integrates is a correction;
+// what the final pass changes is the final pass; a correction not sent yet
+// stays one when new data lands on the block before it goes out.
+TEST_F(MeshPublisherTest, EveryBlockCarriesTheCauseOfItsChange) {
+  Mapper mapper(testParams());
+  MeshPublisherSettings settings;
+  settings.rate_hz = 100;
+  settings.max_bytes_per_s = 1e9;  // nothing held back: every change goes out at the next tick
+  MeshPublisher publisher(ctx_, settings, testParams().volume);
+  play(mapper, publisher);
+  publisher.finish(mapper, BlockCause::kNewData);  // the last KF keyframe, fused
+  receiveAll();
+  const int64_t fused = causes_[0];
+  EXPECT_GT(fused, 0);
+  EXPECT_EQ(causes_[1] + causes_[2], 0);  // nothing moved: no correction
+
+  Pose moved = Pose::Identity();
+  moved.translation() = Eigen::Vector3d(0.05, 0, 0);  // DVO keyframe 0 5 cm to the side: every KF keyframe moves
+  const ReintegrationRound round = mapper.applyGraphUpdate({{0, moved}});
+  ASSERT_GT(round.keyframes, 0);
+  std::this_thread::sleep_for(std::chrono::milliseconds(20));  // past the 100 Hz rate
+  publisher.tick(mapper, BlockCause::kCorrection);
+  receiveAll();
+  EXPECT_GT(causes_[1], 0);
+  EXPECT_EQ(causes_[0], fused);
+  EXPECT_EQ(causes_[2], 0);
+  std::cout << "blocks: " << fused << " fused, " << causes_[1] << " corrected\n";
 }
 
 }  // namespace

@@ -17,6 +17,7 @@
 #include "rekon/common/bus.hpp"
 #include "rekon/common/mesh.hpp"
 #include "rekon/common/mesh_blocks.hpp"
+#include "rekon_msgs/heartbeat_t.hpp"
 #include "test_support.hpp"
 #include "viewer_test_support.hpp"
 
@@ -86,10 +87,24 @@ void publish(Bus& bus, const std::vector<BlockMesh>& blocks, int64_t sequence) {
   for (const auto& m : encodeMeshBlocks(blocks, params, sequence, false)) bus.publish(channel::kMeshBlocks, m);
 }
 
-// The wall published on the bus to the built rekon-viewer; chromium loads the
-// page afterwards (a late browser gets the whole map), then 50 blocks are
-// corrected while a second browser watches. Exact counts: the page draws
-// every block the viewer holds (400 blocks, 26 vertices and 24 triangles each).
+// The wall with `corrected` blocks of its first row re-sent as corrections
+// and the next `grown` re-sent with new data (version 2).
+std::vector<BlockMesh> resent(int corrected, int grown) {
+  std::vector<BlockMesh> blocks;
+  for (int i = 0; i < corrected + grown; ++i) {
+    blocks.push_back(test::syntheticBlock({i % 20 - 10, i / 20 - 10, 20}, 2, 24));
+    blocks.back().cause = i < corrected ? BlockCause::kCorrection : BlockCause::kNewData;
+  }
+  return blocks;
+}
+
+// The wall published on the bus to the built rekon-viewer, then 50 of its
+// blocks corrected and 30 re-sent with new data; chromium loads the page
+// afterwards (a late browser gets the whole map). Exact counts: the page
+// draws every block the viewer holds (400 blocks, 26 vertices and 24
+// triangles each), and of the versions it holds, the 50 corrections, not the
+// 30 blocks that only grew, count as corrections (issue 27: every re-sent
+// block used to count).
 TEST(ViewerBrowser, PageCountsAndDrawsEveryBlockOnTheBus) {
   if (!haveChromium()) GTEST_SKIP() << "chromium is not installed (tools/rekon deps installs it): skipping the browser test";
   if (!rekon::test::insideNetns()) return;
@@ -100,6 +115,7 @@ TEST(ViewerBrowser, PageCountsAndDrawsEveryBlockOnTheBus) {
   ASSERT_FALSE(url.empty()) << readText(dir / "viewer.log");
   auto bus = makeBus(BusOptions{});
   publish(*bus, wall(1), 1);
+  publish(*bus, resent(50, 30), 2);
   std::this_thread::sleep_for(std::chrono::milliseconds(500));
 
   const auto t0 = Clock::now();
@@ -109,6 +125,9 @@ TEST(ViewerBrowser, PageCountsAndDrawsEveryBlockOnTheBus) {
   EXPECT_EQ(dataCounter(dom, "blocks"), 400) << dom.substr(0, 600);
   EXPECT_EQ(dataCounter(dom, "vertices"), 400 * 26);
   EXPECT_EQ(dataCounter(dom, "triangles"), 400 * 24);
+  EXPECT_EQ(dataCounter(dom, "corrections"), 50) << dom.substr(0, 600);
+  EXPECT_EQ(dataCounter(dom, "final_pass"), 0);
+  EXPECT_NE(dom.find("50 blocks corrected"), std::string::npos);
 
   const std::string shot = binDir() + "/../test_viewer_wall.png";
   std::string out;
@@ -120,6 +139,43 @@ TEST(ViewerBrowser, PageCountsAndDrawsEveryBlockOnTheBus) {
 
   EXPECT_EQ(rekon::test::waitForExit(viewer, 0.1), -1);  // still serving: stopped here by SIGTERM
   EXPECT_NE(readText(dir / "viewer_stats.json").find("\"blocks\": 400"), std::string::npos) << readText(dir / "viewer_stats.json");
+}
+
+// A browser without WebGL (issue 27: the page sat on "connecting..." with an
+// empty status table): the status, the counts and one line saying the 3D view
+// needs WebGL.
+TEST(ViewerBrowser, PageWithoutWebGLShowsTheStatusAndSaysWhatIsMissing) {
+  if (!haveChromium()) GTEST_SKIP() << "chromium is not installed (tools/rekon deps installs it): skipping the browser test";
+  if (!rekon::test::insideNetns()) return;
+  rekon::test::TempDir dir;
+  const pid_t viewer = rekon::test::spawnShell("exec " + binDir() + "/rekon-viewer --set viewer.port=0 > " +
+                                               (dir / "viewer.log") + " 2>&1");
+  const std::string url = waitForUrl(dir / "viewer.log", 10.0);
+  ASSERT_FALSE(url.empty()) << readText(dir / "viewer.log");
+  auto bus = makeBus(BusOptions{});
+  publish(*bus, wall(1), 1);
+  rekon_msgs::heartbeat_t hb{};
+  hb.schema_version = kSchemaVersion;
+  hb.service = "mapper";
+  hb.pid = 4242;
+  hb.host = "test";
+  hb.last_frame_id = 17;
+  hb.state = "running";
+  bus->publish(channel::kHeartbeat, hb);
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+
+  std::string dom;
+  ASSERT_EQ(runCommand(chromium(dir / "profile") + "--disable-webgl --disable-3d-apis --virtual-time-budget=5000 --dump-dom " +
+                           url + " 2>/dev/null", &dom), 0) << dom;
+  EXPECT_NE(dom.find("data-webgl=\"0\""), std::string::npos) << dom.substr(0, 800);
+  EXPECT_NE(dom.find("The 3D view needs WebGL"), std::string::npos) << dom.substr(0, 1500);
+  EXPECT_NE(dom.find(">live<"), std::string::npos);  // connected, not "connecting..."
+  EXPECT_TRUE(std::regex_search(dom, std::regex("<td>mapper</td><td>[a-z]+</td><td>17</td>"))) << dom;
+  EXPECT_EQ(dataCounter(dom, "blocks"), 400);
+  const std::string shot = binDir() + "/../test_viewer_no_webgl.png";
+  runCommand(chromium(dir / "profile2") + "--disable-webgl --disable-3d-apis --virtual-time-budget=5000 --screenshot=" + shot +
+             " " + url + " 2>&1");
+  EXPECT_EQ(rekon::test::waitForExit(viewer, 0.1), -1);
 }
 
 std::string stateJson(const std::string& url) {
@@ -275,6 +331,12 @@ TEST(ViewerBrowser, PageShowsTheCorrectionOfAGraphUpdate) {
   // float32 coordinates added up in double on both sides, in another order: ~1e-6 of the sum's size.
   EXPECT_NEAR(jsonNumber(page, "position_sum"), jsonNumber(state, "position_sum"), 1e-3) << page;
   EXPECT_GT(jsonInt(page, "updates"), 0) << page;           // blocks replaced in place while it watched
+  // The graph updates re-integrated and the final pass re-meshed: both are
+  // highlighted as corrections; what the page saw of them is what the viewer
+  // took (the page was open from the start; coalescing can only lower it).
+  EXPECT_GT(jsonInt(page, "corrections") + jsonInt(page, "final_pass"), 0) << page;
+  EXPECT_LE(jsonInt(page, "corrections"), jsonInt(state, "block_corrections")) << state.substr(0, 400);
+  EXPECT_LE(jsonInt(page, "final_pass"), jsonInt(state, "final_pass_blocks"));
   EXPECT_GT(jsonInt(page, "latency_samples"), 0) << page;   // and timed from the mapper's change
   EXPECT_NE(state.find("reintegrations"), std::string::npos) << state.substr(0, 2000);  // the mapper's STATS
 

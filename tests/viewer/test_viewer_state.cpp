@@ -23,14 +23,16 @@ namespace {
 using test::syntheticBlock;
 
 TEST(ViewerProtocol, BlockMessageRoundTripsBitForBit) {
-  const BlockMesh b = syntheticBlock({3, -2, 7}, 42, 5);
+  BlockMesh b = syntheticBlock({3, -2, 7}, 42, 5);
+  b.cause = BlockCause::kCorrection;
   const std::string bytes = encodeBlockMessage(b);
-  // 32 header + 7 vertices * 12 + 21 color bytes padded to 24 + 5 triangles * 12
-  EXPECT_EQ(bytes.size(), 32u + 84u + 24u + 60u);
+  // 36 header + 7 vertices * 12 + 21 color bytes padded to 24 + 5 triangles * 12
+  EXPECT_EQ(bytes.size(), 36u + 84u + 24u + 60u);
   const auto back = decodeBlockMessage(bytes);
   ASSERT_TRUE(back);
   EXPECT_EQ(std::make_tuple(back->x, back->y, back->z), std::make_tuple(3, -2, 7));
   EXPECT_EQ(back->version, 42);
+  EXPECT_EQ(back->cause, BlockCause::kCorrection);
   EXPECT_EQ(back->vertices, b.vertices);
   EXPECT_EQ(back->colors, b.colors);
   EXPECT_EQ(back->triangles, b.triangles);
@@ -38,7 +40,10 @@ TEST(ViewerProtocol, BlockMessageRoundTripsBitForBit) {
 
 TEST(ViewerProtocol, MalformedBlockMessagesAreRejected) {
   const std::string good = encodeBlockMessage(syntheticBlock({0, 0, 0}, 1, 4));
-  EXPECT_FALSE(decodeBlockMessage(good.substr(0, 31)));               // shorter than the header
+  EXPECT_FALSE(decodeBlockMessage(good.substr(0, 35)));               // shorter than the header
+  std::string bad_cause = good;
+  bad_cause[32] = 3;  // no such cause
+  EXPECT_FALSE(decodeBlockMessage(bad_cause));
   EXPECT_FALSE(decodeBlockMessage(good.substr(0, good.size() - 1)));  // truncated
   EXPECT_FALSE(decodeBlockMessage(good + "x"));                        // trailing byte
   std::string bad_magic = good;
@@ -105,6 +110,25 @@ TEST(ViewerState, NewerVersionsReplaceOlderAreIgnoredEmptyRemoves) {
   EXPECT_TRUE(heard[2].binary);
   EXPECT_EQ(heard[2].key, "b 1 1 1");
   EXPECT_EQ(decodeBlockMessage(*heard[2].payload)->vertices.size(), 0u);
+}
+
+// Issue 27: a block re-sent with new data is no correction; only the
+// versions a graph update's re-integration (or the final pass) made count.
+TEST(ViewerState, OnlyCorrectedVersionsCountAsCorrections) {
+  ViewerState state;
+  for (int v = 1; v <= 3; ++v) state.applyBlock(syntheticBlock({0, 0, 0}, v, 4));  // re-sent with new data
+  BlockMesh corrected = syntheticBlock({0, 0, 0}, 4, 4);
+  corrected.cause = BlockCause::kCorrection;
+  state.applyBlock(corrected);
+  state.applyBlock(corrected);  // the same version again: ignored
+  BlockMesh final_pass = syntheticBlock({1, 0, 0}, 5, 4);
+  final_pass.cause = BlockCause::kFinalPass;
+  state.applyBlock(final_pass);
+  const ViewerState::Counts c = state.counts();
+  EXPECT_EQ(c.block_updates, 5u);
+  EXPECT_EQ(c.block_corrections, 1u);
+  EXPECT_EQ(c.final_pass_blocks, 1u);
+  EXPECT_NE(state.stateJson().find(R"("block_corrections":1,"final_pass_blocks":1)"), std::string::npos);
 }
 
 TEST(ViewerState, FullSnapshotRemovesBlocksItDoesNotName) {

@@ -101,7 +101,7 @@ void serveTheStream(ServiceContext& ctx, Inbox& inbox, const Settings& settings,
 void finishAndWrite(ServiceContext& ctx, const Settings& settings, Mapper& mapper, MappingWorker& worker,
                     MeshPublisher& mesh, const Inbox& inbox, bool clean) {
   worker.finish(clean);
-  mesh.finish(mapper);  // the last update: a subscriber's map now equals mesh.ply
+  mesh.finish(mapper, clean ? BlockCause::kFinalPass : BlockCause::kNewData);  // the last update: a subscriber's map now equals mesh.ply
   if (!ctx.outDir().empty()) {
     writeMeshAndTables(mapper, worker.frameTiming(), worker.rounds(), ctx.outDir());
     if (settings.baseline_wanted && !worker.baselineWritten()) writeUncorrectedMesh(mapper, ctx.outDir());

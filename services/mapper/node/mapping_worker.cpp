@@ -20,9 +20,9 @@ void MappingWorker::run() {
       }
       std::optional<Work> w = inbox_.next();
       if (!w) return;
-      process(*w);
+      const BlockCause cause = process(*w);
       inbox_.finished(std::holds_alternative<FrameWork>(*w), mapper_.counters());
-      mesh_.tick(mapper_);
+      mesh_.tick(mapper_, cause);
     } catch (...) {  // rekon::Error, OpenCV's for a broken image, or any other: a std::terminate would lose the mesh
       inbox_.failed(currentExceptionLine());
       ctx_.requestStop();
@@ -31,7 +31,7 @@ void MappingWorker::run() {
   }
 }
 
-void MappingWorker::process(const Work& w) {
+BlockCause MappingWorker::process(const Work& w) {
   if (const auto* f = std::get_if<FrameWork>(&w)) {
     fuse(*f);
   } else if (const auto* kf = std::get_if<KeyframeWork>(&w)) {
@@ -45,7 +45,9 @@ void MappingWorker::process(const Work& w) {
     const ReintegrationRound round = mapper_.applyGraphUpdate(g.poses);
     last_graph_version_ = g.version;
     rounds_.push_back({secondsSinceFirstFrame(), g.version, round, false});
+    if (round.keyframes > 0) return BlockCause::kCorrection;
   }
+  return BlockCause::kNewData;
 }
 
 void MappingWorker::fuse(const FrameWork& f) {
@@ -61,6 +63,8 @@ void MappingWorker::fuse(const FrameWork& f) {
 
 void MappingWorker::finish(bool clean) {
   if (clean) {
+    mapper_.flush();  // the last KF keyframe is new data; what the final pass changes after it is not
+    mesh_.noteChanges(mapper_, BlockCause::kNewData);
     for (const ReintegrationRound& r : mapper_.finish()) rounds_.push_back({secondsSinceFirstFrame(), last_graph_version_, r, true});
   } else {
     mapper_.flush();

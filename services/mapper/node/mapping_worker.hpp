@@ -34,7 +34,8 @@ class MappingWorker {
   bool baselineWritten() const { return baseline_written_; }
 
  private:
-  void process(const Work& w);
+  // What changed the blocks: a graph update that re-integrated is a correction.
+  BlockCause process(const Work& w);
   void fuse(const FrameWork& f);
   double secondsSinceFirstFrame() const;
 

@@ -67,19 +67,19 @@ std::chrono::milliseconds MeshPublisher::idleWait() const {
   return std::chrono::milliseconds(static_cast<int64_t>(1000.0 / settings_.rate_hz));
 }
 
-void MeshPublisher::tick(Mapper& mapper) {
+void MeshPublisher::tick(Mapper& mapper, BlockCause cause) {
   if (!settings_.enabled) return;
   try {
-    update(mapper);
+    update(mapper, cause);
   } catch (const Error& e) {  // the map on the bus is an extra: mapping goes on without it
     spdlog::error("mapper: mesh publishing stops: {}", e.what());
     settings_.enabled = false;
   }
 }
 
-void MeshPublisher::update(Mapper& mapper) {
+void MeshPublisher::update(Mapper& mapper, BlockCause cause) {
   const double cpu0 = threadCpuMs();
-  noteChanges(mapper);
+  noteChanges(mapper, cause);
   const Clock::time_point now = Clock::now();
   const bool periodic_full = settings_.full_every_s > 0.0 && now - last_full_ >= seconds(settings_.full_every_s);
   if ((full_requested_ || periodic_full) && now - last_full_ >= seconds(MeshPublisherSettings::kFullMinIntervalS)) {
@@ -91,11 +91,11 @@ void MeshPublisher::update(Mapper& mapper) {
   stats_.cpu_ms += threadCpuMs() - cpu0;
 }
 
-void MeshPublisher::finish(Mapper& mapper) {
+void MeshPublisher::finish(Mapper& mapper, BlockCause cause) {
   if (!settings_.enabled) return;
   const double cpu0 = threadCpuMs();
   try {
-    noteChanges(mapper);
+    noteChanges(mapper, cause);
     if (full_requested_) {
       publishFull(mapper);
     } else {
@@ -114,12 +114,16 @@ int64_t MeshPublisher::newVersion() {
   return last_version_;
 }
 
-void MeshPublisher::noteChanges(Mapper& mapper) {
+void MeshPublisher::noteChanges(Mapper& mapper, BlockCause cause) {
+  if (!settings_.enabled) return;
   const std::vector<volume::BlockCoord> changed = mapper.takeMeshChanges();
   if (changed.empty()) return;
   const int64_t version = newVersion();
   for (const volume::BlockCoord& c : changed) {
-    version_[c] = version;
+    Stamp& stamp = version_[c];
+    // A correction not sent yet stays one when new data lands on the block too.
+    const bool unsent = pending_.count(c) > 0;
+    stamp = {version, unsent ? std::max(stamp.cause, cause) : cause};
     pending_[c] = version;
   }
   stats_.pending = static_cast<int64_t>(pending_.size());
@@ -158,7 +162,7 @@ void MeshPublisher::publishFull(Mapper& mapper) {
   std::vector<volume::BlockCoord> coords = mapper.volume().blockCoords();
   pending_.clear();  // the snapshot carries every block's newest mesh
   const int64_t version = newVersion();  // for blocks never changed here (restored from the store)
-  for (const volume::BlockCoord& c : coords) version_.try_emplace(c, version);
+  for (const volume::BlockCoord& c : coords) version_.try_emplace(c, Stamp{version, BlockCause::kNewData});
   tokens_ -= static_cast<double>(publish(mapper, coords, true));
   last_full_ = Clock::now();
   ++stats_.full_snapshots;
@@ -167,7 +171,11 @@ void MeshPublisher::publishFull(Mapper& mapper) {
 
 int64_t MeshPublisher::publish(Mapper& mapper, const std::vector<volume::BlockCoord>& coords, bool full) {
   std::vector<BlockMesh> meshes = mapper.volume().meshBlocks(coords);
-  for (BlockMesh& m : meshes) m.version = version_.at({m.x, m.y, m.z});
+  for (BlockMesh& m : meshes) {
+    const Stamp& stamp = version_.at({m.x, m.y, m.z});
+    m.version = stamp.version;
+    m.cause = stamp.cause;
+  }
   const std::vector<rekon_msgs::mesh_blocks_t> msgs = encodeMeshBlocks(meshes, codec_, ++sequence_, full);
   int64_t bytes = 0;
   for (size_t i = 0; i < msgs.size(); ++i) {

@@ -51,13 +51,16 @@ class MeshPublisher {
   void subscribe();
 
   // On the mapping worker, after each piece of work and when idle: notes the
-  // blocks that changed and publishes when an update (or a snapshot) is due.
-  void tick(Mapper& mapper);
+  // blocks that changed (`cause`: what that work was) and publishes when an
+  // update (or a snapshot) is due.
+  void tick(Mapper& mapper, BlockCause cause = BlockCause::kNewData);
+  // Notes the blocks that changed since the last note, without publishing.
+  void noteChanges(Mapper& mapper, BlockCause cause);
   // How long the worker may sleep before tick() has something to do.
   std::chrono::milliseconds idleWait() const;
-  // After the final pass: every pending block, regardless of rate and
-  // budget, so that a subscriber's map equals mesh.ply.
-  void finish(Mapper& mapper);
+  // After the final pass (`cause` of the changes not yet noted): every
+  // pending block, regardless of rate and budget, so that a subscriber's map equals mesh.ply.
+  void finish(Mapper& mapper, BlockCause cause);
 
   const MeshPublisherStats& stats() const { return stats_; }
   bool enabled() const { return settings_.enabled; }
@@ -67,8 +70,7 @@ class MeshPublisher {
   struct CoordHash {
     size_t operator()(const volume::BlockCoord& c) const { return volume::hashBlock(c); }
   };
-  void update(Mapper& mapper);
-  void noteChanges(Mapper& mapper);
+  void update(Mapper& mapper, BlockCause cause);
   void publishDelta(Mapper& mapper, bool unlimited);
   void publishFull(Mapper& mapper);
   // Meshes coords, stamps their versions, encodes and publishes one update; returns its bytes.
@@ -78,7 +80,11 @@ class MeshPublisher {
   MeshPublisherSettings settings_;
   MeshBlocksParams codec_;
   std::atomic<bool> full_requested_{false};
-  std::unordered_map<volume::BlockCoord, int64_t, CoordHash> version_;  // every block ever meshed or changed
+  struct Stamp {
+    int64_t version = 0;
+    BlockCause cause = BlockCause::kNewData;
+  };
+  std::unordered_map<volume::BlockCoord, Stamp, CoordHash> version_;  // every block ever meshed or changed
   std::unordered_map<volume::BlockCoord, int64_t, CoordHash> pending_;  // changed, not yet sent: its version
   // Versions are the wall-clock microseconds of the change (strictly
   // growing): a viewer measures the latency from the change to its screen,

@@ -56,6 +56,7 @@ std::string encodeBlockMessage(const BlockMesh& b) {
   put(out, 16, static_cast<double>(b.version));
   put(out, 24, static_cast<uint32_t>(n));
   put(out, 28, static_cast<uint32_t>(t));
+  put(out, 32, static_cast<uint8_t>(b.cause));
   size_t at = kBlockHeaderBytes;
   for (const Eigen::Vector3f& v : b.vertices) {
     std::memcpy(out.data() + at, v.data(), 12);
@@ -81,6 +82,9 @@ std::optional<BlockMesh> decodeBlockMessage(std::string_view in) {
   b.y = get<int32_t>(in, 8);
   b.z = get<int32_t>(in, 12);
   b.version = static_cast<int64_t>(get<double>(in, 16));
+  const uint8_t cause = get<uint8_t>(in, 32);
+  if (cause > kMaxBlockCause) return std::nullopt;
+  b.cause = static_cast<BlockCause>(cause);
   size_t at = kBlockHeaderBytes;
   b.vertices.resize(n);
   for (size_t i = 0; i < n; ++i, at += 12) std::memcpy(b.vertices[i].data(), in.data() + at, 12);

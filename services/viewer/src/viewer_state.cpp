@@ -58,6 +58,8 @@ void ViewerState::applyLocked(const BlockMesh& block) {
   triangles_ += size.triangles;
   position_sum_ += size.position_sum;
   ++block_updates_;
+  if (block.cause == BlockCause::kCorrection) ++block_corrections_;
+  if (block.cause == BlockCause::kFinalPass) ++final_pass_blocks_;
   if (!unconfirmed_ && block.version >= kMinTimeVersion) {
     const auto now_us = std::chrono::duration_cast<std::chrono::microseconds>(
         std::chrono::system_clock::now().time_since_epoch()).count();
@@ -256,6 +258,8 @@ ViewerState::Counts ViewerState::counts() const {
   c.loop_edges = loop_edges_.size();
   c.trajectory = trajectory_.size();
   c.block_updates = block_updates_;
+  c.block_corrections = block_corrections_;
+  c.final_pass_blocks = final_pass_blocks_;
   c.receive_latency_samples = receive_latency_.count();
   if (c.receive_latency_samples > 0) {
     c.receive_latency_ms_p50 = receive_latency_.quantile(0.5);
@@ -272,10 +276,12 @@ std::string ViewerState::stateJson() const {
     std::lock_guard<std::mutex> lock(mutex_);
     status = *statusUpdate().payload;
   }
-  return fmt::format(R"({{"blocks":{},"vertices":{},"triangles":{},"block_updates":{},"keyframes":{},)"
+  return fmt::format(R"({{"blocks":{},"vertices":{},"triangles":{},"block_updates":{},"block_corrections":{},)"
+                     R"("final_pass_blocks":{},"keyframes":{},)"
                      R"("loop_edges":{},"trajectory":{},"camera_frame":{},"receive_latency_samples":{},)"
                      R"("receive_latency_ms_p50":{},"receive_latency_ms_p95":{},"position_sum":{:.6f},"status":{}}})",
-                     c.blocks, c.vertices, c.triangles, c.block_updates, c.keyframes, c.loop_edges, c.trajectory,
+                     c.blocks, c.vertices, c.triangles, c.block_updates, c.block_corrections, c.final_pass_blocks,
+                     c.keyframes, c.loop_edges, c.trajectory,
                      c.camera_frame, c.receive_latency_samples, c.receive_latency_ms_p50, c.receive_latency_ms_p95,
                      c.position_sum, status);
 }

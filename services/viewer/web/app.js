@@ -1,28 +1,47 @@
 // rekon's live map: a WebSocket (/ws) brings the full state, then updates
 // (services/viewer/include/rekon/viewer/protocol.hpp has the format). Blocks
 // are binary messages, everything else JSON text. Counters for tests live on
-// <body data-*>: blocks, vertices, triangles, updates (blocks replaced), messages,
+// <body data-*>: blocks, vertices, triangles, updates (blocks replaced),
+// corrections and final_pass (block versions a graph update's re-integration
+// or the final pass made: those are highlighted), messages, webgl (0: none),
 // and the update latency (latency_samples, latency_ms_p50, latency_ms_p95), which
 // the page also reports to the server once a second (/state.json's "clients").
 'use strict';
 
 const HIGHLIGHT_MS = 1500;  // a corrected block glows this long, so a person sees the correction land
-const BLOCK_MAGIC = 0x31424B52;
+const BLOCK_MAGIC = 0x32424B52;  // "RKB2"
+const BLOCK_HEADER_BYTES = 36;
+const CAUSE_CORRECTION = 1, CAUSE_FINAL_PASS = 2;  // rekon::BlockCause; 0 is new data
 const MAX_LATENCY_SAMPLES = 20000;  // the newest are kept
 // A mapper's block versions are wall-clock microseconds of the change; smaller
 // ones (a test's 1, 2, 3) carry no time.
 const MIN_TIME_VERSION = 1e15;
 
 const body = document.body;
-const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
-renderer.setPixelRatio(window.devicePixelRatio || 1);
-renderer.setClearColor(0x1e2328);
-document.getElementById('view').appendChild(renderer.domElement);
+// The status and the counts need no WebGL: without it they still work, and one line says what is missing.
+function makeRenderer() {
+  try {
+    const r = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+    r.setPixelRatio(window.devicePixelRatio || 1);
+    r.setClearColor(0x1e2328);
+    document.getElementById('view').appendChild(r.domElement);
+    body.dataset.webgl = '1';
+    return r;
+  } catch (e) {
+    const note = document.getElementById('nowebgl');
+    note.textContent = 'The 3D view needs WebGL, which this browser does not offer (enable hardware acceleration ' +
+      'or WebGL in its settings); the status and the counts below work without it.';
+    note.hidden = false;
+    body.dataset.webgl = '0';
+    return null;
+  }
+}
+const renderer = makeRenderer();
 const scene = new THREE.Scene();
 const camera = new THREE.PerspectiveCamera(60, 1, 0.01, 200);
 camera.up.set(0, -1, 0);  // camera frames: y points down in the images, so "up" is -y
 camera.position.set(0, -1, -3);
-const controls = new THREE.OrbitControls(camera, renderer.domElement);
+const controls = new THREE.OrbitControls(camera, renderer ? renderer.domElement : document.getElementById('view'));
 let userMoved = false;
 let dirty = true;  // drawn only when something changed: a large map costs nothing while it stands still
 // Changes from the server are drawn at most every MAP_REDRAW_MS, and never
@@ -47,7 +66,8 @@ const highlightMaterial = new THREE.MeshLambertMaterial({ vertexColors: THREE.Ve
 const blocks = new Map();  // "x y z" -> THREE.Mesh
 // position_sum: every vertex coordinate added up, as the server does (/state.json):
 // equal sums mean the page holds the same versions of the blocks.
-const counts = { blocks: 0, vertices: 0, triangles: 0, updates: 0, messages: 0, position_sum: 0 };
+const counts = { blocks: 0, vertices: 0, triangles: 0, updates: 0, corrections: 0, final_pass: 0, messages: 0,
+  position_sum: 0 };
 
 // Update latency: from a block's change in the mapper (its version) to the
 // first frame drawn with it, for blocks that arrive after the state sent on
@@ -62,17 +82,18 @@ const latencies = [];
 
 // A block message -> {key, vertices, triangles, positions, colors, indices}, or null when malformed.
 function decodeBlock(buffer) {
-  if (buffer.byteLength < 32) return null;
+  if (buffer.byteLength < BLOCK_HEADER_BYTES) return null;
   const v = new DataView(buffer);
   if (v.getUint32(0, true) !== BLOCK_MAGIC) return null;
   const n = v.getUint32(24, true), t = v.getUint32(28, true);
-  const colorsAt = 32 + 12 * n, indicesAt = colorsAt + ((3 * n + 3) & ~3);
+  const colorsAt = BLOCK_HEADER_BYTES + 12 * n, indicesAt = colorsAt + ((3 * n + 3) & ~3);
   if (indicesAt + 12 * t !== buffer.byteLength) return null;
   return {
     key: v.getInt32(4, true) + ' ' + v.getInt32(8, true) + ' ' + v.getInt32(12, true),
     version: v.getFloat64(16, true),
+    cause: v.getUint8(32),
     vertices: n, triangles: t,
-    positions: new Float32Array(buffer, 32, 3 * n),
+    positions: new Float32Array(buffer, BLOCK_HEADER_BYTES, 3 * n),
     colors: new Uint8Array(buffer, colorsAt, 3 * n),
     indices: new Uint32Array(buffer, indicesAt, 3 * t),
   };
@@ -96,17 +117,21 @@ function applyBlock(buffer) {
   if (!b) return;
   const replaced = removeBlock(b.key);
   if (live && b.version >= MIN_TIME_VERSION) drawnPending.push(b.version / 1000);
+  if (b.cause === CAUSE_CORRECTION) counts.corrections += 1;
+  if (b.cause === CAUSE_FINAL_PASS) counts.final_pass += 1;
   if (b.vertices === 0) return;
+  // Highlighted: what a correction changed, not a block that only grew with new data.
+  const corrected = b.cause === CAUSE_CORRECTION || b.cause === CAUSE_FINAL_PASS;
   const g = new THREE.BufferGeometry();
   g.setAttribute('position', new THREE.BufferAttribute(b.positions, 3));
   g.setAttribute('color', new THREE.BufferAttribute(b.colors, 3, true));
   g.setIndex(new THREE.BufferAttribute(b.indices, 1));
   g.computeVertexNormals();
-  const m = new THREE.Mesh(g, replaced ? highlightMaterial : meshMaterial);
+  const m = new THREE.Mesh(g, corrected ? highlightMaterial : meshMaterial);
   let sum = 0;
   for (const x of b.positions) sum += x;
   m.userData = { vertices: b.vertices, triangles: b.triangles, position_sum: sum,
-    until: replaced ? performance.now() + HIGHLIGHT_MS : 0 };
+    until: corrected ? performance.now() + HIGHLIGHT_MS : 0 };
   scene.add(m);
   blocks.set(b.key, m);
   counts.blocks += 1;
@@ -261,7 +286,8 @@ function drawCounts() {
   for (const k of Object.keys(counts)) body.dataset[k] = String(counts[k]);
   document.getElementById('counts').textContent =
     counts.blocks + ' blocks, ' + counts.vertices + ' vertices, ' + counts.triangles + ' triangles, ' +
-    counts.updates + ' corrections, ' + keyframes.size + ' keyframes, ' + loopEdges.length + ' loop closures';
+    counts.corrections + ' blocks corrected' + (counts.final_pass ? ', ' + counts.final_pass + ' by the final pass' : '') +
+    ', ' + keyframes.size + ' keyframes, ' + loopEdges.length + ' loop closures';
 }
 
 function drawLatency(r) {
@@ -308,7 +334,7 @@ function follow() {
 
 function resize() {
   const w = window.innerWidth, h = window.innerHeight;
-  renderer.setSize(w, h);
+  if (renderer) renderer.setSize(w, h);
   camera.aspect = w / Math.max(1, h);
   camera.updateProjectionMatrix();
   dirty = true;
@@ -329,7 +355,7 @@ function frame(now) {
     dirty = true;
     mapChanged = false;
   }
-  if (dirty) {
+  if (dirty && renderer) {
     const t0 = performance.now();
     renderer.render(scene, camera);
     renderer.getContext().finish();  // the drawing's cost lands here, not in the next message

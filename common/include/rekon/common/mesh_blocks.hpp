@@ -18,12 +18,22 @@
 
 namespace rekon {
 
+// Why a block's mesh changed (mesh_block_t.cause): a viewer counts and
+// highlights corrections, not every re-sent block.
+enum class BlockCause : int8_t {
+  kNewData = 0,     // keyframe fusion integrated new data
+  kCorrection = 1,  // a graph update's re-integration changed it
+  kFinalPass = 2,   // the final pass re-integrated it at the end of the stream
+};
+inline constexpr int8_t kMaxBlockCause = 2;
+
 struct BlockMesh {
   int32_t x = 0, y = 0, z = 0;  // block coordinates (lower corner = coords * block_voxels * voxel_size)
   int64_t version = 0;
   std::vector<Eigen::Vector3f> vertices;  // world metres; empty: the block was removed
   std::vector<std::array<uint8_t, 3>> colors;  // RGB, one per vertex
   std::vector<Eigen::Vector3i> triangles;  // indices into this block's vertices
+  BlockCause cause = BlockCause::kNewData;
 };
 
 struct MeshBlocksParams {

@@ -1,13 +1,15 @@
 #pragma once
 // The viewer's WebSocket protocol (services/viewer/web/app.js decodes it).
 //
-// Binary message: one voxel block's surface, little-endian, so that the page
+// Binary message: one voxel block's surface (RKB2), little-endian, so that the page
 // wraps typed arrays around it without copying:
 //   offset 0   uint32  magic 0x31424B52 ("RKB1")
 //          4   int32   bx, by, bz (block coordinates)
 //          16  float64 version (a mapper's: wall-clock microseconds of the change)
 //          24  uint32  vertices n, triangles t (both 0: the block was removed)
-//          32  float32 positions[3n] (world, metres)
+//          32  uint8   cause (0 new data, 1 a correction, 2 the final pass:
+//                      rekon::BlockCause), zero padding to 36 bytes
+//          36  float32 positions[3n] (world, metres)
 //              uint8   colors[3n] (RGB), zero padding to a multiple of 4 bytes
 //              uint32  indices[3t] (into this block's vertices)
 // Text messages: JSON objects with a "type": "camera" (newest pose),
@@ -28,17 +30,17 @@
 
 namespace rekon::viewer {
 
-inline constexpr uint32_t kBlockMagic = 0x31424B52;
-inline constexpr size_t kBlockHeaderBytes = 32;
+inline constexpr uint32_t kBlockMagic = 0x32424B52;  // "RKB2": with the cause
+inline constexpr size_t kBlockHeaderBytes = 36;
 
 std::string encodeBlockMessage(const BlockMesh& block);
 // nullopt for anything that is not a well-formed block message (sizes, magic, index range).
 std::optional<BlockMesh> decodeBlockMessage(std::string_view bytes);
 
 // The keys a page's report may carry (numbers only; anything else is ignored).
-inline constexpr std::array<const char*, 11> kReportKeys = {
-    "blocks",          "vertices",       "triangles",      "updates",      "messages", "latency_samples",
-    "latency_ms_p50", "latency_ms_p95", "position_sum", "handle_ms",    "draw_ms"};
+inline constexpr std::array<const char*, 13> kReportKeys = {
+    "blocks",          "vertices",       "triangles",    "updates",   "corrections", "final_pass",   "messages",
+    "latency_samples", "latency_ms_p50", "latency_ms_p95", "position_sum", "handle_ms",  "draw_ms"};
 // A page's report as a JSON object of the kReportKeys it has, with finite
 // numbers only; nullopt when `text` is not a report.
 std::optional<std::string> parseClientReport(std::string_view text);

@@ -81,6 +81,9 @@ class ViewerState {
   struct Counts {
     size_t blocks = 0, vertices = 0, triangles = 0, keyframes = 0, loop_edges = 0, trajectory = 0;
     uint64_t block_updates = 0;  // block versions applied (removals included)
+    // Of those, the ones a graph update's re-integration made (corrections)
+    // and the ones the final pass made: what the page highlights.
+    uint64_t block_corrections = 0, final_pass_blocks = 0;
     // Every vertex coordinate of every block added up: the page adds up the
     // same, so equal sums mean it holds the same versions of the blocks.
     double position_sum = 0;
@@ -134,7 +137,7 @@ class ViewerState {
   double position_sum_ = 0;
   MeshMap mesh_map_;  // the same blocks, for the PLY download
   std::optional<std::set<BlockKey>> unconfirmed_;  // during a full snapshot: held blocks it has not named yet
-  uint64_t block_updates_ = 0;
+  uint64_t block_updates_ = 0, block_corrections_ = 0, final_pass_blocks_ = 0;
   LatencyHistogram receive_latency_;
   std::map<int64_t, Pose> keyframes_;
   std::vector<std::pair<int64_t, int64_t>> loop_edges_;
