@@ -166,6 +166,7 @@ class OpenNI2Source : public CameraSource {
   Capture next(double timeout_s) override;
   Intrinsics intrinsics() const override { return intrinsics_; }
   std::string describe() const override { return description_; }
+  int64_t framesReplaced() const override { return replaced_; }
 
  private:
   void openDevice();
@@ -196,6 +197,10 @@ class OpenNI2Source : public CameraSource {
   bool pair_by_index_ = true;
   int mismatches_ = 0;
   long long frames_ = 0;
+  // Depth frames the device numbered between two taken ones: replaced in the
+  // driver (it keeps the newest) or dropped unpaired here.
+  int last_depth_index_ = 0;
+  int64_t replaced_ = 0;
   DeviceClock clock_;  // device timestamps onto the host clock
   std::chrono::steady_clock::time_point last_frame_;
   std::optional<Capture> finished_;
@@ -495,6 +500,9 @@ Capture OpenNI2Source::makeFrame(const openni::VideoFrameRef& depth, const openn
   capture.frame.color.create(rgb.size(), CV_8UC3);
   const int rgb_to_bgr[] = {0, 2, 1, 1, 2, 0};
   cv::mixChannels(&rgb, 1, &capture.frame.color, 1, rgb_to_bgr, 3);
+  if (frames_ > 0 && depth.getFrameIndex() > last_depth_index_ + 1)
+    replaced_ += depth.getFrameIndex() - last_depth_index_ - 1;
+  last_depth_index_ = depth.getFrameIndex();
   if (frames_ == 0)
     spdlog::info("openni2 '{}': first frame (device index {}, device time {:.3f} s)", uri_, depth.getFrameIndex(),
                  depth.getTimestamp() * 1e-6);
