@@ -1,6 +1,7 @@
 #include "commands.hpp"
 
 #include "rekon/eval/eval_command.hpp"
+#include "rekon/frontend_check/frontend_check.hpp"
 
 #include "rekon/render/render.hpp"
 
@@ -27,6 +28,8 @@ const std::vector<Command>& commands() {
       {"remesh", "rebuild a session's mesh at other settings (voxel size, truncation) without re-tracking", &remeshCommand},
       {"export", "write a session's trajectory (TUM), pose graph (g2o) and mesh (PLY)", &exportCommand},
       {"keyframes", "list or export the KF keyframes in the mapper's shared-memory keyframe store", &keyframesCommand},
+      {"frontend-check", "judge a frontend's messages against messages/FRONTEND.md (live on the bus or an lcm-logger log)",
+       &frontend_check::frontendCheckCommand},
       {"listen", "receive frames from the bus as a consumer and log their hashes", &listenMain},
       {"report", "self-contained report.html of a run folder: mesh views, trajectory, timing, stats", &report::reportCommand},
       {"bench", "the paper's Figures 5 and 7 on rekon's mapper: bench keyframes | bench reintegration", &mapper_bench::benchCommand},
