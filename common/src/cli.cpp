@@ -11,6 +11,11 @@ namespace rekon {
 
 ArgParser::ArgParser(std::string program, std::string summary) : program_(std::move(program)), summary_(std::move(summary)) {}
 
+ArgParser& ArgParser::examples(std::string lines) {
+  examples_ = std::move(lines);
+  return *this;
+}
+
 ArgParser& ArgParser::option(const std::string& name, const std::string& help, const std::string& fallback) {
   specs_[name] = {help, fallback, true, false};
   option_order_.push_back(name);
@@ -128,6 +133,11 @@ std::string ArgParser::usage() const {
     out << "\n";
   }
   out << "  --help\n      show this help\n";
+  if (!examples_.empty()) {
+    out << "\nexamples:\n";
+    std::istringstream lines(examples_);
+    for (std::string line; std::getline(lines, line);) out << "  " << line << "\n";
+  }
   return out.str();
 }
 

@@ -24,7 +24,9 @@ int main(int argc, char** argv) {
     try {
       return c.main(argc - 1, argv + 1);
     } catch (...) {  // any exception: one line and a non-zero exit, never std::terminate
-      std::cerr << "rekon " << c.name << ": error: " << rekon::currentExceptionLine() << "\n";
+      std::string line = rekon::currentExceptionLine();
+      if (line.rfind(program + ": ", 0) == 0) line.erase(0, program.size() + 2);  // the parser's errors name it already
+      std::cerr << program << ": error: " << line << "\n";
       return 1;
     }
   }

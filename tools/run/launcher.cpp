@@ -15,6 +15,7 @@
 #include <tuple>
 #include <thread>
 
+#include "preflight.hpp"
 #include "process.hpp"
 #include "rekon/common/camera.hpp"
 #include "rekon/common/cli.hpp"
@@ -173,12 +174,20 @@ void configureCamera(Config& config, const RunOptions& opt) {
   if (!opt.record.empty()) config.set("camera.record", fs::absolute(opt.record).string());
 }
 
+// Everything that can be checked before anything starts or is created.
+void checkBeforeStart(const Config& config, const RunOptions& opt) {
+  checkConfigValues(config, opt.dataset);
+  if (!opt.dataset.empty()) checkDataset(opt.dataset);
+  if (!opt.camera.empty()) checkCameraSpec(opt.camera);
+  if (!opt.session.empty()) store::requireNoSession(fs::absolute(opt.session).string());
+  if (fs::exists(opt.out)) claimRunFolder(opt.out, opt.force);
+}
+
 RunPlan planRun(const RunOptions& opt) {
   RunPlan plan{Config::load(opt.config_file, opt.sets), "", "", "", {}, 0, {}};
   Config& config = plan.config;
   setupLogging("run", config.getString("log.level"));
-  createOutputFolder(opt.out);
-  plan.out = fs::canonical(opt.out).string();
+  checkBeforeStart(config, opt);
   const std::string bin = executableDir();
   plan.frame_ring = config.getString("transport.segment") + "_" + std::to_string(getpid());
   config.set("transport.segment", plan.frame_ring);
@@ -188,9 +197,11 @@ RunPlan planRun(const RunOptions& opt) {
 
   const std::string source = frameSource(opt);
   std::vector<std::string> services = servicesToRun(config, bin, source);
+  if (!opt.continued.empty()) configureContinue(config, opt);
+  createOutputFolder(opt.out);  // every check passed: a refused run leaves no folder behind
+  plan.out = fs::canonical(opt.out).string();
   if (!opt.camera.empty()) configureCamera(config, opt);
   if (!opt.session.empty()) configureSession(config, opt);
-  if (!opt.continued.empty()) configureContinue(config, opt);
   // Behind a source that cannot wait, a busy mapper drops frames rather than
   // holding the tracker's next frames back.
   if (!opt.camera.empty() || config.getString("player.pacing") == "live") config.set("mapper.when_full", "drop");
@@ -250,7 +261,8 @@ class Supervisor {
     }
   }
 
-  // One look at every child; false once none runs any more.
+  // One look at every child; false once no service runs any more (the
+  // viewer, which only listens, may: serveFinalMap decides how long).
   bool step() {
     bool any_running = false, any_service_running = false;
     for (auto& c : plan_.children) {
@@ -261,10 +273,8 @@ class Supervisor {
         any_service_running |= c.name() != kViewer;
       }
     }
-    if (!any_running) return false;
+    if (!any_service_running) return false;
     printViewerUrl();
-    // The viewer serves as long as the run lasts: once every service has ended, it is stopped too.
-    if (!any_service_running) stopping_ = true;
     sampleRss();
     if (g_interrupted.load() && !stopping_) {
       spdlog::warn("interrupted: stopping every service (outputs so far are kept)");
@@ -281,7 +291,37 @@ class Supervisor {
 
   const std::string& failure() const { return failure_; }
 
+  // After the run (its outputs written): a viewer still running keeps the
+  // final map on its page and /mesh.ply for `serve_s` seconds (-1: until
+  // Ctrl-C); after a failure or an interrupt it stops at once.
+  void serveFinalMap(double serve_s) {
+    ChildProcess* viewer = runningViewer();
+    if (!viewer) return;
+    if (failure_.empty() && !g_interrupted.load() && serve_s != 0) {
+      const std::string how_long = serve_s < 0 ? "until Ctrl-C" : fmt::format("for {:.0f} s (viewer.serve_after_run_s)", serve_s);
+      spdlog::info("the run has finished; the viewer shows its final map at {} {}", viewer_url_.empty() ? "its URL" : viewer_url_,
+                   how_long);
+      const auto until = Clock::now() + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(serve_s));
+      while (!g_interrupted.load() && viewer->running() && (serve_s < 0 || Clock::now() < until)) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(50));
+      }
+    }
+    stopping_ = true;
+    while (viewer->running()) {
+      viewer->poll();
+      stopNext();
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    }
+  }
+
  private:
+  ChildProcess* runningViewer() {
+    for (auto& c : plan_.children) {
+      if (c.name() == kViewer && c.running()) return &c;
+    }
+    return nullptr;
+  }
+
   void fail(const std::string& why) {
     if (!failure_.empty()) return;
     failure_ = why;
@@ -335,6 +375,7 @@ class Supervisor {
         const auto at = line.find("viewer: http");
         if (at == std::string::npos) continue;
         spdlog::info("{}", line.substr(at));
+        viewer_url_ = line.substr(at + 8);
         viewer_url_printed_ = true;
         return;
       }
@@ -378,6 +419,7 @@ class Supervisor {
   std::optional<Clock::time_point> source_done_;
   bool stopping_ = false;
   bool viewer_url_printed_ = false;
+  std::string viewer_url_;
   std::string failure_;
   std::ofstream rss_;
   Clock::time_point next_rss_ = Clock::now();
@@ -385,7 +427,7 @@ class Supervisor {
 
 // stats.json: run-level figures (frames, wall time, restarts, realtime
 // factor) plus each service's own stats file.
-void writeRunStats(const RunPlan& plan, double wall) {
+void writeRunStats(const RunPlan& plan, double wall, bool interrupted) {
   JsonObject stats;
   double sequence_seconds = 0;
   long long frames = 0;
@@ -405,6 +447,7 @@ void writeRunStats(const RunPlan& plan, double wall) {
     }
   }
   stats.set("frames", frames).set("wall_seconds", wall);
+  if (interrupted) stats.set("interrupted", true);  // Ctrl-C: the outputs cover the frames up to then
   JsonObject restarts;
   for (const auto& c : plan.children) {
     if (c.restarts() > 0) restarts.set(c.name(), static_cast<long long>(c.restarts()));
@@ -429,10 +472,13 @@ std::string cameraLost(const std::string& out) {
   }
 }
 
-void logOutputs(const std::string& out) {
+// The outputs this run wrote (a file older than the run is not one of them).
+void logOutputs(const std::string& out, fs::file_time_type started) {
   spdlog::info("outputs in {}:", out);
-  for (const char* f : {"trajectory.txt", "mesh.ply", "stats.json", "report.html", "config.yaml"}) {
-    if (fs::exists(out + "/" + f)) spdlog::info("  {}/{}", out, f);
+  for (const char* f : {"trajectory.txt", "mesh.ply", "mesh_uncorrected.ply", "stats.json", "report.html", "config.yaml"}) {
+    const fs::path path = fs::path(out) / f;
+    std::error_code ec;
+    if (fs::exists(path) && fs::last_write_time(path, ec) >= started && !ec) spdlog::info("  {}", path.string());
   }
   spdlog::info("  logs: {}/<service>.log", out);
 }
@@ -440,6 +486,7 @@ void logOutputs(const std::string& out) {
 }  // namespace
 
 int launch(const RunOptions& opt) {
+  const fs::file_time_type started = fs::file_time_type::clock::now();
   RunPlan plan = planRun(opt);
   signal(SIGINT, onInterrupt);
   signal(SIGTERM, onInterrupt);
@@ -448,12 +495,13 @@ int launch(const RunOptions& opt) {
   supervisor.startAll();
   while (supervisor.step()) std::this_thread::sleep_for(std::chrono::milliseconds(50));
   const double wall = std::chrono::duration<double>(Clock::now() - start).count();
+  const bool interrupted = g_interrupted.load();
   if (removeFrameRing(plan.frame_ring)) spdlog::info("removed the frame ring '{}' left by a stopped player", plan.frame_ring);
   // With its spill files, when a mapper that died for good left it.
   if (store::KeyframeStore::remove(plan.keyframe_store))
     spdlog::info("removed the keyframe store '{}' left by a stopped mapper", plan.keyframe_store);
 
-  writeRunStats(plan, wall);
+  writeRunStats(plan, wall, interrupted);
   if (opt.report) {
     try {
       report::writeRunReport(plan.out);
@@ -461,7 +509,8 @@ int launch(const RunOptions& opt) {
       spdlog::error("report: {}", e.what());  // the run's own outputs stay as they are
     }
   }
-  logOutputs(plan.out);
+  logOutputs(plan.out, started);
+  supervisor.serveFinalMap(plan.config.getDouble("viewer.serve_after_run_s"));
   if (!supervisor.failure().empty()) {
     spdlog::error("{}", supervisor.failure());  // again as the last line
     return 1;
@@ -470,7 +519,7 @@ int launch(const RunOptions& opt) {
     spdlog::error("the run ended early: {}", lost);  // outputs up to then are written
     return 1;
   }
-  return g_interrupted.load() ? 130 : 0;
+  return interrupted ? 130 : 0;  // Ctrl-C while the viewer served a finished run is its normal end
 }
 
 int runCommand(int argc, char** argv) {
@@ -485,7 +534,13 @@ int runCommand(int argc, char** argv) {
       .option("config", "YAML config laid over config/default.yaml")
       .repeated("set", "override one config key, e.g. --set mapper.voxel_size=0.02")
       .flag("report", "also write report.html (mesh views, trajectory, timing, stats) into --out")
-      .flag("view", "also start rekon-viewer, a live web page of the run (viewer.* keys; its URL is printed)");
+      .flag("view", "also start rekon-viewer, a live web page of the run (its URL is printed); after the run it keeps "
+                    "showing the final map until Ctrl-C (viewer.serve_after_run_s)")
+      .flag("force", "--out may hold an earlier run: replace its files (without it such a folder is refused)")
+      .examples("rekon run --dataset ../shared/data/7scenes_loop_1000 --out out/7scenes --report\n"
+                "rekon run --dataset out/room --out out/room_run --view --set mapper.kappa=10\n"
+                "rekon run --camera openni2 --out out/live --record out/live_frames --session out/live_session\n"
+                "rekon run --dataset DATA --out OUT --continue out/live_session   # extend a session");
   if (!args.parse(argc, argv)) return 0;
   RunOptions opt;
   opt.dataset = args.get("dataset");
@@ -499,10 +554,13 @@ int runCommand(int argc, char** argv) {
   opt.sets = args.all("set");
   opt.report = args.flagSet("report");
   opt.view = args.flagSet("view");
+  opt.force = args.flagSet("force");
+  if (!opt.dataset.empty() && !opt.camera.empty()) {
+    throw Error("--dataset plays a recorded sequence and --camera runs a live camera; give one of them");
+  }
   if (opt.dataset.empty() == opt.camera.empty() || opt.out.empty()) {
     throw Error("rekon run needs --out and one of --dataset DIR or --camera DEVICE; see rekon run --help");
   }
-  if (!opt.dataset.empty() && !fs::is_directory(opt.dataset)) throw Error(opt.dataset + ": dataset folder not found");
   if (!opt.session.empty() && !opt.continued.empty())
     throw Error("--session starts a new session and --continue extends one; give one of them");
   if (opt.camera.empty() && !(opt.calibration.empty() && opt.record.empty())) {
@@ -512,11 +570,14 @@ int runCommand(int argc, char** argv) {
 }
 
 int demoCommand(int argc, char** argv) {
-  ArgParser args("rekon demo", "Runs the whole pipeline on the built-in default scene (synthetic room) and prints where the outputs are.");
+  ArgParser args("rekon demo", "Runs the whole pipeline on the built-in default scene (synthetic room) and prints where "
+                               "the outputs are; a demo run in --out replaces the earlier one.");
   const fs::path root = fs::path(executableDir()).parent_path().parent_path();
   args.option("out", "output folder", (root / "out" / "demo").string())
       .option("frames", "frames of the synthetic room (0 = its default, 600)", "0")
-      .repeated("set", "override one config key, e.g. --set mapper.kappa=10");
+      .repeated("set", "override one config key, e.g. --set mapper.kappa=10")
+      .flag("view", "also show the run in a live web page (its URL is printed; it stays until Ctrl-C)")
+      .examples("rekon demo\nrekon demo --frames 300 --view\nrekon demo --out out/demo_k10 --set mapper.kappa=10");
   if (!args.parse(argc, argv)) return 0;
   const fs::path out(args.get("out"));
   synth::SequenceOptions scene;
@@ -533,6 +594,8 @@ int demoCommand(int argc, char** argv) {
   opt.out = out.string();
   opt.sets = args.all("set");
   opt.report = true;
+  opt.view = args.flagSet("view");
+  opt.force = true;  // the demo's folder: a second demo replaces the first
   const int rc = launch(opt);
   if (rc == 0 && fs::exists(out / "trajectory.txt")) {
     spdlog::info("compare with the ground truth: tools/rekon eval traj {} {}", (data / "groundtruth.txt").string(),

@@ -16,6 +16,7 @@ struct RunOptions {
   std::vector<std::string> sets;
   bool report = false;  // also write report.html
   bool view = false;    // also start rekon-viewer (a live web page of the run; its URL is printed)
+  bool force = false;   // --out may hold an earlier run: its files are replaced
 };
 
 // Runs the pipeline to the end of the data (or Ctrl-C); returns the exit

@@ -18,6 +18,8 @@ class ArgParser {
   ArgParser& repeated(const std::string& name, const std::string& help);
   ArgParser& flag(const std::string& name, const std::string& help);
   ArgParser& positional(const std::string& name, const std::string& help);
+  // Example command lines, one a line, shown at the end of --help.
+  ArgParser& examples(std::string lines);
 
   // Returns false when --help was printed (the caller exits 0). Throws
   // rekon::Error for an unknown option, a missing value or a missing positional.
@@ -36,7 +38,7 @@ class ArgParser {
     std::string help, fallback;
     bool takes_value = true, repeated = false;
   };
-  std::string program_, summary_;
+  std::string program_, summary_, examples_;
   std::map<std::string, Spec> specs_;
   std::vector<std::string> option_order_;
   std::vector<std::pair<std::string, std::string>> positionals_;
