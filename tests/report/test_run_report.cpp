@@ -211,10 +211,76 @@ TEST(RunReport, TimingPlotMarksTheFramePeriod) {
 
 TEST(RunReport, ServicesComeFromTheRunConfig) {
   FakeRun f;
+  std::ofstream(f.run + "/config.yaml") << "run:\n  services: [player, tracker, optimiser, mapper]\n";
   const RunReportResult r = writeRunReport(f.run);
-  // config.yaml lists player, tracker, mapper: the player's timing is missing, the optimiser was not run.
-  EXPECT_TRUE(mentions(r.absent, "player_timing.csv"));
-  EXPECT_FALSE(mentions(r.absent, "optimiser_timing.csv"));
+  // The optimiser ran and wrote no timing: a real absence, explained.
+  EXPECT_TRUE(mentions(r.absent, "optimiser_timing.csv: not in the run folder")) << r.absent.size();
+  std::ofstream(f.run + "/config.yaml") << "run:\n  services: [player, tracker, mapper]\n";
+  EXPECT_FALSE(mentions(writeRunReport(f.run).absent, "optimiser_timing.csv"));  // it did not run
+}
+
+// Issue 27: every default run's report opened with a red "Absent inputs:
+// player_timing.csv", a file nothing writes. A run with every input has no
+// such list; the player has no per-frame timing to miss.
+TEST(RunReport, ADefaultRunMissesNothing) {
+  FakeRun f;
+  // What a default run writes besides FakeRun's files: the launcher's RSS
+  // samples, the tracker's odometry, the mapper's memory figures.
+  std::ofstream(f.run + "/rss.csv") << "seconds,service,rss_mb\n0.0,mapper,100\n1.0,mapper,120\n";
+  fs::copy_file(f.run + "/trajectory.txt", f.run + "/odometry.txt");
+  std::ofstream(f.run + "/stats.json") << R"({"frames": 60, "wall_seconds": 2.5, "player": {"frames": 60, "sequence_seconds": 2.0},)"
+                                       << R"( "mapper": {"input_frame_bytes": 1000000, "keyframe_bytes": 200000}})";
+  const RunReportResult r = writeRunReport(f.run);
+  EXPECT_FALSE(mentions(r.absent, "player_timing.csv"));
+  const std::string html = readText(r.html_path);
+  EXPECT_EQ(html.find("Absent inputs"), std::string::npos);
+  EXPECT_EQ(html.find("player_timing.csv"), std::string::npos);
+  EXPECT_EQ(html.find("Not in this report"), std::string::npos) << [&] {
+    std::string all;
+    for (const auto& a : r.absent) all += a + "\n";
+    return all;
+  }();
+}
+
+// What is missing is explained after the sections, not as a red list before them.
+TEST(RunReport, MissingInputsAreExplainedAfterTheSections) {
+  FakeRun f;
+  fs::remove(f.run + "/mapper_reintegration.csv");
+  const std::string html = readText(writeRunReport(f.run).html_path);
+  const size_t listed = html.find("mapper_reintegration.csv: not in the run folder");
+  ASSERT_NE(listed, std::string::npos);
+  EXPECT_GT(listed, html.find("<h2>Stats</h2>"));
+  EXPECT_NE(html.find("<h2>Not in this report</h2>"), std::string::npos);
+}
+
+// mesh.ply and mesh_uncorrected.ply are explained; with the dataset's
+// ground-truth mesh the report gives their CORR and COMPL: mesh.ply is the
+// ground truth here (0 mm), mesh_uncorrected.ply the same box 10 cm aside
+// (a capped error, far from 0).
+TEST(RunReport, MeshesAreExplainedAndMeasuredAgainstAGroundTruthMesh) {
+  FakeRun f;
+  std::string html = readText(writeRunReport(f.run).html_path);
+  EXPECT_NE(html.find("<code>mesh_uncorrected.ply</code> is the same keyframes fused once"), std::string::npos);
+  EXPECT_EQ(html.find("CORR mean"), std::string::npos);  // no ground-truth mesh: no such table
+  rekon::writePly(boxOnFloor(0.0f), f.dataset + "/mesh_gt.ply");
+  html = readText(writeRunReport(f.run).html_path);
+  EXPECT_NE(html.find("<th>CORR mean [mm]</th>"), std::string::npos);
+  EXPECT_NE(html.find("<tr><td>mesh.ply</td><td class=\"num\">0.00</td>"), std::string::npos) << html.substr(html.find("CORR"), 800);
+  const std::regex uncorrected(R"(<tr><td>mesh_uncorrected.ply</td><td class="num">([0-9.]+)</td>)");
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(html, m, uncorrected));
+  EXPECT_GT(std::stod(m[1]), 5.0);  // the box's sides and top 10 cm off: many vertices at the 50 mm cap
+}
+
+// A run stopped by Ctrl-C says so at the top of its report (stats.json's mark).
+TEST(RunReport, AnInterruptedRunIsMarked) {
+  FakeRun f;
+  EXPECT_EQ(readText(writeRunReport(f.run).html_path).find("This run was"), std::string::npos);
+  std::ofstream(f.run + "/stats.json") << R"({"frames": 30, "wall_seconds": 1.5, "interrupted": true})";
+  const std::string html = readText(writeRunReport(f.run).html_path);
+  const size_t mark = html.find("This run was <b>interrupted</b>");
+  ASSERT_NE(mark, std::string::npos);
+  EXPECT_LT(mark, html.find("<h2>"));
 }
 
 TEST(RunReport, CountsWarningsInTheServiceLogsAndShowsTheConfig) {

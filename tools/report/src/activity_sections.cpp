@@ -123,6 +123,8 @@ void timingSection(Page& page, const fs::path& run, const std::vector<std::strin
   std::vector<std::vector<std::string>> rows;
   std::vector<std::pair<std::string, CsvTable>> detailed;
   for (const auto& service : services) {
+    const bool timed = std::find(kTimedServices.begin(), kTimedServices.end(), service) != kTimedServices.end();
+    if (!timed && !fs::exists(run / (service + kTimingSuffix))) continue;
     auto table = readOptionalCsv(run / (service + kTimingSuffix), kTimingColumns,
                                  "not in the run folder (rekon-" + service + " did not write per-frame timing)", page);
     if (!table) continue;

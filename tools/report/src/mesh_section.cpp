@@ -5,6 +5,7 @@
 
 #include "rekon/common/error.hpp"
 #include "rekon/common/mesh.hpp"
+#include "rekon/eval/surface_eval.hpp"
 #include "rekon/render/render.hpp"
 #include "rekon/report/html.hpp"
 #include "report_sections.hpp"
@@ -77,9 +78,33 @@ MeshFile loadMesh(const fs::path& run, const std::string& name, const std::strin
   return f;
 }
 
+// CORR (mesh to ground truth) and COMPL (ground truth to mesh) of each mesh, as `rekon eval surface` gives them.
+void surfaceErrorTable(Page& page, const std::vector<const MeshFile*>& meshes, const std::string& gt_path) {
+  Mesh gt;
+  try {
+    gt = readPly(gt_path);
+  } catch (const Error& e) {
+    page.absentInput("ground-truth mesh: unreadable (" + std::string(e.what()) + ")");
+    return;
+  }
+  std::vector<std::vector<std::string>> rows;
+  for (const MeshFile* f : meshes) {
+    if (!f->mesh) continue;
+    const eval::SurfaceErrors e = eval::evaluateSurface(*f->mesh, gt);
+    rows.push_back({f->name, number(e.corr_m * 1e3, 2), number(e.corr_median_m * 1e3, 2), number(e.compl_m * 1e3, 2),
+                    number(e.compl_median_m * 1e3, 2), number(e.compl_within_1cm * 100.0, 1)});
+  }
+  page.body << "<p>Against the dataset's ground-truth surface <code>" << escapeHtml(gt_path)
+            << "</code> (CORR: mesh vertices to it; COMPL: points on it to the mesh; distances capped at "
+            << number(eval::SurfaceEvalOptions::kDefaultCapM * 1e3, 0) << " mm; <code>rekon eval surface</code>):</p>\n";
+  page.table({"mesh", "CORR mean [mm]", "CORR median [mm]", "COMPL mean [mm]", "COMPL median [mm]", "COMPL within 1 cm [%]"},
+             rows);
+}
+
 }  // namespace
 
-void meshSection(Page& page, const fs::path& run, const RunReportOptions& options, const TrajectoryInputs& in) {
+void meshSection(Page& page, const fs::path& run, const RunReportOptions& options, const TrajectoryInputs& in,
+                 const std::string& gt_mesh) {
   page.body << "<h2>Mesh</h2>\n";
   const MeshFile final_mesh = loadMesh(run, "mesh.ply", "not written (the run has no mapper, or it stopped early)", page);
   const MeshFile uncorrected = loadMesh(run, "mesh_uncorrected.ply", "not written (kept only when surface correction is on)", page);
@@ -87,6 +112,11 @@ void meshSection(Page& page, const fs::path& run, const RunReportOptions& option
     page.body << "<p>No mesh to show.</p>\n";
     return;
   }
+  page.body << "<p><code>mesh.ply</code> is the corrected surface: every KF keyframe re-integrated at its optimised pose "
+               "as the pose graph changed, and once more in the final pass. <code>mesh_uncorrected.ply</code> is the same "
+               "keyframes fused once at the poses they had when first integrated, without any correction: where the two "
+               "differ is what online surface correction changed.</p>\n";
+  if (!gt_mesh.empty()) surfaceErrorTable(page, {&final_mesh, &uncorrected}, gt_mesh);
   render::RenderOptions oblique;
   oblique.width = options.image_width;
   oblique.height = options.image_height;

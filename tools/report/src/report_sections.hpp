@@ -35,7 +35,10 @@ struct TrajectoryInputs {
 TrajectoryInputs readTrajectories(const std::filesystem::path& run, const std::string& gt_path, Page& page);
 
 std::optional<eval::TrajectoryErrors> trajectorySection(Page& page, const TrajectoryInputs& in, const RunReportOptions& options);
-void meshSection(Page& page, const std::filesystem::path& run, const RunReportOptions& options, const TrajectoryInputs& in);
+// mesh.ply and mesh_uncorrected.ply rendered, and with `gt_mesh` (a
+// ground-truth surface; "" for none) their CORR and COMPL against it.
+void meshSection(Page& page, const std::filesystem::path& run, const RunReportOptions& options, const TrajectoryInputs& in,
+                 const std::string& gt_mesh);
 void timingSection(Page& page, const std::filesystem::path& run, const std::vector<std::string>& services);
 void reintegrationSection(Page& page, const std::filesystem::path& run);
 void statsSection(Page& page, const std::filesystem::path& run);

@@ -27,7 +27,27 @@ constexpr const char* kStyle =
     "h1{font-size:22px}h2{font-size:18px;margin-top:32px;border-bottom:1px solid #ccc}"
     "table{border-collapse:collapse;margin:8px 0}td,th{border:1px solid #ccc;padding:3px 8px;text-align:left}"
     "td.num{text-align:right;font-family:monospace}figure{display:inline-block;margin:8px}"
-    "figcaption{font-size:12px;color:#555}.absent{color:#a33}img{max-width:100%}";
+    "figcaption{font-size:12px;color:#555}.absent{color:#555}img{max-width:100%}"
+    ".interrupted{background:#fff3d6;border:1px solid #e0b040;padding:6px 10px}";
+
+// stats.json's "interrupted": the launcher's mark of a run stopped by Ctrl-C.
+bool wasInterrupted(const fs::path& run) {
+  try {
+    return fs::exists(run / "stats.json") && YAML::LoadFile((run / "stats.json").string())["interrupted"].as<bool>(false);
+  } catch (const YAML::Exception&) {
+    return false;  // the stats section says what is wrong with the file
+  }
+}
+
+// What the report looked for and did not find, after the sections: an
+// explanation, not an error (a default run has every input).
+void notFoundSection(std::ostringstream& html, const std::vector<std::string>& absent) {
+  if (absent.empty()) return;
+  html << "<h2>Not in this report</h2>\n<p>Inputs the report looked for in the run folder and did not find, and why; "
+          "the sections above show everything else.</p>\n<ul class=\"absent\">\n";
+  for (const auto& a : absent) html << "<li>" << escapeHtml(a) << "</li>\n";
+  html << "</ul>\n";
+}
 
 std::string utcNow() {
   const std::time_t now = std::chrono::system_clock::to_time_t(std::chrono::system_clock::now());
@@ -62,6 +82,14 @@ std::string groundTruthPath(const fs::path& run, const RunReportOptions& options
     return "";
   }
   return (fs::path(dataset) / "groundtruth.txt").string();
+}
+
+// The dataset's ground-truth surface (synthetic scenes write mesh_gt.ply
+// beside their frames), "" when the run's dataset has none.
+std::string groundTruthMeshPath(const fs::path& run) {
+  if (!fs::exists(run / kDatasetPathFile)) return "";
+  const fs::path mesh = fs::path(firstLine(run / kDatasetPathFile)) / "mesh_gt.ply";
+  return fs::exists(mesh) ? mesh.string() : "";
 }
 
 std::vector<std::string> servicesOfRun(const fs::path& run) {
@@ -133,7 +161,7 @@ RunReportResult writeRunReport(const std::string& run_dir, const RunReportOption
   const TrajectoryInputs trajectories = readTrajectories(run, gt_path, page);
   RunReportResult result;
   result.ate = trajectorySection(page, trajectories, options);
-  meshSection(page, run, options, trajectories);
+  meshSection(page, run, options, trajectories, groundTruthMeshPath(run));
   const std::vector<std::string> services = servicesOfRun(run);
   timingSection(page, run, services);
   reintegrationSection(page, run);
@@ -150,15 +178,13 @@ RunReportResult writeRunReport(const std::string& run_dir, const RunReportOption
     html << "<p><b>ATE RMSE " << number(result.ate->ate_rmse_m * 100.0, 2) << " cm</b> over " << result.ate->matched
          << " poses.</p>\n";
   }
-  html << "<h2>Absent inputs</h2>\n";
-  if (page.absent.empty()) {
-    html << "<p>None: every input of the report was found.</p>\n";
-  } else {
-    html << "<ul class=\"absent\">\n";
-    for (const auto& a : page.absent) html << "<li>" << escapeHtml(a) << "</li>\n";
-    html << "</ul>\n";
+  if (wasInterrupted(run)) {
+    html << "<p class=\"interrupted\">This run was <b>interrupted</b> (Ctrl-C): its outputs cover the frames up to "
+            "then, without the final pass.</p>\n";
   }
-  html << page.body.str() << "</body></html>\n";
+  html << page.body.str();
+  notFoundSection(html, page.absent);
+  html << "</body></html>\n";
 
   result.html_path = (run / "report.html").string();
   std::ofstream out(result.html_path);

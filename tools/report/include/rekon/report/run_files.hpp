@@ -39,6 +39,9 @@
 namespace rekon::report {
 
 inline constexpr const char* kTimingSuffix = "_timing.csv";
+// The services that write <service>_timing.csv; the others (player, camera,
+// viewer) have no per-frame work to time, so no such file is missed.
+inline const std::vector<std::string> kTimedServices = {"tracker", "optimiser", "mapper"};
 inline constexpr const char* kReintegrationFile = "mapper_reintegration.csv";
 inline constexpr const char* kRssFile = "rss.csv";
 inline const std::vector<std::string> kTimingColumns = {"frame_id", "ms"};
