@@ -105,6 +105,58 @@ TEST(RenderCommand, WritesANonEmptyPngWhoseCentreShowsTheMesh) {
   EXPECT_NE(out.find("coverage="), std::string::npos) << out;
 }
 
+// A strip of `rgb` at height y (camera frame: y down), across x at depth 3 m, seen from both sides.
+void addStrip(Mesh& m, float y, std::array<uint8_t, 3> rgb) {
+  const int i = static_cast<int>(m.vertices.size());
+  for (const auto& v : {Eigen::Vector3f(-1, y - 0.2f, 3), Eigen::Vector3f(1, y - 0.2f, 3), Eigen::Vector3f(1, y + 0.2f, 3),
+                        Eigen::Vector3f(-1, y + 0.2f, 3)}) {
+    m.vertices.push_back(v);
+    m.colors.push_back(rgb);
+  }
+  for (const auto& t : {Eigen::Vector3i(i, i + 1, i + 2), Eigen::Vector3i(i, i + 2, i + 3), Eigen::Vector3i(i, i + 2, i + 1),
+                        Eigen::Vector3i(i, i + 3, i + 2)})
+    m.triangles.push_back(t);
+}
+
+// Mean row and column of the pixels that are mostly `channel` (BGR index).
+cv::Point2d centroidOf(const cv::Mat& image, int channel) {
+  cv::Point2d sum(0, 0);
+  int n = 0;
+  for (int y = 0; y < image.rows; ++y) {
+    for (int x = 0; x < image.cols; ++x) {
+      const cv::Vec3b p = image.at<cv::Vec3b>(y, x);
+      if (p[channel] > 60 && p[channel] > 2 * p[(channel + 1) % 3] && p[channel] > 2 * p[(channel + 2) % 3]) {
+        sum += cv::Point2d(x, y);
+        ++n;
+      }
+    }
+  }
+  return n ? sum / n : cv::Point2d(-1, -1);
+}
+
+// Issue 27: rekon's meshes are in the first camera's frame (y down); the
+// default view was tilted (up z). A red strip above a green one in that
+// frame (smaller y) is drawn above it, one over the other, without flags.
+TEST(RenderCommand, DefaultViewShowsACameraFrameMeshUpright) {
+  rekon::test::TempDir dir;
+  Mesh m;
+  addStrip(m, -1.0f, {255, 0, 0});  // up (a ceiling)
+  addStrip(m, 1.0f, {0, 255, 0});   // down (a floor)
+  rekon::writePly(m, dir / "strips.ply");
+  const auto render = [&](const std::string& extra) {
+    const std::string png = dir / "strips.png";
+    EXPECT_EQ(rekon::test::runCommand(rekon::test::binDir() + "/rekon render " + (dir / "strips.ply") + " --out " + png +
+                                      " --width 320 --height 240" + extra + " > /dev/null 2>&1"), 0);
+    return cv::imread(png, cv::IMREAD_COLOR);
+  };
+  const auto upright = [](const cv::Mat& image) {
+    const cv::Point2d red = centroidOf(image, 2), green = centroidOf(image, 1);
+    return red.y >= 0 && green.y >= 0 && green.y - red.y > 0.2 * image.rows && std::abs(green.x - red.x) < 0.1 * image.cols;
+  };
+  EXPECT_TRUE(upright(render("")));
+  EXPECT_FALSE(upright(render(" --up z")));  // the old default: what the test tells apart
+}
+
 TEST(RenderCommand, RejectsAMalformedView) {
   rekon::test::TempDir dir;
   rekon::writePly(cube({0, 0, 0}, {1, 2, 3}), dir / "cube.ply");

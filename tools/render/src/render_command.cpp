@@ -52,8 +52,12 @@ int renderCommand(int argc, char** argv) {
       .option("width", "image width", std::to_string(RenderOptions::kDefaultWidth))
       .option("height", "image height", std::to_string(RenderOptions::kDefaultHeight))
       .option("fov", "vertical field of view (degrees)", "45")
-      .option("up", "up axis of the mesh: x, -x, y, -y, z, -z (camera-frame meshes: -y)", "z")
-      .option("cull", "back (see a room's inside through its near walls), front or none", "back");
+      .option("up", "up axis of the mesh: x, -x, y, -y, z, -z; rekon's meshes are in the first camera's frame, whose y "
+                    "points down (-y); z for z-up world frames", "-y")
+      .option("cull", "back (see a room's inside through its near walls), front or none", "back")
+      .examples("rekon render out/demo/mesh.ply --out room.png\n"
+                "rekon render mesh.ply --out top.png --view 0,-4,2,0,0,2 --width 1280 --height 960\n"
+                "rekon render reference.ply --out ref.png --up z   # a z-up world frame");
   if (!args.parse(argc, argv)) return 0;
   if (!args.has("out")) throw Error("missing --out FILE.png; see " + std::string(argv[0]) + " --help");
   RenderOptions o;
