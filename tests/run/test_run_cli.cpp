@@ -75,6 +75,9 @@ TEST(RunCli, AFolderHoldingARunIsRefusedUnlessForced) {
   const std::string run = "timeout 120 " + rekonBin() + " run --dataset " + data + " --out " + (dir / "out");
   ASSERT_EQ(runCommand(run + " > " + (dir / "first.log") + " 2>&1"), 0) << readText(dir / "first.log");
   ASSERT_TRUE(fs::exists(dir / "out/mesh.ply"));
+  // Not a terminal: the progress as plain lines, the last one the whole run's.
+  EXPECT_TRUE(std::regex_search(readText(dir / "first.log"), std::regex(R"(\nframe 20/20 \(100 %\), [0-9.]+ fps, [0-9.]+x realtime\n)")))
+      << readText(dir / "first.log");
   const auto mesh_time = fs::last_write_time(dir / "out/mesh.ply");
 
   std::string out;

@@ -17,6 +17,7 @@
 
 #include "preflight.hpp"
 #include "process.hpp"
+#include "progress.hpp"
 #include "rekon/common/camera.hpp"
 #include "rekon/common/cli.hpp"
 #include "rekon/common/config.hpp"
@@ -114,6 +115,8 @@ struct RunPlan {
   std::set<std::string> restartable;
   int max_restarts = 0;
   std::vector<ChildProcess> children;
+  long long total_frames = 0;  // what the player plays; 0: a camera (no end)
+  double source_fps = 0;       // the recorded rate
 };
 
 // The frame source of a run: the player (--dataset) or the camera (--camera).
@@ -174,20 +177,32 @@ void configureCamera(Config& config, const RunOptions& opt) {
   if (!opt.record.empty()) config.set("camera.record", fs::absolute(opt.record).string());
 }
 
-// Everything that can be checked before anything starts or is created.
-void checkBeforeStart(const Config& config, const RunOptions& opt) {
+// Everything that can be checked before anything starts or is created;
+// returns the frames the player will play and their recorded seconds (0 for a camera).
+DatasetSpan checkBeforeStart(const Config& config, const RunOptions& opt) {
   checkConfigValues(config, opt.dataset);
-  if (!opt.dataset.empty()) checkDataset(opt.dataset);
+  DatasetSpan span;
+  if (!opt.dataset.empty()) span = checkDataset(opt.dataset);
   if (!opt.camera.empty()) checkCameraSpec(opt.camera);
   if (!opt.session.empty()) store::requireNoSession(fs::absolute(opt.session).string());
   if (fs::exists(opt.out)) claimRunFolder(opt.out, opt.force);
+  return span;
+}
+
+// The frames a run plays (player.first_frame, player.max_frames) and their recorded rate.
+void planProgress(RunPlan& plan, const DatasetSpan& span) {
+  if (span.frames == 0) return;
+  plan.source_fps = span.seconds > 0 ? static_cast<double>(span.frames - 1) / span.seconds : 0.0;
+  const long long first = plan.config.getInt("player.first_frame"), most = plan.config.getInt("player.max_frames");
+  plan.total_frames = std::max(0LL, span.frames - first);
+  if (most > 0) plan.total_frames = std::min<long long>(plan.total_frames, most);
 }
 
 RunPlan planRun(const RunOptions& opt) {
-  RunPlan plan{Config::load(opt.config_file, opt.sets), "", "", "", {}, 0, {}};
+  RunPlan plan{Config::load(opt.config_file, opt.sets), "", "", "", {}, 0, {}, 0, 0.0};
   Config& config = plan.config;
   setupLogging("run", config.getString("log.level"));
-  checkBeforeStart(config, opt);
+  planProgress(plan, checkBeforeStart(config, opt));
   const std::string bin = executableDir();
   plan.frame_ring = config.getString("transport.segment") + "_" + std::to_string(getpid());
   config.set("transport.segment", plan.frame_ring);
@@ -492,8 +507,13 @@ int launch(const RunOptions& opt) {
   signal(SIGTERM, onInterrupt);
   const auto start = Clock::now();
   Supervisor supervisor(plan);
+  RunProgress progress(plan.config, plan.total_frames, plan.source_fps);
   supervisor.startAll();
-  while (supervisor.step()) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  while (supervisor.step()) {
+    progress.poll();
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  progress.finish();
   const double wall = std::chrono::duration<double>(Clock::now() - start).count();
   const bool interrupted = g_interrupted.load();
   if (removeFrameRing(plan.frame_ring)) spdlog::info("removed the frame ring '{}' left by a stopped player", plan.frame_ring);
@@ -587,7 +607,7 @@ int demoCommand(int argc, char** argv) {
   if (!fs::exists(data / "groundtruth.txt")) {
     setupLogging("demo", "info");
     spdlog::info("demo: generating the synthetic room into {} (once)", data.string());
-    synth::writeSequence(scene, data.string());
+    synth::writeSequenceShowingProgress(scene, data.string());
   }
   RunOptions opt;
   opt.dataset = data.string();

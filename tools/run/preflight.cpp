@@ -73,9 +73,10 @@ void checkConfigValues(const Config& config, const std::string& dataset) {
     throw Error("config key viewer.serve_after_run_s must be -1 (until Ctrl-C), 0 (stop with the run) or seconds");
 }
 
-size_t checkDataset(const std::string& dir) {
+DatasetSpan checkDataset(const std::string& dir) {
   if (!fs::is_directory(dir)) throw Error(dir + ": dataset folder not found; give a TUM RGB-D folder (rgb.txt, depth.txt, camera.yaml)");
-  return TumDataset(dir).size();  // throws naming the missing or empty file
+  const TumDataset dataset(dir);  // throws naming the missing or empty file
+  return {static_cast<long long>(dataset.size()), dataset.duration()};
 }
 
 void checkCameraSpec(const std::string& spec) {

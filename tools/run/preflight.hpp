@@ -15,8 +15,12 @@ namespace rekon {
 // With a dataset, the player's settings too.
 void checkConfigValues(const Config& config, const std::string& dataset);
 
-// A TUM-layout dataset with camera.yaml and at least one frame; returns its frame count.
-size_t checkDataset(const std::string& dir);
+struct DatasetSpan {
+  long long frames = 0;
+  double seconds = 0;  // first to last timestamp
+};
+// A TUM-layout dataset with camera.yaml and at least one frame.
+DatasetSpan checkDataset(const std::string& dir);
 
 // A camera spec names a driver rekon-camera has: openni2[:URI|FILE.oni] or freenect[:INDEX].
 void checkCameraSpec(const std::string& spec);

@@ -10,6 +10,7 @@
 #include <thread>
 
 #include "analytic_scene.hpp"
+#include "rekon/progress/progress_line.hpp"
 #include "rekon/common/cli.hpp"
 #include "rekon/common/error.hpp"
 #include "png_writer.hpp"
@@ -78,7 +79,7 @@ SequenceReport writeSequence(const SequenceOptions& options, const std::string& 
   // Frames in parallel, each rendered on one thread: rendering and PNG
   // encoding then both use every core.
   const int workers = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
-  std::atomic<int> next{0};
+  std::atomic<int> next{0}, done{0};
   std::mutex error_mutex;
   std::string first_error;
   auto work = [&] {
@@ -91,6 +92,7 @@ SequenceReport writeSequence(const SequenceOptions& options, const std::string& 
         const std::string name = stamp(sp.timestamp) + ".png";
         writeBytes((fs::path(out_dir) / "rgb" / name).string(), encodePngFast(f.color));
         writeBytes((fs::path(out_dir) / "depth" / name).string(), encodePngFast(f.depth));
+        if (options.on_frame) options.on_frame(++done, frames);
       } catch (const std::exception& e) {
         std::lock_guard<std::mutex> lock(error_mutex);
         if (first_error.empty()) first_error = e.what();
@@ -128,6 +130,19 @@ SequenceReport writeSequence(const SequenceOptions& options, const std::string& 
   report.frames = frames;
   report.mesh_vertices = mesh.vertices.size();
   report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return report;
+}
+
+SequenceReport writeSequenceShowingProgress(SequenceOptions options, const std::string& out_dir) {
+  ProgressLine line;
+  const auto start = std::chrono::steady_clock::now();
+  const auto rate = [&](int done) {
+    const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    return s > 0 ? done / s : 0.0;
+  };
+  options.on_frame = [&](int done, int total) { line.update("synth: " + frameProgress(done, total, rate(done), 0)); };
+  const SequenceReport report = writeSequence(options, out_dir);
+  line.finish("synth: " + frameProgress(report.frames, report.frames, rate(report.frames), 0));
   return report;
 }
 

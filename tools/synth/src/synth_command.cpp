@@ -17,7 +17,10 @@ int synthCommand(int argc, char** argv) {
       .option("laps", "corridor: times round the out-and-back path (each lap after the first adds 5484 frames)", "1")
       .option("seed", "seed of trajectory shake and sensor noise", "1")
       .option("noise", "kinect or none", "kinect")
-      .option("drift", "T_PER_M,R_DEG_PER_M: also write drifted_trajectory.txt", "");
+      .option("drift", "T_PER_M,R_DEG_PER_M: also write drifted_trajectory.txt", "")
+      .examples("rekon synth --scene room --out out/room\n"
+                "rekon synth --scene corridor --laps 2 --out out/corridor2\n"
+                "rekon synth --scene room --frames 60 --drift 0.05,3 --out out/drifted   # with drifted_trajectory.txt");
   if (!args.parse(argc, argv)) return 0;
   if (!args.has("out")) throw Error("missing --out DIR; see " + std::string(argv[0]) + " --help");
   SequenceOptions o;
@@ -41,7 +44,7 @@ int synthCommand(int argc, char** argv) {
     }
   }
   const std::string out = args.get("out");
-  const SequenceReport r = writeSequence(o, out);
+  const SequenceReport r = writeSequenceShowingProgress(o, out);
   std::cout << "wrote " << r.frames << " frames of " << o.scene << " to " << out << " in " << r.seconds << " s\n";
   std::cout << keyValueLine({{"frames", r.frames},
                              {"seconds", r.seconds},

@@ -3,6 +3,7 @@
 // optional Kinect-like noise, their exact colored surface, and their camera
 // trajectories. Used by `rekon synth` and by tests of every other component.
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 
@@ -72,6 +73,8 @@ struct SequenceOptions {
   // Random-walk drift for drifted_trajectory.txt; both 0 = not written.
   double drift_translation_per_m = 0.0;
   double drift_rotation_deg_per_m = 0.0;
+  // Called after each frame written (from any worker thread): frames done, frames in all.
+  std::function<void(int, int)> on_frame;
 };
 
 // What writeSequence did, for the caller to report.
@@ -84,6 +87,8 @@ struct SequenceReport {
 // groundtruth.txt, camera.yaml, mesh_gt.ply, and drifted_trajectory.txt when
 // drift is set) into `out_dir`.
 SequenceReport writeSequence(const SequenceOptions& options, const std::string& out_dir);
+// The same with its progress on the terminal (rekon synth, rekon demo).
+SequenceReport writeSequenceShowingProgress(SequenceOptions options, const std::string& out_dir);
 
 // `rekon synth`: the command-line front end of writeSequence.
 int synthCommand(int argc, char** argv);

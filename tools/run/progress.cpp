@@ -1,0 +1,61 @@
+#include "progress.hpp"
+
+#include "rekon_msgs/heartbeat_t.hpp"
+
+namespace rekon {
+
+RunProgress::RunProgress(const Config& config, long long total_frames, double source_fps)
+    : bus_(makeBus(BusOptions::fromConfig(config))), total_(total_frames), source_fps_(source_fps) {
+  bus_->subscribe<rekon_msgs::heartbeat_t>(channel::kHeartbeat, [this](const rekon_msgs::heartbeat_t& hb) {
+    services_[hb.service] = {hb.state, hb.last_frame_id};
+  });
+}
+
+long long RunProgress::framesDone() const {
+  for (const char* s : {"mapper", "tracker", "player", "camera"}) {  // the furthest downstream that reports
+    const auto it = services_.find(s);
+    if (it != services_.end() && it->second.second >= 0) return it->second.second + 1;
+  }
+  return 0;
+}
+
+std::string RunProgress::text() const {
+  double rate = 0;
+  if (samples_.size() > 1) {
+    const double seconds = std::chrono::duration<double>(samples_.back().first - samples_.front().first).count();
+    if (seconds > 0.5) rate = static_cast<double>(samples_.back().second - samples_.front().second) / seconds;
+  }
+  std::string s = frameProgress(framesDone(), total_, rate, source_fps_);
+  std::string others;  // the services not in their working state
+  for (const auto& [name, state] : services_) {
+    if (state.first != "running" && state.first != "playing" && name != "viewer")
+      others += (others.empty() ? "" : ", ") + name + " " + state.first;
+  }
+  return s + (services_.empty() ? " (services starting)" : others.empty() ? "" : " (" + others + ")");
+}
+
+void RunProgress::poll() {
+  while (bus_->handle(0)) {
+  }
+  const auto now = Clock::now();
+  const long long done = framesDone();
+  if (done > 0 && first_.second == 0) first_ = {now, done};
+  if (done != last_.second) last_ = {now, done};
+  samples_.emplace_back(now, done);
+  while (samples_.size() > 2 && now - samples_.front().first > std::chrono::duration<double>(kRateWindowS)) samples_.pop_front();
+  line_.update(text());
+}
+
+double RunProgress::overallRate() const {
+  const double seconds = std::chrono::duration<double>(last_.first - first_.first).count();
+  return seconds > 0 ? static_cast<double>(last_.second - first_.second) / seconds : 0.0;
+}
+
+void RunProgress::finish() {
+  while (bus_->handle(0)) {
+  }
+  const long long done = framesDone();
+  line_.finish(frameProgress(done, total_, overallRate(), source_fps_));
+}
+
+}  // namespace rekon

@@ -1,0 +1,47 @@
+#pragma once
+// rekon run's progress on the terminal: frames through the mapper (the end of
+// the pipeline, from the services' heartbeats on the bus), their rate, the
+// realtime factor against the recorded rate, the ETA, and every service whose
+// state is not simply "running".
+#include <chrono>
+#include <deque>
+#include <map>
+#include <memory>
+#include <string>
+#include <utility>
+
+#include "rekon/common/bus.hpp"
+#include "rekon/common/config.hpp"
+#include "rekon/progress/progress_line.hpp"
+
+namespace rekon {
+
+class RunProgress {
+ public:
+  // Over the last kRateWindowS of frames: the rate after a slow start-up.
+  static constexpr double kRateWindowS = 3.0;
+
+  // `total_frames` 0 and `source_fps` 0 for a live camera (no end, its own rate).
+  RunProgress(const Config& config, long long total_frames, double source_fps);
+  // Takes the heartbeats that arrived and updates the line.
+  void poll();
+  // The last line, ended.
+  void finish();
+
+ private:
+  std::string text() const;
+  long long framesDone() const;
+  // From the first frame done to the last: the run's own rate (the window's fades after the end).
+  double overallRate() const;
+
+  using Clock = std::chrono::steady_clock;
+  std::unique_ptr<Bus> bus_;
+  ProgressLine line_;
+  long long total_;
+  double source_fps_;
+  std::map<std::string, std::pair<std::string, long long>> services_;  // state, last frame id
+  std::deque<std::pair<Clock::time_point, long long>> samples_;       // frames done over time
+  std::pair<Clock::time_point, long long> first_{}, last_{};          // first frames done, last change
+};
+
+}  // namespace rekon
