@@ -365,7 +365,9 @@ int runInContext(ServiceContext& ctx, const std::function<void(ServiceContext&)>
 
 int runService(int argc, char** argv, const std::string& name, const std::string& summary,
                const std::function<void(ArgParser&)>& add_options, const std::function<void(ServiceContext&)>& body) {
-  ArgParser args("rekon-" + name, summary);
+  // Started as a `rekon` subcommand (rekon listen, rekon view), its usage says that command.
+  const bool subcommand = argc > 0 && std::string(argv[0]).rfind("rekon ", 0) == 0;
+  ArgParser args(subcommand ? std::string(argv[0]) : "rekon-" + name, summary);
   args.option("config", "YAML config laid over config/default.yaml")
       .repeated("set", "override one config key, e.g. --set log.level=debug")
       .option("out", "folder for this service's outputs and stats (created if missing)");

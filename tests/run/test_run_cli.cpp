@@ -112,3 +112,31 @@ TEST(RunCli, AnInterruptedRunIsMarkedInStats) {
 }
 
 }  // namespace
+
+namespace {
+
+// Issue 27: --version with the git revision and build type; every
+// subcommand's usage names the command a user types (not rekon-viewer or
+// rekon-listener) and run, demo, synth, render show examples; the wrapper
+// lists its own commands too.
+TEST(RekonCli, VersionHelpAndExamples) {
+  std::string out;
+  ASSERT_EQ(runCommand(rekonBin() + " --version", &out), 0) << out;
+  EXPECT_TRUE(std::regex_match(out, std::regex("rekon, git revision [0-9a-f]{12}(\\+local changes)?, [A-Za-z]+ build\n"))) << out;
+  for (const char* c : {"eval", "render", "fuse", "odometry", "synth", "run", "cameras", "view", "demo", "remesh", "export",
+                        "keyframes", "listen", "report", "bench"}) {
+    runCommand(rekonBin() + " " + c + " --help 2>&1", &out);
+    EXPECT_EQ(out.rfind(std::string("usage: rekon ") + c, 0), 0u) << out.substr(0, 200);
+  }
+  for (const char* c : {"run", "demo", "synth", "render"}) {
+    runCommand(rekonBin() + " " + c + " --help 2>&1", &out);
+    EXPECT_TRUE(std::regex_search(out, std::regex(std::string("\nexamples:\n  rekon ") + c + "[ \n]"))) << out;
+  }
+  ASSERT_EQ(runCommand(rekon::test::sourceDir() + "/tools/rekon --help", &out), 0) << out;
+  for (const char* c : {"\n  demo", "\n  test", "\n  setup", "\n  deps", "\n  stress", "\n  sanitize", "\n  fuzz", "tools/gpu-check",
+                        "\n  run ", "\n  report "}) {
+    EXPECT_NE(out.find(c), std::string::npos) << c << " not in tools/rekon --help:\n" << out;
+  }
+}
+
+}  // namespace

@@ -30,9 +30,9 @@ const std::vector<Command>& commands() {
       {"keyframes", "list or export the KF keyframes in the mapper's shared-memory keyframe store", &keyframesCommand},
       {"frontend-check", "judge a frontend's messages against messages/FRONTEND.md (live on the bus or an lcm-logger log)",
        &frontend_check::frontendCheckCommand},
-      {"listen", "receive frames from the bus as a consumer and log their hashes", &listenMain},
+      {"listen", "a consumer on the bus: each frame's id, timestamp and hash, or with --mesh the mapper's mesh as a PLY", &listenMain},
       {"report", "self-contained report.html of a run folder: mesh views, trajectory, timing, stats", &report::reportCommand},
-      {"bench", "the paper's Figures 5 and 7 on rekon's mapper: bench keyframes | bench reintegration", &mapper_bench::benchCommand},
+      {"bench", "mapper benchmarks: keyframes and reintegration (the paper's Figures 5 and 7), peers, scaling", &mapper_bench::benchCommand},
   };
   return table;
 }

@@ -1,6 +1,7 @@
 // `rekon SUBCOMMAND ...`: dispatches to the subcommands in commands.cpp.
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <cstring>
 #include <iostream>
 #include <string>
@@ -8,14 +9,24 @@
 #include "commands.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/common/memory.hpp"
+#include "version_info.hpp"
 
 int main(int argc, char** argv) {
   rekon::keepFreedMemory();  // the benchmarks run the services' code: the same allocator settings
   const auto& table = rekon::commands();
   if (argc < 2 || std::strcmp(argv[1], "--help") == 0 || std::strcmp(argv[1], "-h") == 0) {
-    std::cout << "usage: rekon COMMAND [options]   (rekon COMMAND --help for its options)\n\ncommands:\n";
-    for (const auto& c : table) std::cout << "  " << c.name << std::string(12 - std::strlen(c.name), ' ') << c.summary << "\n";
+    std::cout << "usage: rekon COMMAND [options]   (rekon COMMAND --help for its options and examples)\n"
+                 "       rekon --version\n\ncommands:\n";
+    size_t width = 0;
+    for (const auto& c : table) width = std::max(width, std::strlen(c.name) + 2);
+    for (const auto& c : table) std::cout << "  " << c.name << std::string(width - std::strlen(c.name), ' ') << c.summary << "\n";
+    std::cout << "\nexamples:\n  rekon demo\n  rekon run --dataset ../shared/data/7scenes_loop_1000 --out out/7scenes --view\n"
+                 "  rekon eval traj out/demo/room_0_data/groundtruth.txt out/demo/trajectory.txt\n";
     return argc < 2 ? 2 : 0;
+  }
+  if (std::strcmp(argv[1], "--version") == 0) {
+    std::cout << "rekon, git revision " << rekon::gitRevision() << ", " << rekon::buildType() << " build\n";
+    return 0;
   }
   for (const auto& c : table) {
     if (argv[1] != std::string(c.name)) continue;

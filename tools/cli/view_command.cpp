@@ -17,7 +17,7 @@ namespace rekon {
 int viewCommand(int argc, char** argv) {
   // Beside this binary, as every service is (build/bin).
   const std::string viewer = (std::filesystem::read_symlink("/proc/self/exe").parent_path() / "rekon-viewer").string();
-  std::vector<std::string> args = {viewer};
+  std::vector<std::string> args = {"rekon view"};  // its usage and errors name the command the user typed
   for (int i = 1; i < argc; ++i) args.emplace_back(argv[i]);  // rekon-viewer parses and documents them (--help)
   std::vector<char*> exec_args;
   for (auto& a : args) exec_args.push_back(a.data());
