@@ -1,6 +1,7 @@
 #include "commands.hpp"
 
 #include "rekon/eval/eval_command.hpp"
+#include "rekon/constrain/constrain.hpp"
 #include "rekon/frontend_check/frontend_check.hpp"
 
 #include "rekon/render/render.hpp"
@@ -30,6 +31,8 @@ const std::vector<Command>& commands() {
       {"keyframes", "list or export the KF keyframes in the mapper's shared-memory keyframe store", &keyframesCommand},
       {"frontend-check", "judge a frontend's messages against messages/FRONTEND.md (live on the bus or an lcm-logger log)",
        &frontend_check::frontendCheckCommand},
+      {"constrain", "send the optimiser an external loop edge or absolute pose prior (messages/external_constraint.lcm)",
+       &constrain::constrainCommand},
       {"listen", "a consumer on the bus: each frame's id, timestamp and hash, or with --mesh the mapper's mesh as a PLY", &listenMain},
       {"report", "self-contained report.html of a run folder: mesh views, trajectory, timing, stats", &report::reportCommand},
       {"bench", "mapper benchmarks: keyframes and reintegration (the paper's Figures 5 and 7), peers, scaling", &mapper_bench::benchCommand},

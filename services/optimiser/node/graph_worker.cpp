@@ -43,15 +43,54 @@ std::vector<GraphItem> inLoadOrder(const G2oGraph& g2o) {
 
 }  // namespace
 
-bool GraphWorker::addConstraint(const Constraint& c) {
+bool GraphWorker::addConstraint(const Constraint& c, const std::string& origin) {
   try {
-    graph_.addConstraint(c);
+    graph_.addConstraint(c, origin);
     return true;
   } catch (const Error& e) {
     spdlog::error("{}", e.what());
     ++rejected_;
     return false;
   }
+}
+
+bool GraphWorker::ready(const ExternalConstraint& e) const {
+  if (!graph_.hasKeyframe(e.to_id)) return false;
+  return e.kind == ExternalConstraint::Kind::Prior ? graph_.anchorId().has_value() : graph_.hasKeyframe(e.from_id);
+}
+
+bool GraphWorker::addExternal(const ExternalConstraint& e) {
+  const int64_t anchor = *graph_.anchorId();
+  if (e.kind == ExternalConstraint::Kind::Prior && e.to_id == anchor) {
+    spdlog::error("{} is on the first keyframe, which is fixed (it defines the map's world frame); dropped", e.name);
+    ++rejected_;
+    return false;
+  }
+  if (!addConstraint(edgeOf(e, anchor, *graph_.pose(anchor)), e.name)) return false;
+  ++externals_added_;
+  spdlog::info("added {}", e.name);
+  return true;
+}
+
+bool GraphWorker::addWaitingExternals() {
+  bool added = false;
+  for (auto it = external_waiting_.begin(); it != external_waiting_.end();) {
+    if (ready(*it)) {
+      added |= addExternal(*it);
+      it = external_waiting_.erase(it);
+    } else {
+      ++it;
+    }
+  }
+  return added;
+}
+
+bool GraphWorker::applyExternal(const std::vector<ExternalConstraint>& constraints) {
+  for (const ExternalConstraint& e : constraints) {
+    if (externals_.emplace(e.source, e.sequence).second) external_waiting_.push_back(e);
+    else ++duplicates_;
+  }
+  return addWaitingExternals();
 }
 
 bool GraphWorker::apply(const std::vector<GraphItem>& items) {
@@ -90,7 +129,7 @@ bool GraphWorker::apply(const std::vector<GraphItem>& items) {
       ++it;
     }
   }
-  return new_edges;
+  return addWaitingExternals() || new_edges;
 }
 
 void GraphWorker::load(const G2oGraph& g2o) { apply(inLoadOrder(g2o)); }

@@ -5,6 +5,8 @@
 // them. Optimisations are counted and timed for the outputs.
 #include <cstdint>
 #include <set>
+#include <string>
+#include <utility>
 #include <tuple>
 #include <vector>
 
@@ -30,6 +32,9 @@ class GraphWorker {
   // Adds queued keyframes and constraints in arrival order, each once; true
   // when an edge was added.
   bool apply(const std::vector<GraphItem>& items);
+  // Adds external constraints, each once (by source and sequence); one whose
+  // keyframes have not arrived waits for them. True when an edge was added.
+  bool applyExternal(const std::vector<ExternalConstraint>& constraints);
   // A previous run's graph (session.continue), before anything is applied:
   // the fixed vertex first (else the lowest id) so that it anchors the graph
   // again, then the other vertices, then the edges (those touching the anchor
@@ -47,7 +52,8 @@ class GraphWorker {
   const PoseGraph& graph() const { return graph_; }
   size_t keyframesSeen() const { return keyframes_.size(); }
   size_t constraintsSeen() const { return constraints_.size(); }
-  size_t constraintsWaiting() const { return waiting_.size(); }
+  size_t constraintsWaiting() const { return waiting_.size() + external_waiting_.size(); }
+  int64_t externalConstraintsAdded() const { return externals_added_; }
   int64_t duplicates() const { return duplicates_; }
   int64_t optimisations() const { return optimisations_; }
   double optimiseMsMean() const;
@@ -56,12 +62,19 @@ class GraphWorker {
   const std::vector<Timing>& timing() const { return timing_; }
 
  private:
-  bool addConstraint(const Constraint& c);
+  bool addConstraint(const Constraint& c, const std::string& origin = "");
+  // An external constraint once its keyframes (and, for a prior, the anchor) are in the graph.
+  bool addExternal(const ExternalConstraint& e);
+  bool ready(const ExternalConstraint& e) const;
+  bool addWaitingExternals();
 
   PoseGraph graph_;
   std::set<int64_t> keyframes_;
   std::set<std::tuple<int, int64_t, int64_t>> constraints_;  // kind, from, to
   std::vector<Constraint> waiting_;
+  std::set<std::pair<std::string, int64_t>> externals_;  // source, sequence
+  std::vector<ExternalConstraint> external_waiting_;
+  int64_t externals_added_ = 0;
   int64_t duplicates_ = 0;
   int64_t optimisations_ = 0;
   double optimise_ms_ = 0.0;

@@ -36,6 +36,19 @@ void Inbox::subscribe(PeerWatch& peers) {
   bus.subscribe<rekon_msgs::keyframe_t>(channel::kKeyframesResent, onKeyframe);
   bus.subscribe<rekon_msgs::constraint_t>(channel::kConstraints, onConstraint);
   bus.subscribe<rekon_msgs::constraint_t>(channel::kConstraintsResent, onConstraint);
+  bus.subscribe<rekon_msgs::external_constraint_t>(kExternalConstraintsChannel,
+                                                 [this](const rekon_msgs::external_constraint_t& m) {
+                                                   try {
+                                                     ExternalConstraint e = externalConstraintFromMsg(m);
+                                                     {
+                                                       std::lock_guard<std::mutex> lock(mutex_);
+                                                       externals_.push_back(std::move(e));
+                                                     }
+                                                     wake_.notify_one();
+                                                   } catch (const Error& e) {
+                                                     reject(e);
+                                                   }
+                                                 });
   bus.subscribe<rekon_msgs::tracked_frame_t>(channel::kTrackedFrames, [this](const rekon_msgs::tracked_frame_t& m) {
     onTrackedFrame(m);
     ctx_.setLastFrame(m.frame_id);
@@ -96,7 +109,7 @@ void Inbox::onTrackedFrame(const rekon_msgs::tracked_frame_t& m) {
 std::vector<GraphItem> Inbox::waitForGraphItems(std::chrono::milliseconds timeout, bool* upstream_done) {
   std::vector<GraphItem> items;
   std::unique_lock<std::mutex> lock(mutex_);
-  wake_.wait_for(lock, timeout, [&] { return !graph_items_.empty() || upstream_done_; });
+  wake_.wait_for(lock, timeout, [&] { return !graph_items_.empty() || !externals_.empty() || upstream_done_; });
   items.swap(graph_items_);
   *upstream_done = upstream_done_;
   return items;
@@ -107,6 +120,13 @@ std::vector<GraphItem> Inbox::takeGraphItems() {
   std::lock_guard<std::mutex> lock(mutex_);
   items.swap(graph_items_);
   return items;
+}
+
+std::vector<ExternalConstraint> Inbox::takeExternalConstraints() {
+  std::vector<ExternalConstraint> out;
+  std::lock_guard<std::mutex> lock(mutex_);
+  out.swap(externals_);
+  return out;
 }
 
 std::optional<rekon_msgs::replay_end_t> Inbox::waitForReplayEnd(int64_t request_id, Clock::time_point deadline) {

@@ -41,6 +41,9 @@ class Inbox {
   // queues messages in arrival order.
   std::vector<GraphItem> waitForGraphItems(std::chrono::milliseconds timeout, bool* upstream_done);
   std::vector<GraphItem> takeGraphItems();
+  // External constraints (EXTERNAL_CONSTRAINTS) queued so far; they wake
+  // waitForGraphItems too.
+  std::vector<ExternalConstraint> takeExternalConstraints();
   // The replay_end_t answering `request_id`, or nullopt at the deadline.
   std::optional<rekon_msgs::replay_end_t> waitForReplayEnd(int64_t request_id, Clock::time_point deadline);
   // The upstream finished before we could hear its done_t (a replay says so).
@@ -70,6 +73,7 @@ class Inbox {
   mutable std::mutex mutex_;
   std::condition_variable wake_;
   std::vector<GraphItem> graph_items_;          // in arrival order
+  std::vector<ExternalConstraint> externals_;   // in arrival order
   std::map<int64_t, TrackedFrame> frames_;      // live and replayed, once each
   bool upstream_done_ = false;
   int64_t last_frame_id_ = -1;

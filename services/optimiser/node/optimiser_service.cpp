@@ -52,7 +52,8 @@ void optimiseWhileStreaming(ServiceContext& ctx, const PeerWatch& peers, Inbox& 
                             SessionGraph& session) {
   for (;;) {
     bool done = false;
-    const bool new_edges = worker.apply(inbox.waitForGraphItems(kIdleWait, &done));
+    bool new_edges = worker.apply(inbox.waitForGraphItems(kIdleWait, &done));
+    new_edges |= worker.applyExternal(inbox.takeExternalConstraints());
     if (done || ctx.stopRequested()) return;
     if (peers.gone(kUpstreamService)) {
       spdlog::error("rekon-tracker fell silent before its done_t; final optimisation with what arrived");
@@ -118,6 +119,7 @@ void runOptimiserService(ServiceContext& ctx) {
 
   ctx.setState("finishing");
   fillWhatWasLost(ctx, replays, inbox, worker);
+  worker.applyExternal(inbox.takeExternalConstraints());
   const rekon_msgs::graph_update_t final_update = worker.optimise(true, inbox.lastFrameId());
   session.afterOptimisation(worker.graph(), true);
   const Inbox::Final final_state = inbox.takeFinal();

@@ -65,6 +65,7 @@ void setStats(ServiceContext& ctx, const GraphWorker& worker, size_t trajectory_
       .set("keyframes", graph.numKeyframes())
       .set("constraints", graph.numConstraints())
       .set("loop_closures", graph.numLoopEdges())
+      .set("external_constraints", static_cast<long long>(worker.externalConstraintsAdded()))
       .set("loop_edges_removed", graph.loopEdgesRemoved())
       .set("optimisations", static_cast<long long>(worker.optimisations()))
       .set("optimise_ms_mean", worker.optimiseMsMean())

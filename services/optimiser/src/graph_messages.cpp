@@ -39,6 +39,47 @@ TrackedFrame trackedFrameFromMsg(const rekon_msgs::tracked_frame_t& msg) {
   return {msg.frame_id, msg.timestamp, msg.keyframe_id, *pose, msg.state == rekon_msgs::tracked_frame_t::STATE_LOST};
 }
 
+ExternalConstraint externalConstraintFromMsg(const rekon_msgs::external_constraint_t& msg) {
+  ExternalConstraint e;
+  e.source = msg.source.empty() ? "an unnamed sender" : msg.source;
+  e.sequence = msg.sequence;
+  e.from_id = msg.from_id;
+  e.to_id = msg.to_id;
+  const std::string from = "external constraint " + std::to_string(msg.sequence) + " from " + e.source;
+  if (msg.kind == rekon_msgs::external_constraint_t::KIND_LOOP) {
+    e.kind = ExternalConstraint::Kind::Loop;
+    e.name = from + " (loop " + std::to_string(msg.from_id) + " -> " + std::to_string(msg.to_id) + ")";
+    if (msg.from_id == msg.to_id) throw Error(e.name + " links a keyframe to itself; dropped (name two keyframes)");
+  } else if (msg.kind == rekon_msgs::external_constraint_t::KIND_PRIOR) {
+    e.kind = ExternalConstraint::Kind::Prior;
+    e.name = from + " (prior on keyframe " + std::to_string(msg.to_id) + ")";
+  } else {
+    throw Error(from + " has unknown kind " + std::to_string(msg.kind) + "; dropped (KIND_LOOP or KIND_PRIOR)");
+  }
+  const std::optional<Pose> pose = fromMsg(msg.pose);
+  if (!pose) throw Error(e.name + " has a non-finite pose or a quaternion that is not unit; dropped");
+  e.pose = *pose;
+  const auto info = matrix6FromArray(msg.information);
+  if (!info) throw Error(e.name + " has a non-finite information matrix; dropped");
+  e.information = *info;
+  return e;
+}
+
+Constraint edgeOf(const ExternalConstraint& e, int64_t anchor, const Pose& anchor_pose) {
+  Constraint c;
+  c.kind = EdgeKind::Loop;
+  c.information = e.information;
+  c.to_id = e.to_id;
+  if (e.kind == ExternalConstraint::Kind::Loop) {
+    c.from_id = e.from_id;
+    c.relative = e.pose;
+  } else {
+    c.from_id = anchor;
+    c.relative = orthonormalised(anchor_pose.inverse() * e.pose);
+  }
+  return c;
+}
+
 rekon_msgs::graph_update_t graphUpdateMsg(const PoseGraph& graph, int64_t version, bool final_update) {
   rekon_msgs::graph_update_t msg{};
   msg.version = version;

@@ -84,8 +84,10 @@ void PoseGraph::addKeyframe(int64_t id, const Pose& pose_world) {
   }
 }
 
-void PoseGraph::addConstraint(const Constraint& c) {
-  const std::string name = edgeName(c);
+std::string PoseGraph::nameOf(const Edge& e) { return e.origin.empty() ? edgeName(e.c) : e.origin; }
+
+void PoseGraph::addConstraint(const Constraint& c, const std::string& origin) {
+  const std::string name = origin.empty() ? edgeName(c) : origin;
   if (!nodes_.count(c.from_id) || !nodes_.count(c.to_id))
     throw Error(name + " names a keyframe the pose graph does not know (" +
                 std::to_string(nodes_.count(c.from_id) ? c.to_id : c.from_id) + "); dropped");
@@ -107,6 +109,7 @@ void PoseGraph::addConstraint(const Constraint& c) {
 
   Edge e;
   e.c = c;
+  e.origin = origin;
   e.c.information = sym;
   e.sqrt_information = llt.matrixU();
   e.z = std::make_shared<detail::RelativeMeasurement>(Eigen::Quaterniond(c.relative.linear()).conjugate(),
@@ -456,7 +459,10 @@ OptimiseReport PoseGraph::optimise(bool final) {
       if (chi2 > params_.loop_outlier_chi2) {
         e.kept = false;
         ++removed;
-        spdlog::debug("removed outlier {} (chi2 {:.1f} > {:.1f})", edgeName(e.c), chi2, params_.loop_outlier_chi2);
+        // The frontend's outliers are routine; an external constraint the graph contradicts is news to its sender.
+        spdlog::log(e.origin.empty() ? spdlog::level::debug : spdlog::level::warn,
+                    "removed outlier {} (chi2 {:.1f} > {:.1f}): it contradicts the rest of the graph", nameOf(e), chi2,
+                    params_.loop_outlier_chi2);
       }
     }
     if (removed == 0) break;

@@ -13,7 +13,10 @@ int main(int argc, char** argv) {
             .option("update-every", "a graph update after this many new keyframes during the stream (0 = none)", "3")
             .option("stream-alpha", "fraction of the way to the target by the end of the stream", "0.5")
             .option("final-updates", "graph updates after the stream, the last at the target", "4")
-            .option("gap-ms", "pause between the final updates", "100");
+            .option("gap-ms", "pause between the final updates", "100")
+            .option("odometry-sigma", "T,R: be the tracker only: odometry constraints between consecutive keyframes "
+                                      "with these standard deviations (metres, radians) for rekon-optimiser, no graph "
+                                      "updates (--target is then not needed)");
       },
       [](rekon::ServiceContext& ctx) { rekon::replay::runReplayService(ctx); });
 }

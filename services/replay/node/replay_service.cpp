@@ -5,13 +5,17 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <cstdio>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <thread>
 
+#include "rekon/common/error.hpp"
 #include "rekon/common/messages.hpp"
 #include "rekon/common/pose.hpp"
 #include "rekon/replay/replay.hpp"
+#include "rekon_msgs/constraint_t.hpp"
 #include "rekon_msgs/done_t.hpp"
 #include "rekon_msgs/end_of_stream_t.hpp"
 #include "rekon_msgs/frame_ack_t.hpp"
@@ -27,10 +31,24 @@ namespace {
 constexpr int kDoneRepeats = 3;
 constexpr auto kDoneGap = std::chrono::milliseconds(50);
 
+// --odometry-sigma T,R: the diagonal information of the odometry edges, or
+// nullopt without the option (the replay is then tracker and optimiser).
+std::optional<Eigen::Matrix<double, 6, 6>> odometryInformation(const ArgParser& args) {
+  if (!args.has("odometry-sigma")) return std::nullopt;
+  double t = 0, r = 0;
+  char end = 0;
+  if (std::sscanf(args.get("odometry-sigma").c_str(), "%lf,%lf%c", &t, &r, &end) != 2 || !(t > 0) || !(r > 0))
+    throw Error("--odometry-sigma needs T,R: two positive standard deviations (metres, radians), got \"" +
+                args.get("odometry-sigma") + "\"");
+  Eigen::Matrix<double, 6, 6> info = Eigen::Matrix<double, 6, 6>::Zero();
+  info.diagonal() << 1 / (t * t), 1 / (t * t), 1 / (t * t), 1 / (r * r), 1 / (r * r), 1 / (r * r);
+  return info;
+}
+
 ReplayParams paramsFromArgs(const ArgParser& args) {
   ReplayParams p;
   p.trajectory = args.get("trajectory");
-  p.target = args.get("target");
+  p.target = args.has("odometry-sigma") && !args.has("target") ? p.trajectory : args.get("target");
   p.update_every_keyframes = args.getInt("update-every");
   p.stream_alpha = args.getDouble("stream-alpha");
   p.final_updates = args.getInt("final-updates");
@@ -78,7 +96,9 @@ void publishDone(Bus& bus, const std::string& service, int64_t last_frame) {
 // the main thread finishes it after the end of stream.
 class ScriptedFrontend {
  public:
-  ScriptedFrontend(ServiceContext& ctx, ReplayScript& script) : ctx_(ctx), script_(script) {}
+  ScriptedFrontend(ServiceContext& ctx, ReplayScript& script,
+                   std::optional<Eigen::Matrix<double, 6, 6>> odometry_information)
+      : ctx_(ctx), script_(script), odometry_information_(std::move(odometry_information)) {}
 
   void subscribe() {
     ctx_.bus().subscribe<rekon_msgs::end_of_stream_t>(
@@ -99,6 +119,15 @@ class ScriptedFrontend {
   void finish(int gap_ms) {
     std::lock_guard<std::mutex> lock(mutex_);
     publishDone(ctx_.bus(), "tracker", end_frame_.load());
+    if (odometry_information_) {  // the optimiser is rekon-optimiser: it must not miss this done_t
+      for (int i = 1; i < kDoneRepeats; ++i) {
+        std::this_thread::sleep_for(kDoneGap);
+        publishDone(ctx_.bus(), "tracker", end_frame_.load());
+      }
+      spdlog::info("replay: {} DVO keyframes and their odometry constraints", keyframes_);
+      ctx_.stats().set("keyframes", static_cast<long long>(keyframes_));
+      return;
+    }
     for (const ReplayGraphUpdate& u : script_.finalUpdates()) {
       std::this_thread::sleep_for(std::chrono::milliseconds(gap_ms));
       publishUpdate(ctx_.bus(), u);
@@ -122,7 +151,8 @@ class ScriptedFrontend {
     publishTracked(ctx_.bus(), t);
     keyframes_ += t.new_keyframe_world.has_value();
     lost_ += t.lost;
-    if (auto u = script_.dueUpdate()) {
+    if (odometry_information_) publishOdometry(t);
+    else if (auto u = script_.dueUpdate()) {
       publishUpdate(ctx_.bus(), *u);
       ++updates_;
     }
@@ -134,8 +164,25 @@ class ScriptedFrontend {
     last_handled_.store(msg.frame_id);
   }
 
+  // The edge from the previous keyframe to the one this frame starts.
+  void publishOdometry(const ReplayTracked& t) {
+    if (!t.new_keyframe_world) return;
+    if (last_keyframe_) {
+      rekon_msgs::constraint_t c{};
+      c.kind = rekon_msgs::constraint_t::KIND_ODOMETRY;
+      c.from_id = last_keyframe_->first;
+      c.to_id = t.keyframe_id;
+      c.relative = toMsg(orthonormalised(last_keyframe_->second.inverse() * *t.new_keyframe_world));
+      toArray(*odometry_information_, c.information);
+      ctx_.bus().publish(channel::kConstraints, c);
+    }
+    last_keyframe_ = {t.keyframe_id, *t.new_keyframe_world};
+  }
+
   ServiceContext& ctx_;
   ReplayScript& script_;
+  const std::optional<Eigen::Matrix<double, 6, 6>> odometry_information_;
+  std::optional<std::pair<int64_t, Pose>> last_keyframe_;
   std::mutex mutex_;
   std::atomic<int64_t> last_handled_{-1}, end_frame_{kNoEndYet};
   int64_t keyframes_ = 0, updates_ = 0, lost_ = 0;
@@ -151,7 +198,7 @@ void runReplayService(ServiceContext& ctx) {
                                        : static_cast<int64_t>(source.size());
   ReplayScript script(source, readTumTrajectory(p.target), p, total);
   const int gap_ms = ctx.args().getInt("gap-ms");
-  ScriptedFrontend frontend(ctx, script);
+  ScriptedFrontend frontend(ctx, script, odometryInformation(ctx.args()));
   StopThreadsOnExit stop_threads(ctx);  // before the state above dies: the bus handlers use it
   frontend.subscribe();
   ctx.setState("running");

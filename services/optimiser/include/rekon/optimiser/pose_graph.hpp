@@ -14,6 +14,7 @@
 #include <map>
 #include <memory>
 #include <optional>
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -75,8 +76,10 @@ class PoseGraph {
   void addKeyframe(int64_t id, const Pose& pose_world);
   // Throws rekon::Error for unknown keyframe ids, a self edge, an invalid
   // relative pose, or an information matrix that is not finite, symmetric
-  // and positive definite.
-  void addConstraint(const Constraint& constraint);
+  // and positive definite. `origin` names an external constraint (who sent
+  // what) in every line about it, and its removal as an outlier is a warning;
+  // "" for the frontend's own.
+  void addConstraint(const Constraint& constraint, const std::string& origin = "");
 
   // Warm-started from the current poses. `final` uses final_max_iterations
   // and no time limit instead of the bounded background budget.
@@ -112,6 +115,7 @@ class PoseGraph {
   };
   struct Edge {
     Constraint c;
+    std::string origin;
     Matrix6d sqrt_information;  // upper triangular U with U^T U = information
     std::shared_ptr<const detail::RelativeMeasurement> z;
     bool kept = true;
@@ -120,6 +124,7 @@ class PoseGraph {
   static Pose poseOf(const Node& n);
   static void setPose(Node& n, const Pose& p);
   double edgeChi2(const Edge& e) const;
+  static std::string nameOf(const Edge& e);
   // The unattached keyframes linked to `start` by kept edges.
   std::vector<int64_t> unattachedGroup(int64_t start) const;
   void recomputeAttachment();
