@@ -254,15 +254,20 @@ TEST(RunReport, MissingInputsAreExplainedAfterTheSections) {
 }
 
 // mesh.ply and mesh_uncorrected.ply are explained; with the dataset's
-// ground-truth mesh the report gives their CORR and COMPL: mesh.ply is the
-// ground truth here (0 mm), mesh_uncorrected.ply the same box 10 cm aside
-// (a capped error, far from 0).
+// ground-truth mesh the report gives their CORR and COMPL, each mesh moved
+// from the run's world (its first camera) into the ground truth's by the
+// first poses: mesh.ply is the ground truth here (0 mm), mesh_uncorrected.ply
+// the same box 10 cm aside (a capped error, far from 0).
 TEST(RunReport, MeshesAreExplainedAndMeasuredAgainstAGroundTruthMesh) {
   FakeRun f;
   std::string html = readText(writeRunReport(f.run).html_path);
   EXPECT_NE(html.find("<code>mesh_uncorrected.ply</code> is the same keyframes fused once"), std::string::npos);
   EXPECT_EQ(html.find("CORR mean"), std::string::npos);  // no ground-truth mesh: no such table
-  rekon::writePly(boxOnFloor(0.0f), f.dataset + "/mesh_gt.ply");
+  const rekon::Pose to_gt = rekon::readTumTrajectory(f.dataset + "/groundtruth.txt").front().pose *
+                            rekon::readTumTrajectory(f.run + "/trajectory.txt").front().pose.inverse();
+  rekon::Mesh gt = boxOnFloor(0.0f);
+  for (auto& v : gt.vertices) v = to_gt.cast<float>() * v;
+  rekon::writePly(gt, f.dataset + "/mesh_gt.ply");
   html = readText(writeRunReport(f.run).html_path);
   EXPECT_NE(html.find("<th>CORR mean [mm]</th>"), std::string::npos);
   EXPECT_NE(html.find("<tr><td>mesh.ply</td><td class=\"num\">0.00</td>"), std::string::npos) << html.substr(html.find("CORR"), 800);

@@ -9,6 +9,7 @@
 #include "rekon/common/error.hpp"
 #include "rekon/common/mesh.hpp"
 #include "rekon/common/pose.hpp"
+#include "rekon/eval/trajectory_eval.hpp"
 
 int main(int argc, char** argv) {
   if (argc != 5) {
@@ -18,9 +19,9 @@ int main(int argc, char** argv) {
   try {
     const rekon::Trajectory est = rekon::readTumTrajectory(argv[2]), ref = rekon::readTumTrajectory(argv[3]);
     if (est.empty()) throw rekon::Error(std::string(argv[2]) + " is empty");
-    const int r = rekon::nearestInTime(ref, est.front().timestamp, 0.02);
-    if (r < 0) throw rekon::Error(std::string(argv[3]) + " has no pose at the estimate's first timestamp");
-    const Eigen::Isometry3f t = (ref[static_cast<size_t>(r)].pose * est.front().pose.inverse()).cast<float>();
+    const auto alignment = rekon::eval::firstPoseAlignment(est, ref);
+    if (!alignment) throw rekon::Error(std::string(argv[3]) + " has no pose at the estimate's first timestamp");
+    const Eigen::Isometry3f t = alignment->cast<float>();
     rekon::Mesh mesh = rekon::readPly(argv[1]);
     for (auto& v : mesh.vertices) v = t * v;
     rekon::writePly(mesh, argv[4]);

@@ -621,8 +621,8 @@ int demoCommand(int argc, char** argv) {
     spdlog::info("compare with the ground truth: tools/rekon eval traj {} {}", (data / "groundtruth.txt").string(),
                  (out / "trajectory.txt").string());
   }
-  if (rc == 0 && fs::exists(out / "mesh.ply")) {
-    spdlog::info("and the surface: tools/rekon eval surface {} {}", (out / "mesh.ply").string(), (data / "mesh_gt.ply").string());
+  if (rc == 0 && fs::exists(out / "report.html")) {
+    spdlog::info("the report, with the surface against the ground truth (CORR, COMPL): {}", (out / "report.html").string());
   }
   return rc;
 }

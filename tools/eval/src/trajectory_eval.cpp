@@ -128,4 +128,11 @@ TrajectoryErrors evaluateTrajectory(const Trajectory& gt, const Trajectory& est,
   return r;
 }
 
+std::optional<Pose> firstPoseAlignment(const Trajectory& est, const Trajectory& ref, double max_difference) {
+  if (est.empty()) return std::nullopt;
+  const int r = nearestInTime(ref, est.front().timestamp, max_difference);
+  if (r < 0) return std::nullopt;
+  return ref[static_cast<size_t>(r)].pose * est.front().pose.inverse();
+}
+
 }  // namespace rekon::eval

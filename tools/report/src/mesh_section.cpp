@@ -6,6 +6,7 @@
 #include "rekon/common/error.hpp"
 #include "rekon/common/mesh.hpp"
 #include "rekon/eval/surface_eval.hpp"
+#include "rekon/eval/trajectory_eval.hpp"
 #include "rekon/render/render.hpp"
 #include "rekon/report/html.hpp"
 #include "report_sections.hpp"
@@ -78,8 +79,17 @@ MeshFile loadMesh(const fs::path& run, const std::string& name, const std::strin
   return f;
 }
 
-// CORR (mesh to ground truth) and COMPL (ground truth to mesh) of each mesh, as `rekon eval surface` gives them.
-void surfaceErrorTable(Page& page, const std::vector<const MeshFile*>& meshes, const std::string& gt_path) {
+// CORR (mesh to ground truth) and COMPL (ground truth to mesh) of each mesh,
+// moved from the run's world (its first camera) into the ground truth's.
+void surfaceErrorTable(Page& page, const std::vector<const MeshFile*>& meshes, const std::string& gt_path,
+                       const TrajectoryInputs& in) {
+  const auto alignment = in.estimate && in.ground_truth ? eval::firstPoseAlignment(*in.estimate, *in.ground_truth)
+                                                        : std::nullopt;
+  if (!alignment) {
+    page.absentInput("surface errors: " + gt_path + " is there, but no ground-truth pose at the run's first frame to "
+                     "place the mesh in its frame");
+    return;
+  }
   Mesh gt;
   try {
     gt = readPly(gt_path);
@@ -90,13 +100,17 @@ void surfaceErrorTable(Page& page, const std::vector<const MeshFile*>& meshes, c
   std::vector<std::vector<std::string>> rows;
   for (const MeshFile* f : meshes) {
     if (!f->mesh) continue;
-    const eval::SurfaceErrors e = eval::evaluateSurface(*f->mesh, gt);
+    Mesh moved = *f->mesh;
+    const Eigen::Isometry3f t = alignment->cast<float>();
+    for (auto& v : moved.vertices) v = t * v;
+    const eval::SurfaceErrors e = eval::evaluateSurface(moved, gt);
     rows.push_back({f->name, number(e.corr_m * 1e3, 2), number(e.corr_median_m * 1e3, 2), number(e.compl_m * 1e3, 2),
                     number(e.compl_median_m * 1e3, 2), number(e.compl_within_1cm * 100.0, 1)});
   }
   page.body << "<p>Against the dataset's ground-truth surface <code>" << escapeHtml(gt_path)
-            << "</code> (CORR: mesh vertices to it; COMPL: points on it to the mesh; distances capped at "
-            << number(eval::SurfaceEvalOptions::kDefaultCapM * 1e3, 0) << " mm; <code>rekon eval surface</code>):</p>\n";
+            << "</code>, each mesh placed in its frame by the first camera's ground-truth pose (CORR: mesh vertices to "
+               "it; COMPL: points on it to the mesh; distances capped at "
+            << number(eval::SurfaceEvalOptions::kDefaultCapM * 1e3, 0) << " mm; as <code>rekon eval surface</code>):</p>\n";
   page.table({"mesh", "CORR mean [mm]", "CORR median [mm]", "COMPL mean [mm]", "COMPL median [mm]", "COMPL within 1 cm [%]"},
              rows);
 }
@@ -116,7 +130,7 @@ void meshSection(Page& page, const fs::path& run, const RunReportOptions& option
                "as the pose graph changed, and once more in the final pass. <code>mesh_uncorrected.ply</code> is the same "
                "keyframes fused once at the poses they had when first integrated, without any correction: where the two "
                "differ is what online surface correction changed.</p>\n";
-  if (!gt_mesh.empty()) surfaceErrorTable(page, {&final_mesh, &uncorrected}, gt_mesh);
+  if (!gt_mesh.empty()) surfaceErrorTable(page, {&final_mesh, &uncorrected}, gt_mesh, in);
   render::RenderOptions oblique;
   oblique.width = options.image_width;
   oblique.height = options.image_height;

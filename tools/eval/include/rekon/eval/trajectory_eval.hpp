@@ -4,6 +4,7 @@
 // RPE per second.
 #include <cstddef>
 #include <utility>
+#include <optional>
 #include <vector>
 
 #include "rekon/common/pose.hpp"
@@ -40,6 +41,12 @@ std::vector<std::pair<size_t, size_t>> associate(const Trajectory& gt, const Tra
 Pose alignRigid(const std::vector<Eigen::Vector3d>& from, const std::vector<Eigen::Vector3d>& to);
 
 // Throws rekon::Error when fewer than two poses associate.
+// The tracker's world is its first camera: the transform that moves what was
+// built in it (a mesh) into the reference trajectory's world, T_ref * T_est^-1
+// at the estimate's first timestamp; nullopt when the reference has no pose
+// within max_difference of it.
+std::optional<Pose> firstPoseAlignment(const Trajectory& est, const Trajectory& ref, double max_difference = 0.02);
+
 TrajectoryErrors evaluateTrajectory(const Trajectory& gt, const Trajectory& est, const TrajectoryEvalOptions& options = {});
 
 }  // namespace rekon::eval
