@@ -159,7 +159,7 @@ TEST(LiveErrors, NoDeviceIsOneLineNamingIt) {
   EXPECT_EQ(runCommand(binDir() + "/rekon run --camera webcam --out " + (dir / "out"), &out), 1);
   EXPECT_NE(lastLine(out).find("unknown driver 'webcam'"), std::string::npos) << out;
   EXPECT_EQ(runCommand(binDir() + "/rekon run --camera freenect --dataset " + (dir / "x") + " --out " + (dir / "out"), &out), 1);
-  EXPECT_NE(lastLine(out).find("one of --dataset DIR or --camera DEVICE"), std::string::npos) << out;
+  EXPECT_NE(lastLine(out).find("--dataset plays a recorded sequence and --camera runs a live camera; give one of them"), std::string::npos) << out;
 }
 
 // A recording cut mid-frame is, to rekon, a device that vanished: the frames

@@ -38,15 +38,17 @@ TEST(BrokenRun, ATruncatedFrameEndsWithOneLinePointingAtThePlayerLog) {
   }
 }
 
-TEST(BrokenRun, AnEmptyFolderPointsAtThePlayerLogThatNamesTheMissingCameraFile) {
+// Issue 27: found before any service starts (it used to be the player's
+// error after every service had started, leaving an empty run in --out).
+TEST(BrokenRun, AnEmptyFolderIsRefusedUpFrontNamingTheMissingCameraFile) {
   test::TempDir dir;
   fs::create_directories(dir / "empty");
   const Outcome o = rekonRun(dir / "empty", dir / "out");
   EXPECT_EQ(o.status, 1) << o.output;
   EXPECT_EQ(test::crashLines(o.output), "");
-  const auto player_errors = errorLines(readText(dir / "out/player.log"));
-  ASSERT_EQ(player_errors.size(), 1u) << readText(dir / "out/player.log");
-  EXPECT_NE(player_errors[0].find("camera.yaml"), std::string::npos) << player_errors[0];
+  EXPECT_EQ(o.output.find("started rekon-"), std::string::npos) << o.output;
+  EXPECT_NE(o.output.find("camera.yaml"), std::string::npos) << o.output;
+  EXPECT_FALSE(fs::exists(dir / "out"));
 }
 
 }  // namespace
