@@ -157,8 +157,10 @@ TEST(Mapper, CorrectedVolumeEqualsOneIntegratedFromScratchWithTheFinalPoses) {
   for (double moved : mapper.movements()) EXPECT_LE(moved, testParams().min_movement);
 
   volume::TsdfVolume scratch(testParams().volume);
-  for (const KeyframeRecord& r : mapper.keyframes())
-    scratch.integrate(r.kf.depth, r.kf.color, r.kf.weight, testCamera(), *mapper.currentPose(r.kf));
+  for (const KeyframeRecord& r : mapper.keyframes()) {
+    const fusion::FusedKeyframe kf = mapper.images(r);
+    scratch.integrate(kf.depth, kf.color, kf.weight, testCamera(), *mapper.currentPose(r.kf));
+  }
   const Difference d = compare(snapshot(mapper.volume()), snapshot(scratch));
   EXPECT_GT(d.observed, 100000);  // a real surface, not an empty comparison
   // De-integration subtracts exactly what integration added (integer sums): weights and signed distances equal bit for bit.
@@ -183,8 +185,10 @@ TEST(Mapper, WithoutCorrectionTheVolumeDiffersFromTheFinalPoses) {
   const auto final_update = script.finalUpdates().back();
   volume::TsdfVolume corrected(p.volume);
   std::map<int64_t, Pose> anchors(final_update.poses.begin(), final_update.poses.end());
-  for (const KeyframeRecord& r : mapper.keyframes())
-    corrected.integrate(r.kf.depth, r.kf.color, r.kf.weight, testCamera(), anchors.at(r.kf.anchor_keyframe_id) * r.kf.pose_in_anchor);
+  for (const KeyframeRecord& r : mapper.keyframes()) {
+    const fusion::FusedKeyframe kf = mapper.images(r);
+    corrected.integrate(kf.depth, kf.color, kf.weight, testCamera(), anchors.at(r.kf.anchor_keyframe_id) * r.kf.pose_in_anchor);
+  }
   const Difference d = compare(snapshot(mapper.volume()), snapshot(corrected));
   EXPECT_GT(d.weight_or_sdf, d.observed / 10);  // centimetres of drift change most voxels
 }
@@ -342,7 +346,7 @@ TEST(KeyframeStore, AKeyframeStoredButNotYetIntegratedWhenTheMapperDiedIsIntegra
     ASSERT_EQ(killed.keyframes().size(), 2u);
   }
   // The third as the killed mapper's closeKeyframe() left it: stored, never integrated.
-  store::KeyframeStore::openOrCreate(p.store, testCamera())->add(uninterrupted.keyframes()[2].kf);
+  store::KeyframeStore::openOrCreate(p.store, testCamera())->add(uninterrupted.images(uninterrupted.keyframes()[2]));
 
   Mapper restarted(p);
   EXPECT_EQ(restarted.counters().restored_keyframes, 3);
@@ -359,6 +363,36 @@ TEST(KeyframeStore, AKeyframeStoredButNotYetIntegratedWhenTheMapperDiedIsIntegra
   ASSERT_EQ(infos.size(), 3u);
   EXPECT_TRUE(infos[2].integrated);
   restarted.removeStore();
+}
+
+// One copy of each KF keyframe (issue 26): with a store the mapper keeps
+// none of their images in its own memory, reads the m of a round back from
+// the store (spilled ones from disk), and corrects exactly as a mapper that
+// holds them all.
+TEST(KeyframeStore, WithAStoreTheMapperKeepsNoImagesOfItsOwnAndCorrectsTheSame) {
+  test::TempDir dir;
+  MapperParams p = testParams();
+  p.use_store = true;
+  p.store.segment = "rekon_test_one_copy_" + std::to_string(getpid());
+  p.store.size_mb = 2;  // two 320x240 keyframes (0.84 MiB each) resident: the rest spill
+  p.store.spill_dir = dir / "spill";
+  store::KeyframeStore::remove(p.store.segment);
+  Mapper stored(p), held(testParams());
+  play(stored, kFrames);
+  play(held, kFrames);
+  stored.finish();
+  held.finish();
+  ASSERT_GT(stored.counters().reintegrations, 0);
+  EXPECT_EQ(stored.counters().reintegrations, held.counters().reintegrations);
+  EXPECT_EQ(stored.memoryUse().keyframe_bytes_in_mapper, 0);
+  EXPECT_EQ(held.memoryUse().keyframe_bytes_in_mapper, kFrames / 4 * 320 * 240 * (4 + 4 + 3));
+  EXPECT_EQ(stored.memoryUse().keyframe_bytes, held.memoryUse().keyframe_bytes);
+  const Difference d = compare(snapshot(held.volume()), snapshot(stored.volume()));
+  EXPECT_GT(d.observed, 100000);
+  EXPECT_EQ(d.weight_or_sdf, 0);     // the same images, bit for bit, at the same poses
+  EXPECT_EQ(d.max_color_levels, 0u);  // in the same order
+  EXPECT_EQ(sortedVertices(stored.extractUncorrectedMesh()), sortedVertices(held.extractUncorrectedMesh()));
+  stored.removeStore();
 }
 
 TEST(KeyframeStore, AFullStoreIsAnErrorNamingTheSetting) {
@@ -414,7 +448,7 @@ TEST(KeyframeStore, RekonKeyframesExportsEveryStoredKeyframe) {
   ASSERT_EQ(depth.size(), first.depth.size());
   // The fused depth of keyframe 0, re-quantised to the camera's depth_scale, where keyframe 0 has depth.
   cv::Mat stored;
-  mapper.keyframes()[0].kf.depth.convertTo(stored, CV_16U, testCamera().depth_scale);
+  mapper.images(mapper.keyframes()[0]).depth.convertTo(stored, CV_16U, testCamera().depth_scale);
   EXPECT_EQ(cv::norm(depth, stored, cv::NORM_INF), 0.0);
   EXPECT_TRUE(std::filesystem::exists(dir / "kf/kf_000001_color.png"));
   mapper.removeStore();

@@ -151,6 +151,8 @@ TEST_F(MapperServiceRun, WritesWhatTheReportReads) {
   // Memory in mapper_stats.json.
   EXPECT_EQ(jsonInt(stats, "input_frame_bytes"), 30LL * 640 * 480 * (2 + 3));  // 16-bit depth + BGR per frame
   EXPECT_EQ(jsonInt(stats, "keyframe_bytes"), 6LL * 640 * 480 * (4 + 4 + 3));  // float depth, weight, BGR per KF keyframe
+  // One copy of each, in the store (issue 26): none in the mapper's own memory.
+  EXPECT_EQ(jsonInt(stats, "keyframe_bytes_in_mapper"), 0);
   // The store adds its headers: measured 2912 bytes for the 6 keyframes, well under a page each.
   const long long store_headers = jsonInt(stats, "keyframe_store_bytes") - jsonInt(stats, "keyframe_bytes");
   EXPECT_GT(store_headers, 0);

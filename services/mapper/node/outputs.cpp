@@ -115,6 +115,7 @@ void recordStats(ServiceContext& ctx, const Mapper& mapper, const MapperParams& 
       .set("reintegration_blocks_streamed", static_cast<long long>(c.reintegration_blocks_streamed))
       .set("input_frame_bytes", static_cast<long long>(mem.input_frame_bytes))
       .set("keyframe_bytes", static_cast<long long>(mem.keyframe_bytes))
+      .set("keyframe_bytes_in_mapper", static_cast<long long>(mem.keyframe_bytes_in_mapper))
       .set("keyframe_over_input_bytes",
            static_cast<double>(mem.keyframe_bytes) / static_cast<double>(std::max<int64_t>(1, mem.input_frame_bytes)))
       .set("voxel_bytes", static_cast<long long>(mem.voxel_bytes))

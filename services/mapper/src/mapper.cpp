@@ -96,8 +96,10 @@ void Mapper::restoreFromStore() {
       writeAnchorPoses();
       session_->addKeyframe(rec.kf);
     }
+    const fusion::FusedKeyframe images = rec.kf;
+    leaveImagesAt(rec, ImagesHome::kStore);
     keyframes_.push_back(std::move(rec));
-    if (infos[i].integrated) integrateRestored(keyframes_.back(), infos[i].integrated_pose);
+    if (infos[i].integrated) integrateRestored(keyframes_.back(), images, infos[i].integrated_pose);
     else integrateStoredOnly(keyframes_.back());
     ++counters_.restored_keyframes;
     if ((i + 1) % 20 == 0) spdlog::info("rebuilt {} of {} keyframes", i + 1, infos.size());
@@ -118,7 +120,7 @@ void Mapper::integrateStoredOnly(KeyframeRecord& rec) {
   }
   spdlog::info("keyframe store: KF keyframe {} (frames {}..{}) was stored but not yet integrated when the mapper "
                "stopped; integrated now", rec.kf.id, rec.kf.first_frame_id, rec.kf.last_frame_id);
-  integrateRestored(rec, *pose);
+  integrateRestored(rec, images(rec), *pose);
   if (store_) store_->setIntegratedPose(rec.kf.id, *pose);
 }
 
@@ -127,11 +129,11 @@ void Mapper::integratePendingRestored() {
     if (!rec.integrated && currentPose(rec.kf)) integrateStoredOnly(rec);
 }
 
-void Mapper::integrateRestored(KeyframeRecord& rec, const Pose& pose) {
+void Mapper::integrateRestored(KeyframeRecord& rec, const fusion::FusedKeyframe& images, const Pose& pose) {
   // Straight into the volume, not through integrateKeyframe: the store or the
   // session already records this pose, and the counters describe this run's work.
   volume_->streamAround(pose.translation());
-  volume_->integrate(rec.kf.depth, rec.kf.color, rec.kf.weight, *camera_, pose);
+  volume_->integrate(images.depth, images.color, images.weight, *camera_, pose);
   rec.integrated = true;
   rec.integrated_pose = pose;
   rec.first_pose = pose;  // no older pose is kept: the uncorrected baseline starts here
@@ -139,7 +141,8 @@ void Mapper::integrateRestored(KeyframeRecord& rec, const Pose& pose) {
 }
 
 void Mapper::continueSession() {
-  const store::Session session = store::Session::open(params_.session_dir);
+  continued_ = std::make_unique<store::Session>(store::Session::open(params_.session_dir));
+  const store::Session& session = *continued_;
   const store::SessionInfo& info = session.info();
   if (info.voxel_size != params_.volume.voxel_size || info.truncation != params_.volume.truncation)
     spdlog::warn("session {} was mapped with {} m voxels and {} m truncation, this run maps with {} and {}; its "
@@ -163,8 +166,11 @@ void Mapper::continueSession() {
     }
     KeyframeRecord rec;
     rec.kf = session.load(i);
+    const fusion::FusedKeyframe images = rec.kf;
+    leaveImagesAt(rec, ImagesHome::kSession);
+    rec.session_index = i;
     keyframes_.push_back(std::move(rec));
-    integrateRestored(keyframes_.back(), *pose);
+    integrateRestored(keyframes_.back(), images, *pose);
     ++counters_.restored_keyframes;
     if ((i + 1) % 20 == 0) spdlog::info("integrated {} of the session's {} keyframes", i + 1, n);
   }
@@ -275,20 +281,41 @@ void Mapper::closeKeyframe() {
     writeAnchorPoses();  // first: a keyframe in the session always finds its anchor
     session_->addKeyframe(rec.kf);
   }
+  const fusion::FusedKeyframe images = rec.kf;
+  if (store_) leaveImagesAt(rec, ImagesHome::kStore);
   keyframes_.push_back(std::move(rec));
   const auto pose = currentPose(keyframes_.back().kf);
   if (!pose) throw Error("mapper: KF keyframe's DVO keyframe lost its pose");  // anchors are never forgotten
   const double t1 = clockMs();
-  integrateKeyframe(keyframes_.back(), *pose);
+  integrateKeyframe(keyframes_.back(), images, *pose);
   keyframes_.back().first_pose = *pose;
   counters_.first_integration_ms_total += clockMs() - t1;
   ++counters_.integrations;
 }
 
-void Mapper::integrateKeyframe(KeyframeRecord& rec, const Pose& pose) {
+fusion::FusedKeyframe Mapper::images(const KeyframeRecord& rec) const {
+  switch (rec.home) {
+    case ImagesHome::kHere: return rec.kf;
+    case ImagesHome::kStore:
+      if (!store_) break;  // removed at the end of the run
+      return store_->loadById(rec.kf.id);
+    case ImagesHome::kSession: return continued_->load(rec.session_index);
+  }
+  throw Error("mapper: KF keyframe " + std::to_string(rec.kf.id) +
+              "'s images were in the keyframe store, which is removed; use the map before removeStore()");
+}
+
+void Mapper::leaveImagesAt(KeyframeRecord& rec, ImagesHome home) {
+  rec.home = home;
+  rec.kf.depth.release();
+  rec.kf.weight.release();
+  rec.kf.color.release();
+}
+
+void Mapper::integrateKeyframe(KeyframeRecord& rec, const fusion::FusedKeyframe& images, const Pose& pose) {
   const double t0 = clockMs();
   volume_->streamAround(pose.translation());
-  volume_->integrate(rec.kf.depth, rec.kf.color, rec.kf.weight, *camera_, pose);
+  volume_->integrate(images.depth, images.color, images.weight, *camera_, pose);
   counters_.integrate_ms_total += clockMs() - t0;
   rec.integrated = true;
   rec.integrated_pose = pose;
@@ -301,20 +328,24 @@ ReintegrationRound Mapper::reintegrate(const std::vector<size_t>& chosen) {
   const double t0 = clockMs();
   const int64_t streamed_before = streamedBlocks(*volume_);
   std::vector<Pose> updated;
-  for (size_t i : chosen) updated.push_back(*currentPose(keyframes_[i].kf));
+  std::vector<fusion::FusedKeyframe> loaded;  // m keyframes' images for the round, then released
+  for (size_t i : chosen) {
+    updated.push_back(*currentPose(keyframes_[i].kf));
+    loaded.push_back(images(keyframes_[i]));
+  }
   // Paper 4.3: the sphere around the first keyframe's old pose, de-integrate
   // with the old poses, the sphere around its new pose, re-integrate with the
   // new poses, then back to the camera.
   volume_->streamAround(keyframes_[chosen.front()].integrated_pose.translation());
-  for (size_t i : chosen) {
-    KeyframeRecord& r = keyframes_[i];
+  for (size_t n = 0; n < chosen.size(); ++n) {
+    const KeyframeRecord& r = keyframes_[chosen[n]];
     volume_->streamAround(r.integrated_pose.translation());
-    volume_->deintegrate(r.kf.depth, r.kf.color, r.kf.weight, *camera_, r.integrated_pose);
+    volume_->deintegrate(loaded[n].depth, loaded[n].color, loaded[n].weight, *camera_, r.integrated_pose);
     ++counters_.deintegrations;
   }
   volume_->streamAround(updated.front().translation());
   for (size_t n = 0; n < chosen.size(); ++n) {
-    integrateKeyframe(keyframes_[chosen[n]], updated[n]);
+    integrateKeyframe(keyframes_[chosen[n]], loaded[n], updated[n]);
     ++counters_.reintegrations;
   }
   volume_->streamAround(camera_position_);
@@ -377,8 +408,9 @@ Mesh Mapper::extractUncorrectedMesh() const {
   volume::TsdfVolume baseline(params_.volume);
   for (const KeyframeRecord& r : keyframes_) {
     if (!r.integrated) continue;
+    const fusion::FusedKeyframe kf = images(r);
     baseline.streamAround(r.first_pose.translation());
-    baseline.integrate(r.kf.depth, r.kf.color, r.kf.weight, *camera_, r.first_pose);
+    baseline.integrate(kf.depth, kf.color, kf.weight, *camera_, r.first_pose);
   }
   return baseline.extractMesh();
 }
@@ -386,7 +418,11 @@ Mesh Mapper::extractUncorrectedMesh() const {
 MemoryUse Mapper::memoryUse() const {
   MemoryUse m;
   m.input_frame_bytes = counters_.input_frame_bytes;
-  for (const KeyframeRecord& r : keyframes_) m.keyframe_bytes += matBytes(r.kf.depth) + matBytes(r.kf.weight) + matBytes(r.kf.color);
+  const int64_t pixels = camera_ ? int64_t{camera_->width} * camera_->height : 0;
+  for (const KeyframeRecord& r : keyframes_) {
+    m.keyframe_bytes += pixels * static_cast<int64_t>(2 * sizeof(float) + 3);
+    m.keyframe_bytes_in_mapper += matBytes(r.kf.depth) + matBytes(r.kf.weight) + matBytes(r.kf.color);
+  }
   if (store_) m.keyframe_store_bytes = static_cast<int64_t>(store_->totalBytes() - store_->freeBytes());
   const volume::VolumeStats vs = volume_->stats();
   const int64_t block_bytes = static_cast<int64_t>(volume::kBlockVoxels) * vs.bytes_per_voxel;

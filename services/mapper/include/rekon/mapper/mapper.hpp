@@ -78,15 +78,27 @@ struct ReintegrationRound {
 // Bytes the mapper holds, for comparing keyframe fusion's memory with the input's.
 struct MemoryUse {
   int64_t input_frame_bytes = 0;  // every frame as received (16-bit depth + 8-bit BGR)
-  int64_t keyframe_bytes = 0;     // KF keyframes in memory (float depth, float weight, BGR color)
+  int64_t keyframe_bytes = 0;     // KF keyframes' images (float depth, float weight, BGR color), wherever kept
+  int64_t keyframe_bytes_in_mapper = 0;  // of those, in the mapper's own memory (ImagesHome::kHere)
   int64_t keyframe_store_bytes = -1;  // used bytes of the shared-memory store; -1 without one
   int64_t voxel_bytes = 0;            // every allocated block, active and host
   int64_t active_voxel_bytes_peak = 0;
 };
 
-// One KF keyframe the mapper holds (in memory; mirrored in the store).
+// Where a KF keyframe's images (depth, weight, color) are kept while the
+// mapper is not using them: one copy, never two. With a store they live
+// there (shared memory, spilled to disk by distance: bounded by
+// mapper.store_mb); a continued session's in its files; only a mapper
+// without either keeps them in its own memory.
+enum class ImagesHome { kHere, kStore, kSession };
+
+// One KF keyframe the mapper holds.
 struct KeyframeRecord {
+  // Metadata always; the images only while `home` is kHere (Mapper::images
+  // reads them from wherever they are).
   fusion::FusedKeyframe kf;
+  ImagesHome home = ImagesHome::kHere;
+  size_t session_index = 0;  // home kSession: its index in the session
   bool integrated = false;
   Pose integrated_pose = Pose::Identity();
   // The pose of its first integration (never corrected): the uncorrected baseline.
@@ -125,6 +137,8 @@ class Mapper {
 
   const volume::TsdfVolume& volume() const { return *volume_; }
   const std::vector<KeyframeRecord>& keyframes() const { return keyframes_; }
+  // `rec` with its images, read back from the store or the session when they are not here.
+  fusion::FusedKeyframe images(const KeyframeRecord& rec) const;
   // The frame after the newest one in a KF keyframe of this run held
   // (restored from the store or fused since), or -1 when none is held: where a restarted
   // mapper's frames must resume (the KF keyframe being fused, the queued
@@ -145,7 +159,10 @@ class Mapper {
  private:
   std::optional<Pose> keyframePose(int64_t keyframe_id) const;
   void closeKeyframe();
-  void integrateKeyframe(KeyframeRecord& rec, const Pose& pose);
+  // `images`: rec's keyframe with its images (images(rec)).
+  void integrateKeyframe(KeyframeRecord& rec, const fusion::FusedKeyframe& images, const Pose& pose);
+  // Releases rec's images now that `home` keeps them.
+  static void leaveImagesAt(KeyframeRecord& rec, ImagesHome home);
   // De-integrates the chosen keyframes at their old poses, re-integrates them
   // at their current ones (paper 4.3's streaming order); returns how many.
   ReintegrationRound reintegrate(const std::vector<size_t>& chosen);
@@ -153,7 +170,7 @@ class Mapper {
   void restoreFromStore();
   void continueSession();
   // A keyframe restored from the store or the session, integrated at `pose`.
-  void integrateRestored(KeyframeRecord& rec, const Pose& pose);
+  void integrateRestored(KeyframeRecord& rec, const fusion::FusedKeyframe& images, const Pose& pose);
   // A keyframe the store holds but the old instance never integrated (it
   // died between storing and integrating it): integrated at its current
   // pose, recorded in the store; left for later when its anchor has none.
@@ -164,6 +181,7 @@ class Mapper {
   std::unique_ptr<volume::TsdfVolume> volume_;
   std::unique_ptr<store::KeyframeStore> store_;
   std::unique_ptr<store::SessionWriter> session_;
+  std::unique_ptr<store::Session> continued_;  // the session a continued run reads its keyframes' images from
   void writeAnchorPoses();  // to the session, when there is one
   std::optional<Intrinsics> camera_;
   std::unique_ptr<fusion::KeyframeFuser> fuser_;
