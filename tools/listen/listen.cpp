@@ -11,13 +11,13 @@
 #include <thread>
 
 #include "rekon/common/error.hpp"
+#include "rekon/common/frame_ack.hpp"
 #include "rekon/common/frame_transport.hpp"
 #include "rekon/common/mesh.hpp"
 #include "rekon/common/mesh_blocks.hpp"
 #include "rekon/common/service.hpp"
 #include "rekon_msgs/done_t.hpp"
 #include "rekon_msgs/end_of_stream_t.hpp"
-#include "rekon_msgs/frame_ack_t.hpp"
 #include "rekon_msgs/mesh_request_t.hpp"
 
 namespace rekon {
@@ -125,11 +125,7 @@ int listenMain(int argc, char** argv) {
             ++received;
           }
           last_frame = std::max(last_frame, msg.frame_id);
-          rekon_msgs::frame_ack_t ack{};
-          ack.service = ctx.name();
-          ack.frame_id = msg.frame_id;
-          ctx.bus().publish(channel::kFrameAck, ack);
-          ctx.setLastFrame(msg.frame_id);
+          acknowledgeFrame(ctx, msg.frame_id);
         });
         ctx.bus().subscribe<rekon_msgs::end_of_stream_t>(channel::kEndOfStream, [&](const rekon_msgs::end_of_stream_t&) {
           std::lock_guard<std::mutex> lock(mutex);

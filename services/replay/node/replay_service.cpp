@@ -12,13 +12,13 @@
 #include <thread>
 
 #include "rekon/common/error.hpp"
+#include "rekon/common/frame_ack.hpp"
 #include "rekon/common/messages.hpp"
 #include "rekon/common/pose.hpp"
 #include "rekon/replay/replay.hpp"
 #include "rekon_msgs/constraint_t.hpp"
 #include "rekon_msgs/done_t.hpp"
 #include "rekon_msgs/end_of_stream_t.hpp"
-#include "rekon_msgs/frame_ack_t.hpp"
 #include "rekon_msgs/frame_t.hpp"
 #include "rekon_msgs/graph_update_t.hpp"
 #include "rekon_msgs/keyframe_t.hpp"
@@ -156,11 +156,7 @@ class ScriptedFrontend {
       publishUpdate(ctx_.bus(), *u);
       ++updates_;
     }
-    rekon_msgs::frame_ack_t ack{};
-    ack.service = ctx_.name();
-    ack.frame_id = msg.frame_id;
-    ctx_.bus().publish(channel::kFrameAck, ack);
-    ctx_.setLastFrame(msg.frame_id);
+    acknowledgeFrame(ctx_, msg.frame_id);
     last_handled_.store(msg.frame_id);
   }
 
