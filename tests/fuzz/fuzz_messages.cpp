@@ -14,6 +14,7 @@
 #include "rekon_msgs/constraint_t.hpp"
 #include "rekon_msgs/done_t.hpp"
 #include "rekon_msgs/end_of_stream_t.hpp"
+#include "rekon_msgs/external_constraint_t.hpp"
 #include "rekon_msgs/frame_ack_t.hpp"
 #include "rekon_msgs/frame_t.hpp"
 #include "rekon_msgs/graph_update_t.hpp"
@@ -46,7 +47,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   }();
   (void)quiet;
   if (size < 1) return 0;
-  const uint8_t kind = data[0] % 16;
+  const uint8_t kind = data[0] % 17;
   ++data;
   --size;
   switch (kind) {
@@ -94,7 +95,15 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
       }
       break;
     }
-    default: { rekon_msgs::mesh_request_t m; decode(data, size, &m); break; }
+    case 15: { rekon_msgs::mesh_request_t m; decode(data, size, &m); break; }
+    default: {
+      rekon_msgs::external_constraint_t m;
+      if (decode(data, size, &m)) {
+        rekon::fromMsg(m.pose);
+        rekon::matrix6FromArray(m.information);
+      }
+      break;
+    }
   }
   return 0;
 }

@@ -17,6 +17,7 @@
 #include "rekon_msgs/constraint_t.hpp"
 #include "rekon_msgs/done_t.hpp"
 #include "rekon_msgs/end_of_stream_t.hpp"
+#include "rekon_msgs/external_constraint_t.hpp"
 #include "rekon_msgs/frame_ack_t.hpp"
 #include "rekon_msgs/frame_t.hpp"
 #include "rekon_msgs/graph_update_t.hpp"
@@ -179,6 +180,14 @@ int main(int argc, char** argv) {
   rekon_msgs::mesh_request_t mesh_request{};
   mesh_request.requester = "viewer";
   writeMessage(messages, "seed_mesh_request", 15, mesh_request);
+  rekon_msgs::external_constraint_t prior{};
+  prior.source = "operator";
+  prior.sequence = 1;
+  prior.kind = rekon_msgs::external_constraint_t::KIND_PRIOR;
+  prior.to_id = 3;
+  prior.pose.q[3] = 1.0;
+  for (int i = 0; i < 6; ++i) prior.information[i * 7] = 1e4;
+  writeMessage(messages, "seed_external_constraint", 16, prior);
   std::cout << "seeds in " << root.string() << "\n";
   return 0;
 }
