@@ -80,3 +80,14 @@ TEST(FrontendConformance, RekonReplayPasses) {
       << logged;
   expectAllPass(logged, "from the lcm-logger log");
 }
+
+TEST(FrontendConformance, AFileThatIsNoRunLogIsOneLineAndAFailure) {
+  rekon::test::TempDir dir;
+  std::string out;
+  ASSERT_EQ(runCommand("head -c 4096 /dev/urandom > " + (dir / "junk.lcm"), &out), 0) << out;
+  EXPECT_EQ(runCommand(bin() + "/rekon frontend-check --log " + (dir / "junk.lcm"), &out), 1) << out;
+  EXPECT_NE(out.find("junk.lcm: no message on a frontend channel"), std::string::npos) << out;
+  EXPECT_EQ(runCommand(bin() + "/rekon frontend-check --log " + (dir / "absent.lcm"), &out), 1) << out;
+  EXPECT_NE(out.find("absent.lcm: cannot open as an lcm-logger log"), std::string::npos) << out;
+  EXPECT_EQ(rekon::test::crashLines(out), "") << out;
+}

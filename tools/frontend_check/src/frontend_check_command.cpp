@@ -50,6 +50,9 @@ void feedLog(const std::string& path, const std::string& prefix, Checker& checke
     if (e->channel.compare(0, prefix.size(), prefix) != 0) continue;
     checker.feed(e->channel.substr(prefix.size()), e->timestamp, e->data, e->datalen);
   }
+  if (checker.messages() == 0)
+    throw Error(path + ": no message on a frontend channel (" + prefix +
+                "KEYFRAMES, ...): not an lcm-logger log of a rekon run, or another lcm.channel_prefix");
 }
 
 // The bus until the frontend's done_t (and a linger), a stop, or the timeout.
