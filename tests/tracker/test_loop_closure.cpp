@@ -3,12 +3,14 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <filesystem>
 #include <memory>
 #include <numbers>
 #include <vector>
 
 #include "rekon/tracker/loop_closure.hpp"
 #include "synthetic_views.hpp"
+#include "test_support.hpp"
 
 namespace rekon::tracker {
 namespace {
@@ -103,6 +105,41 @@ TEST_F(LoopClosureTest, TheLoopsEndIsAcceptedAgainstItsStartWithTheTrueRelativeP
   EXPECT_LT(translationDistance(c.constraint->relative, truth), 0.01);
   EXPECT_LT(rotationAngle(c.constraint->relative, truth) / kDeg, 0.5);
   EXPECT_TRUE(c.constraint->information.allFinite());
+}
+
+// Issue 26: the keyframes beyond tracker.keyframes_in_memory wait on disk
+// and are read back for a check; the check is the same, bit for bit (the
+// finest level is stored, the coarser levels and the reference rebuilt by
+// the same code), and the files go with the cache.
+TEST_F(LoopClosureTest, CandidatesOnDiskGiveTheSameLoopAsCandidatesInMemory) {
+  LoopClosureDetector all(params);
+  addChain(all, 0, {0, 12, 24});
+  addChain(all, 3, {566, 578, 590}, drift());
+  const CandidateCheck expected = all.check(0, 5);
+  ASSERT_TRUE(expected.accepted) << expected.reason;
+
+  rekon::test::TempDir dir;
+  params.memory.keyframes_in_memory = 2;
+  params.memory.spill_dir = dir / "spill";
+  auto cache = std::make_shared<KeyframeCache>(params);
+  {
+    LoopClosureDetector bounded(params, cache);
+    addChain(bounded, 0, {0, 12, 24});
+    addChain(bounded, 3, {566, 578, 590}, drift());
+    const KeyframeCacheStats before = cache->stats();
+    EXPECT_EQ(before.keyframes, 6);
+    EXPECT_EQ(before.resident, 2);
+    EXPECT_EQ(before.spilled, 4);  // each written once
+    const CandidateCheck c = bounded.check(0, 5);
+    ASSERT_TRUE(c.accepted) << c.reason;
+    EXPECT_EQ(c.constraint->relative.matrix(), expected.constraint->relative.matrix());
+    EXPECT_EQ(c.constraint->information, expected.constraint->information);
+    EXPECT_GE(cache->stats().loaded, 1);
+    EXPECT_LE(cache->stats().resident, 2);
+    EXPECT_TRUE(std::filesystem::exists(dir / "spill/tracker"));
+  }
+  cache.reset();
+  EXPECT_FALSE(std::filesystem::exists(dir / "spill")) << "the cache removes its files and the folder it made";
 }
 
 // The loop pose of the room's end (frames 550-574) against its start, with

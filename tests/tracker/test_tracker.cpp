@@ -141,6 +141,11 @@ TEST(TrackerParams, DefaultConfigGivesTheNamedDefaults) {
   EXPECT_DOUBLE_EQ(p.lost.residual_entropy_ratio, d.lost.residual_entropy_ratio);
   EXPECT_EQ(p.lost.max_lost_frames, d.lost.max_lost_frames);
   EXPECT_DOUBLE_EQ(p.loop.refine_photometric_weight, d.loop.refine_photometric_weight);
+  EXPECT_EQ(p.aligner.gap_coarsest_level, d.aligner.gap_coarsest_level);
+  EXPECT_DOUBLE_EQ(p.aligner.gap_coarse_s, d.aligner.gap_coarse_s);
+  // A run bounds the keyframes in memory; params built in code (tests, benches) keep them all.
+  EXPECT_GT(p.memory.keyframes_in_memory, 0);
+  EXPECT_EQ(d.memory.keyframes_in_memory, 0);
 }
 
 TEST(TrackerParams, OutOfRangeValueIsAnErrorNamingTheKey) {
@@ -152,6 +157,9 @@ TEST(TrackerParams, OutOfRangeValueIsAnErrorNamingTheKey) {
   }
   EXPECT_THROW(trackerParamsFromConfig(Config::load("", {"tracker.keyframe_criterion=sometimes"})), Error);
   EXPECT_THROW(trackerParamsFromConfig(Config::load("", {"tracker.loop_refine_photometric_weight=1.5"})), Error);
+  EXPECT_THROW(trackerParamsFromConfig(Config::load("", {"tracker.gap_coarsest_level=2"})), Error);  // below coarsest
+  EXPECT_THROW(trackerParamsFromConfig(Config::load("", {"tracker.keyframes_in_memory=1"})), Error);
+  EXPECT_THROW(trackerParamsFromConfig(Config::load("", {"tracker.keyframe_spill_dir="})), Error);
 }
 
 // Keyframe selection on the room's loop with Kinect-like noise: 150 frames

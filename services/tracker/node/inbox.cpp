@@ -79,6 +79,9 @@ void Inbox::publishLive() {
   ctx_.setLive("lost_frames", static_cast<double>(n.lost));
   ctx_.setLive("keyframes", static_cast<double>(n.keyframes));
   ctx_.setLive("loop_closures_accepted", static_cast<double>(loops_.stats().accepted));
+  const KeyframeCacheStats kf = loops_.keyframeCacheStats();
+  ctx_.setLive("keyframes_in_memory", static_cast<double>(kf.resident));
+  ctx_.setLive("keyframes_on_disk", static_cast<double>(kf.keyframes - kf.resident));
 }
 
 void Inbox::onGraphUpdate(const rekon_msgs::graph_update_t& m) {

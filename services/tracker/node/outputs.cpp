@@ -34,7 +34,7 @@ void writeTiming(const std::vector<std::pair<int64_t, double>>& frame_ms, const 
 }  // namespace
 
 void writeOutputs(ServiceContext& ctx, const TrackingTotals& totals, int64_t frames_sent_again,
-                  const LoopClosureStats& loops) {
+                  const LoopClosureStats& loops, const KeyframeCacheStats& keyframes) {
   std::vector<double> ms;
   double ms_sum = 0.0;
   for (const auto& f : totals.frame_ms) {
@@ -60,7 +60,13 @@ void writeOutputs(ServiceContext& ctx, const TrackingTotals& totals, int64_t fra
       .set("loop_checks_dropped", static_cast<long long>(loops.checks_dropped))
       .set("loop_candidates_dropped", static_cast<long long>(loops.candidates_dropped))
       .set("loop_check_ms_per_keyframe",
-           loops.check_ms / static_cast<double>(std::max<int64_t>(loops.keyframes_checked, 1)));
+           loops.check_ms / static_cast<double>(std::max<int64_t>(loops.keyframes_checked, 1)))
+      // The DVO keyframes' tiers (tracker.keyframes_in_memory): resident now and at most, written to disk, read back.
+      .set("keyframes_in_memory", static_cast<long long>(keyframes.resident))
+      .set("keyframes_in_memory_peak", static_cast<long long>(keyframes.resident_peak))
+      .set("keyframes_in_memory_mb", static_cast<double>(keyframes.resident_bytes) / (1024.0 * 1024.0))
+      .set("keyframes_spilled", static_cast<long long>(keyframes.spilled))
+      .set("keyframes_read_back", static_cast<long long>(keyframes.loaded));
   LostIntervals lost = totals.lost_intervals;
   lost.finish();
   ctx.stats().set("lost_intervals_count", static_cast<long long>(lost.count())).setRaw("lost_intervals", lost.json());

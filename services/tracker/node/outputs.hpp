@@ -11,6 +11,6 @@
 namespace rekon::tracker {
 
 void writeOutputs(ServiceContext& ctx, const TrackingTotals& totals, int64_t frames_sent_again,
-                  const LoopClosureStats& loops);
+                  const LoopClosureStats& loops, const KeyframeCacheStats& keyframes);
 
 }  // namespace rekon::tracker

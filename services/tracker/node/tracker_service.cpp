@@ -74,8 +74,11 @@ void finish(ServiceContext& ctx, const Inbox& inbox, History& history, LoopClosu
 void runTrackerService(ServiceContext& ctx) {
   const TrackerParams params = trackerParamsFromConfig(ctx.config());
   History history(ctx.bus());
-  LoopClosureWorker loops(params, [&history](const LoopConstraint& c) { history.publishLoopConstraint(c); });
-  TrackingWorker worker(params, TrackerSession::fromConfig(ctx.config()), history, loops);
+  // One copy of each DVO keyframe for loop closure and relocalisation, bounded by tracker.keyframes_in_memory.
+  const auto keyframes = std::make_shared<KeyframeCache>(params);
+  LoopClosureWorker loops(params, [&history](const LoopConstraint& c) { history.publishLoopConstraint(c); }, true,
+                          keyframes);
+  TrackingWorker worker(params, TrackerSession::fromConfig(ctx.config()), history, loops, keyframes);
   PeerWatch peers(ctx.bus(), ctx.lifecycle());
   Inbox inbox(ctx, worker, history, loops);
   StopThreadsOnExit stop_threads(ctx);  // before the state above dies: the bus handlers use it
@@ -89,7 +92,7 @@ void runTrackerService(ServiceContext& ctx) {
   ctx.setState("finishing");
   if (ended) finish(ctx, inbox, history, loops, peers);
   ctx.stopThreads();  // no handler runs after this
-  writeOutputs(ctx, worker.totals(), inbox.framesSentAgain(), loops.stats());
+  writeOutputs(ctx, worker.totals(), inbox.framesSentAgain(), loops.stats(), keyframes->stats());
   if (const auto failure = worker.failure()) throw Error(*failure);  // after the outputs: what was tracked is kept
 }
 

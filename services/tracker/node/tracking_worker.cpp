@@ -25,8 +25,8 @@ TrackerSession TrackerSession::fromConfig(const Config& config) {
 }
 
 TrackingWorker::TrackingWorker(const TrackerParams& params, const TrackerSession& session, History& history,
-                               LoopClosureWorker& loops)
-    : session_(session), history_(history), loops_(loops), tracker_(params) {
+                               LoopClosureWorker& loops, std::shared_ptr<KeyframeCache> keyframes)
+    : session_(session), history_(history), loops_(loops), tracker_(params, std::move(keyframes)) {
   if (session_.continued) continueSession(params);
 }
 

@@ -46,7 +46,9 @@ struct TrackerSession {
 class TrackingWorker {
  public:
   // With session.continue the session's keyframes are loaded here: rekon::Error naming the file when one is damaged.
-  TrackingWorker(const TrackerParams& params, const TrackerSession& session, History& history, LoopClosureWorker& loops);
+  // `keyframes`: the DVO keyframes' cache, shared with `loops`.
+  TrackingWorker(const TrackerParams& params, const TrackerSession& session, History& history, LoopClosureWorker& loops,
+                 std::shared_ptr<KeyframeCache> keyframes);
 
   // Decodes and tracks one frame; false when it does not decode (the
   // receiver logged why).

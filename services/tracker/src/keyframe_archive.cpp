@@ -196,6 +196,16 @@ void saveKeyframe(const std::string& session_dir, const Keyframe& kf, const std:
   writeFileAtomically((dir / fileName(kf.id)).string(), w.bytes());
 }
 
+std::string keyframeFile(const std::string& session_dir, int64_t id) {
+  return (archiveDir(session_dir) / fileName(id)).string();
+}
+
+StoredKeyframe loadKeyframe(const std::string& session_dir, int64_t id, const AlignerParams& params) {
+  const fs::path path = keyframeFile(session_dir, id);
+  if (!fs::exists(path)) throw Error(path.string() + " is missing; the keyframe's file was removed while in use");
+  return readKeyframe(path, params);
+}
+
 std::vector<StoredKeyframe> loadKeyframes(const std::string& session_dir, const AlignerParams& params) {
   std::vector<fs::path> files;
   std::error_code ec;

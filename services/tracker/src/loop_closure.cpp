@@ -37,7 +37,9 @@ Pose bothDirections(const AlignResult& forward, const AlignResult& backward) {
   return orthonormalised(forward.pose * expSe3(0.5 * delta));
 }
 
-LoopClosureDetector::LoopClosureDetector(const TrackerParams& params) : params_(params), aligner_(params.aligner) {
+LoopClosureDetector::LoopClosureDetector(const TrackerParams& params, std::shared_ptr<KeyframeCache> cache)
+    : params_(params), cache_(cache ? std::move(cache) : std::make_shared<KeyframeCache>(params)),
+      aligner_(params.aligner) {
   params_.validate();
   // Without the geometric term there is nothing to refine towards.
   if (params_.loop.refine_photometric_weight < 1.0 && params_.aligner.use_depth) {
@@ -60,15 +62,21 @@ std::pair<AlignResult, AlignResult> LoopClosureDetector::refine(const Keyframe& 
 
 void LoopClosureDetector::addKeyframe(std::shared_ptr<const Keyframe> keyframe,
                                       const std::optional<OdometryConstraint>& incoming) {
-  Entry e;
-  e.keyframe = std::move(keyframe);
-  e.incoming = incoming;
   if (incoming && std::isfinite(incoming->entropy)) {
     fine_sum_ += logDetOfEntropy(incoming->entropy);
     ++fine_count_;
   }
-  const int64_t id = e.keyframe->id;
-  entries_[id] = std::move(e);
+  Entry& e = entries_[keyframe->id];
+  e.pose_world = keyframe->pose_world;
+  e.incoming = incoming;
+  e.incoming_coarse_log_det.reset();
+  cache_->add(std::move(keyframe));
+}
+
+std::shared_ptr<const Keyframe> LoopClosureDetector::keyframe(int64_t id) const {
+  auto kf = cache_->get(id);
+  if (!kf) throw Error("loop closure: keyframe " + std::to_string(id) + " is not in the keyframe cache");
+  return kf;
 }
 
 void LoopClosureDetector::updateGraph(int64_t version, std::unordered_map<int64_t, Pose> poses) {
@@ -86,14 +94,14 @@ int64_t LoopClosureDetector::graphVersion() const {
 Pose LoopClosureDetector::estimate(int64_t keyframe_id) const {
   const auto it = entries_.find(keyframe_id);
   if (it == entries_.end()) return Pose::Identity();
-  const Pose& odometry = it->second.keyframe->pose_world;
+  const Pose& odometry = it->second.pose_world;
   std::lock_guard<std::mutex> lock(graph_mutex_);
   if (const auto g = graph_.find(keyframe_id); g != graph_.end()) return g->second;
   // Keyframes newer than the graph: their odometry relative to the newest
   // earlier keyframe the graph has, on top of that keyframe's graph pose.
   for (auto a = std::make_reverse_iterator(it); a != entries_.rend(); ++a) {
     if (const auto g = graph_.find(a->first); g != graph_.end())
-      return orthonormalised(g->second * a->second.keyframe->pose_world.inverse() * odometry);
+      return orthonormalised(g->second * a->second.pose_world.inverse() * odometry);
   }
   return odometry;
 }
@@ -118,7 +126,7 @@ std::vector<int64_t> LoopClosureDetector::candidates(int64_t keyframe_id) const 
   return ids;
 }
 
-std::optional<double> LoopClosureDetector::incomingLogDet(Entry& e, bool coarse) {
+std::optional<double> LoopClosureDetector::incomingLogDet(int64_t id, Entry& e, bool coarse) {
   if (!e.incoming || !std::isfinite(e.incoming->entropy)) return std::nullopt;
   if (!coarse) return logDetOfEntropy(e.incoming->entropy);
   if (!e.incoming_coarse_log_det) {
@@ -127,7 +135,7 @@ std::optional<double> LoopClosureDetector::incomingLogDet(Entry& e, bool coarse)
     const auto from = entries_.find(e.incoming->from_id);
     if (from == entries_.end()) return std::nullopt;
     const int coarsest = params_.aligner.coarsest_level;
-    const AlignResult r = aligner_.align(from->second.keyframe->reference, e.keyframe->pyramid, e.incoming->relative,
+    const AlignResult r = aligner_.align(keyframe(from->first)->reference, keyframe(id)->pyramid, e.incoming->relative,
                                          coarsest, coarsest);
     if (!r.valid) return std::nullopt;
     e.incoming_coarse_log_det = logDetOfEntropy(r.entropy);
@@ -143,7 +151,7 @@ std::optional<double> LoopClosureDetector::odometryLogDet(int64_t a, int64_t b, 
   auto add = [&](int64_t id) {
     const auto it = entries_.find(id);
     if (it == entries_.end()) return;
-    if (const auto v = incomingLogDet(it->second, coarse)) {
+    if (const auto v = incomingLogDet(id, it->second, coarse)) {
       sum += *v;
       ++n;
     }
@@ -183,7 +191,7 @@ CandidateCheck LoopClosureDetector::check(int64_t candidate_id, int64_t keyframe
     return out;
   }
   const Pose relative = orthonormalised(estimate(candidate_id).inverse() * estimate(keyframe_id));
-  return check(candidate_id, *cur->second.keyframe, {Pose::Identity(), relative});
+  return check(candidate_id, *keyframe(keyframe_id), {Pose::Identity(), relative});
 }
 
 std::vector<Pose> LoopClosureDetector::odometryNeighbours(int64_t id) const {
@@ -213,7 +221,8 @@ CandidateCheck LoopClosureDetector::check(int64_t candidate_id, const Keyframe& 
     out.reason = "no odometry constraint to compare with";
     return out;
   }
-  const Keyframe& reference = *cand->second.keyframe;
+  const std::shared_ptr<const Keyframe> held = keyframe(candidate_id);  // alive through the check
+  const Keyframe& reference = *held;
   const int coarsest = params_.aligner.coarsest_level;
   const LoopClosureParams& lp = params_.loop;
   out.reason = "coarse stage";
@@ -299,8 +308,9 @@ std::vector<LoopConstraint> LoopClosureDetector::detect(int64_t keyframe_id, Loo
   return accepted;
 }
 
-LoopClosureWorker::LoopClosureWorker(const TrackerParams& params, AcceptFn on_accept, bool start)
-    : detector_(params), on_accept_(std::move(on_accept)) {
+LoopClosureWorker::LoopClosureWorker(const TrackerParams& params, AcceptFn on_accept, bool start,
+                                     std::shared_ptr<KeyframeCache> cache)
+    : detector_(params, std::move(cache)), on_accept_(std::move(on_accept)) {
   thread_ = std::thread([this] { run(); });
   if (start) this->start();
 }

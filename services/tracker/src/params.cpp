@@ -96,8 +96,15 @@ int AlignerParams::builtCoarsestLevel(int width, int height) const {
   return level;
 }
 
+void KeyframeMemoryParams::validate() const {
+  require(keyframes_in_memory == 0 || keyframes_in_memory >= 2, "keyframes_in_memory", keyframes_in_memory,
+          "0 (all) or at least 2 (a check aligns two keyframes)");
+  if (spill_dir.empty()) throw Error("tracker.keyframe_spill_dir is empty; it must be \"auto\" or a folder");
+}
+
 void TrackerParams::validate() const {
   aligner.validate();
+  memory.validate();
   keyframe.validate();
   lost.validate();
   loop.validate();
@@ -134,6 +141,8 @@ TrackerParams trackerParamsFromConfig(const Config& c) {
   p.lost.residual_entropy_ratio = c.getDouble("tracker.lost_residual_entropy_ratio");
   p.lost.max_lost_frames = c.getInt("tracker.lost_max_frames");
   p.lost.relocalise_budget_ms = c.getDouble("tracker.lost_relocalise_budget_ms");
+  p.memory.keyframes_in_memory = c.getInt("tracker.keyframes_in_memory");
+  p.memory.spill_dir = c.getString("tracker.keyframe_spill_dir");
   p.loop.enabled = c.getBool("tracker.loop_closure");
   p.loop.search_radius = c.getDouble("tracker.loop_search_radius");
   p.loop.exclude_predecessors = c.getInt("tracker.loop_exclude_predecessors");

@@ -32,8 +32,9 @@ const char* toString(LostReason reason) {
   return "unknown";
 }
 
-Tracker::Tracker(const TrackerParams& params)
-    : params_(params), aligner_(params.aligner), relocaliser_(std::make_unique<Relocaliser>(params)) {
+Tracker::Tracker(const TrackerParams& params, std::shared_ptr<KeyframeCache> keyframes)
+    : params_(params), aligner_(params.aligner),
+      relocaliser_(std::make_unique<Relocaliser>(params, std::move(keyframes))) {
   params_.validate();
 }
 

@@ -34,4 +34,9 @@ void saveKeyframe(const std::string& session_dir, const Keyframe& kf, const std:
 // coarser level than params.finest_level.
 std::vector<StoredKeyframe> loadKeyframes(const std::string& session_dir, const AlignerParams& params);
 
+// SESSION/tracker/'s file of keyframe `id`, and that one keyframe read back
+// (rekon::Error as loadKeyframes for a missing or damaged file).
+std::string keyframeFile(const std::string& session_dir, int64_t id);
+StoredKeyframe loadKeyframe(const std::string& session_dir, int64_t id, const AlignerParams& params);
+
 }  // namespace rekon::tracker

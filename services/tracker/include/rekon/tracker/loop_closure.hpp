@@ -22,6 +22,7 @@
 #include <vector>
 
 #include "rekon/tracker/dense_aligner.hpp"
+#include "rekon/tracker/keyframe_cache.hpp"
 #include "rekon/tracker/params.hpp"
 #include "rekon/tracker/tracker.hpp"
 
@@ -81,7 +82,9 @@ struct LoopClosureStats {
 // which another thread may call at any time.
 class LoopClosureDetector {
  public:
-  explicit LoopClosureDetector(const TrackerParams& params);
+  // `cache` holds the keyframes' images (shared with another detector);
+  // null: one of its own, sized by params.memory.
+  explicit LoopClosureDetector(const TrackerParams& params, std::shared_ptr<KeyframeCache> cache = nullptr);
 
   // Adds a keyframe as a future candidate; `incoming` links it to its
   // predecessor (absent for the first keyframe and after a tracking reset).
@@ -116,17 +119,20 @@ class LoopClosureDetector {
   std::vector<LoopConstraint> detect(int64_t keyframe_id, LoopClosureStats& stats);
 
   const LoopClosureParams& params() const { return params_.loop; }
+  KeyframeCacheStats keyframeCacheStats() const { return cache_->stats(); }
 
  private:
   struct Entry {
-    std::shared_ptr<const Keyframe> keyframe;
+    Pose pose_world = Pose::Identity();  // the keyframe's odometry pose; its images are in cache_
     std::optional<OdometryConstraint> incoming;
     std::optional<double> incoming_coarse_log_det;  // computed when first needed
   };
   // Mean ln det of the odometry constraints into and out of `a` and into `b`
   // (the global mean when none), at the coarse stage or the fine stage.
   std::optional<double> odometryLogDet(int64_t a, int64_t b, bool coarse);
-  std::optional<double> incomingLogDet(Entry& e, bool coarse);
+  std::optional<double> incomingLogDet(int64_t id, Entry& e, bool coarse);
+  // An added keyframe with its images (rekon::Error when the cache lost it).
+  std::shared_ptr<const Keyframe> keyframe(int64_t id) const;
   bool passes(double log_det, double reference, double threshold) const;
 
   // The accepted pair's forward (`fine`) and backward alignments refined by
@@ -136,6 +142,7 @@ class LoopClosureDetector {
                                              const AlignResult& fine, const AlignResult& back);
 
   TrackerParams params_;
+  std::shared_ptr<KeyframeCache> cache_;
   DenseAligner aligner_;
   std::optional<DenseAligner> refiner_;  // absent when refinement is off
   std::map<int64_t, Entry> entries_;
@@ -154,7 +161,8 @@ class LoopClosureWorker {
   using AcceptFn = std::function<void(const LoopConstraint&)>;
 
   // `start` false: the worker waits for start() (tests fill the queue first).
-  LoopClosureWorker(const TrackerParams& params, AcceptFn on_accept, bool start = true);
+  LoopClosureWorker(const TrackerParams& params, AcceptFn on_accept, bool start = true,
+                    std::shared_ptr<KeyframeCache> cache = nullptr);
   ~LoopClosureWorker();
   LoopClosureWorker(const LoopClosureWorker&) = delete;
   LoopClosureWorker& operator=(const LoopClosureWorker&) = delete;
@@ -173,6 +181,8 @@ class LoopClosureWorker {
   // true when drained (false at once when not started and not empty).
   bool waitUntilDrained(int timeout_ms);
   LoopClosureStats stats() const;
+  // The DVO keyframes' tiers (memory, disk).
+  KeyframeCacheStats keyframeCacheStats() const { return detector_.keyframeCacheStats(); }
   // Ids of the keyframes whose check ran, in order.
   std::vector<int64_t> checkedKeyframes() const;
 

@@ -205,11 +205,23 @@ struct LoopClosureParams {
   void validate() const;
 };
 
+// How many DVO keyframes stay in memory (keyframe_cache.hpp).
+struct KeyframeMemoryParams {
+  static constexpr const char* kAutoSpillDir = "auto";
+  // 0: all of them (no files; the default of params built in code).
+  int keyframes_in_memory = 0;
+  // "auto": $TMPDIR (else /tmp)/rekon_tracker_<pid>.spill; else a folder.
+  std::string spill_dir = kAutoSpillDir;
+
+  void validate() const;
+};
+
 struct TrackerParams {
   AlignerParams aligner;
   KeyframeParams keyframe;
   LostParams lost;
   LoopClosureParams loop;
+  KeyframeMemoryParams memory;
 
   void validate() const;
 };

@@ -28,7 +28,8 @@ struct Relocalisation {
 
 class Relocaliser {
  public:
-  explicit Relocaliser(const TrackerParams& params) : detector_(params) {}
+  explicit Relocaliser(const TrackerParams& params, std::shared_ptr<KeyframeCache> cache = nullptr)
+      : detector_(params, std::move(cache)) {}
 
   // Tracking thread only.
   void addKeyframe(std::shared_ptr<const Keyframe> keyframe, const std::optional<OdometryConstraint>& incoming);

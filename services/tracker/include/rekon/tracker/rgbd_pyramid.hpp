@@ -31,6 +31,8 @@ class RgbdPyramid {
   // size is not k.atLevel(finest)'s or the levels do not fit the image.
   void restore(const Intrinsics& k, int finest, int coarsest, std::vector<float> intensity, std::vector<float> depth);
 
+  // The full-resolution camera the pyramid was built or restored for.
+  const Intrinsics& camera() const { return levels_.front().k; }
   int finestLevel() const { return finest_; }
   int coarsestLevel() const { return coarsest_; }
   bool hasLevel(int level) const { return level >= finest_ && level <= coarsest_ && !levels_[level].empty(); }

@@ -85,13 +85,16 @@ struct TrackResult {
   double depth_sigma = 0.0;
 };
 
+class KeyframeCache;
 class Relocaliser;
 
 class Tracker {
  public:
   static constexpr double kLostVariance = 1e4;
 
-  explicit Tracker(const TrackerParams& params = {});
+  // `keyframes`: where the relocalisation candidates' images are held
+  // (shared with the loop-closure worker); null: a cache of its own.
+  explicit Tracker(const TrackerParams& params = {}, std::shared_ptr<KeyframeCache> keyframes = nullptr);
   ~Tracker();
   Tracker(const Tracker&) = delete;
   Tracker& operator=(const Tracker&) = delete;
