@@ -54,10 +54,18 @@ cv::Mat matOf(const Pose& p) {
 
 }  // namespace
 
+std::optional<double> errorChi2(const Pose& estimate, const Matrix6d& covariance, const Pose& truth) {
+  const Vector6d xi = logSe3(estimate.inverse() * truth);
+  const Eigen::LDLT<Matrix6d> ldlt(covariance);
+  if (ldlt.info() != Eigen::Success || !(ldlt.vectorD().minCoeff() > 0)) return std::nullopt;
+  return xi.dot(ldlt.solve(xi));
+}
+
 CvOdometry::CvOdometry(const Intrinsics& intrinsics, const CvOdometryParams& params) : k_(intrinsics), params_(params) {
   k_.validate("odometry_cv");
   if (!(params_.keyframe_translation > 0) || !(params_.keyframe_rotation_deg > 0) || !(params_.max_depth > 0) ||
-      params_.covariance_stride < 1 || !(params_.covariance_max_residual > 0))
+      params_.covariance_stride < 1 || !(params_.covariance_max_residual > 0) || !(params_.covariance_scale > 0) ||
+      !(params_.covariance_floor_t >= 0) || !(params_.covariance_floor_r >= 0))
     throw Error("odometry_cv parameters must be positive (keyframe distances, max depth, covariance stride and residual)");
   camera_matrix_ = (cv::Mat_<float>(3, 3) << k_.fx, 0, k_.cx, 0, k_.fy, k_.cy, 0, 0, 1);
   odometry_ = cv::rgbd::RgbdICPOdometry::create(camera_matrix_, cv::rgbd::Odometry::DEFAULT_MIN_DEPTH(),
@@ -122,7 +130,10 @@ Matrix6d CvOdometry::covariance(const cv::Mat& depth_m, const Pose& pose_in_keyf
   const Matrix6d left = (squared / (n - 6)) * ldlt.solve(Matrix6d::Identity());
   // pose = exp(xi_left) pose = pose exp(Ad(pose^-1) xi_left): the contract's right perturbation.
   const Matrix6d ad = adjoint(pose_in_keyframe.inverse());
-  const Matrix6d right = ad * left * ad.transpose();
+  Matrix6d right = params_.covariance_scale * (ad * left * ad.transpose());
+  right.diagonal() += (Vector6d() << Eigen::Vector3d::Constant(params_.covariance_floor_t * params_.covariance_floor_t),
+                       Eigen::Vector3d::Constant(params_.covariance_floor_r * params_.covariance_floor_r))
+                          .finished();
   return 0.5 * (right + right.transpose());
 }
 
