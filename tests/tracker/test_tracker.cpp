@@ -159,7 +159,6 @@ TEST(TrackerParams, OutOfRangeValueIsAnErrorNamingTheKey) {
   EXPECT_THROW(trackerParamsFromConfig(Config::load("", {"tracker.loop_refine_photometric_weight=1.5"})), Error);
   EXPECT_THROW(trackerParamsFromConfig(Config::load("", {"tracker.gap_coarsest_level=2"})), Error);  // below coarsest
   EXPECT_THROW(trackerParamsFromConfig(Config::load("", {"tracker.keyframes_in_memory=1"})), Error);
-  EXPECT_THROW(trackerParamsFromConfig(Config::load("", {"tracker.keyframe_spill_dir="})), Error);
 }
 
 // Keyframe selection on the room's loop with Kinect-like noise: 150 frames
