@@ -68,7 +68,7 @@ Config Config::fromYamlText(const std::string& yaml_text, const std::vector<std:
   if (over.IsDefined() && !over.IsNull()) overlay(*c.root_, over, "", "config");
   for (const auto& s : sets) {
     const auto eq = s.find('=');
-    if (eq == std::string::npos || eq == 0) throw Error("--set " + s + ": expected key=value, for example --set mapper.voxel_size=0.02");
+    if (eq == std::string::npos || eq == 0) throw Error("--set " + s + ": expected key=value, for example --set volume.voxel_size=0.02");
     c.set(s.substr(0, eq), s.substr(eq + 1));
   }
   return c;

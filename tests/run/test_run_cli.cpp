@@ -93,6 +93,23 @@ TEST(RunCli, AFolderHoldingARunIsRefusedUnlessForced) {
   EXPECT_NE(out.find("trajectory.txt"), std::string::npos) << out;
 }
 
+// A service that cannot start (here its log path is a folder; a binary
+// being relinked at that moment did the same) fails the run in one line and
+// stops those started: the run used to wait forever for the child that never ran.
+TEST(RunCli, AServiceThatCannotStartFailsTheRunInsteadOfHanging) {
+  if (!rekon::test::insideNetns()) return;
+  rekon::test::TempDir dir;
+  const std::string data = room(dir, 5);
+  fs::create_directories(dir / "out/mapper.log/in_the_way");
+  std::string out;
+  const auto start = std::chrono::steady_clock::now();
+  EXPECT_EQ(runCommand("timeout 60 " + rekonBin() + " run --dataset " + data + " --out " + (dir / "out") + " 2>&1", &out), 1)
+      << out;
+  EXPECT_NE(out.find("mapper.log: cannot open log"), std::string::npos) << out;
+  // Those started before it are stopped at once: seconds, not the 60 s timeout (1.4 s measured, the room included).
+  EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(), 30.0);
+}
+
 // Ctrl-C mid-run: exit 130 and stats.json says the run was interrupted.
 TEST(RunCli, AnInterruptedRunIsMarkedInStats) {
   if (!rekon::test::insideNetns()) return;

@@ -237,7 +237,7 @@ TEST(ViewerBrowser, PageReachesTheMeshOfASyntheticRun) {
   // 1912 of 2341 blocks once, all of them another time). A fresh page with a
   // doubled budget, at most 5 loads (2 or 3 were needed in the measured runs):
   // what the page counts is what it drew.
-  long long blocks = -1, vertices = -1, triangles = -1;
+  long long blocks = -1, vertices = -1, triangles = -1, corrections = -1, final_pass = -1;
   int loads = 0;
   for (int budget = 60000; loads < 5 && blocks != jsonInt(state, "blocks"); budget *= 2, ++loads) {
     std::string dom;
@@ -247,6 +247,8 @@ TEST(ViewerBrowser, PageReachesTheMeshOfASyntheticRun) {
     blocks = dataCounter(dom, "blocks");
     vertices = dataCounter(dom, "vertices");
     triangles = dataCounter(dom, "triangles");
+    corrections = dataCounter(dom, "corrections");
+    final_pass = dataCounter(dom, "final_pass");
   }
   EXPECT_EQ(blocks, jsonInt(state, "blocks")) << state.substr(0, 200);
   EXPECT_GT(blocks, 0);
@@ -254,6 +256,13 @@ TEST(ViewerBrowser, PageReachesTheMeshOfASyntheticRun) {
   EXPECT_NEAR(static_cast<double>(triangles), static_cast<double>(ply.triangles.size()), 0.01 * static_cast<double>(ply.triangles.size()));
   EXPECT_GE(vertices, static_cast<long long>(ply.vertices.size()));
   EXPECT_LE(vertices, static_cast<long long>(1.4 * static_cast<double>(ply.vertices.size())));  // +26 % measured
+  // Issue 27: this run re-integrates nothing (0 graph-update re-integrations
+  // measured: no loop closes in 150 frames), so no block is a correction; a
+  // block the final pass re-meshed counts only when the final pass moved one.
+  const std::string mapper_stats = readText(dir / "run/mapper_stats.json");
+  ASSERT_EQ(jsonInt(mapper_stats, "reintegrations"), 0) << mapper_stats;
+  EXPECT_EQ(corrections, 0);
+  EXPECT_EQ(final_pass > 0, jsonInt(mapper_stats, "final_pass_reintegrations") > 0) << final_pass << "\n" << mapper_stats;
 
   // The whole map drawn by swiftshader takes real time on a loaded 2-core
   // machine: once a 60 s wall limit cut chromium off before its screenshot

@@ -202,13 +202,13 @@ RunPlan planRun(const RunOptions& opt) {
   RunPlan plan{Config::load(opt.config_file, opt.sets), "", "", "", {}, 0, {}, 0, 0.0};
   Config& config = plan.config;
   setupLogging("run", config.getString("log.level"));
+  std::tie(plan.restartable, plan.max_restarts) = restartPolicy(config);  // a config check: before the dataset's
   planProgress(plan, checkBeforeStart(config, opt));
   const std::string bin = executableDir();
   plan.frame_ring = config.getString("transport.segment") + "_" + std::to_string(getpid());
   config.set("transport.segment", plan.frame_ring);
   plan.keyframe_store = config.getString("mapper.store_segment") + "_" + std::to_string(getpid());
   config.set("mapper.store_segment", plan.keyframe_store);
-  std::tie(plan.restartable, plan.max_restarts) = restartPolicy(config);
 
   const std::string source = frameSource(opt);
   std::vector<std::string> services = servicesToRun(config, bin, source);
@@ -264,14 +264,17 @@ class Supervisor {
     rss_ << "seconds,service,rss_mb\n";
   }
 
+  // Stops at the first child that cannot start (a binary relinked at that
+  // moment, a log path that is a folder): the run fails and those started are stopped.
   void startAll() {
     try {
       for (auto& c : plan_.children) {
-        fs::remove(c.logPath());
+        std::error_code ec;
+        fs::remove(c.logPath(), ec);
         c.start();
         spdlog::info("started rekon-{} (pid {}), log {}", c.name(), c.pid(), c.logPath());
       }
-    } catch (const Error& e) {
+    } catch (const std::exception& e) {
       fail(e.what());
     }
   }
@@ -283,7 +286,7 @@ class Supervisor {
     for (auto& c : plan_.children) {
       if (const auto status = c.poll()) {
         onEnded(c, *status, any_running);
-      } else {
+      } else if (c.running()) {  // not a child that never started: the run would wait for it forever
         any_running = true;
         any_service_running |= c.name() != kViewer;
       }
@@ -552,7 +555,7 @@ int runCommand(int argc, char** argv) {
       .option("session", "also keep a session in this new folder as the run goes: rekon remesh and rekon export read it")
       .option("continue", "extend the session in this folder: relocalise against it, then map into it (same camera)")
       .option("config", "YAML config laid over config/default.yaml")
-      .repeated("set", "override one config key, e.g. --set mapper.voxel_size=0.02")
+      .repeated("set", "override one config key, e.g. --set volume.voxel_size=0.02")
       .flag("report", "also write report.html (mesh views, trajectory, timing, stats) into --out")
       .flag("view", "also start rekon-viewer, a live web page of the run (its URL is printed); after the run it keeps "
                     "showing the final map until Ctrl-C (viewer.serve_after_run_s)")
