@@ -191,7 +191,7 @@ TEST(MeshBlocksHostile, AZlibBombIsRejectedBeforeInflating) {
   m.quantum = kQuantum;
   m.parts = 1;
   m.num_blocks = 1;
-  m.blocks = {{0, 0, 0, 1, 65535, 20000000}};  // 120 MB of triangles, consistent with raw_size
+  m.blocks = {{0, 0, 0, 1, 65535, 20000000, 0}};  // 120 MB of triangles, consistent with raw_size
   recompress(m, std::vector<uint8_t>(1000, 0));
   m.raw_size = 65535 * 9 + 20000000 * 6;
   EXPECT_THROW(rekon::decodeMeshBlocks(m), rekon::Error);
