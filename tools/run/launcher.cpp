@@ -309,6 +309,15 @@ class Supervisor {
 
   const std::string& failure() const { return failure_; }
 
+  // The pids of the children running now (a restarted one has a new pid).
+  std::set<int> pids() const {
+    std::set<int> out;
+    for (const auto& c : plan_.children) {
+      if (c.running()) out.insert(c.pid());
+    }
+    return out;
+  }
+
   // After the run (its outputs written): a viewer still running keeps the
   // final map on its page and /mesh.ply for `serve_s` seconds (-1: until
   // Ctrl-C); after a failure or an interrupt it stops at once.
@@ -513,7 +522,7 @@ int launch(const RunOptions& opt) {
   RunProgress progress(plan.config, plan.total_frames, plan.source_fps);
   supervisor.startAll();
   while (supervisor.step()) {
-    progress.poll();
+    progress.poll(supervisor.pids());
     std::this_thread::sleep_for(std::chrono::milliseconds(50));
   }
   progress.finish();

@@ -7,7 +7,7 @@ namespace rekon {
 RunProgress::RunProgress(const Config& config, long long total_frames, double source_fps)
     : bus_(makeBus(BusOptions::fromConfig(config))), total_(total_frames), source_fps_(source_fps) {
   bus_->subscribe<rekon_msgs::heartbeat_t>(channel::kHeartbeat, [this](const rekon_msgs::heartbeat_t& hb) {
-    services_[hb.service] = {hb.state, hb.last_frame_id};
+    heard_[hb.service] = {hb.pid, hb.state, hb.last_frame_id};
   });
 }
 
@@ -34,8 +34,11 @@ std::string RunProgress::text() const {
   return s + (services_.empty() ? " (services starting)" : others.empty() ? "" : " (" + others + ")");
 }
 
-void RunProgress::poll() {
+void RunProgress::poll(const std::set<int>& pids) {
   while (bus_->handle(0)) {
+  }
+  for (const auto& [service, h] : heard_) {
+    if (pids.count(h.pid)) services_[service] = {h.state, h.last_frame};
   }
   const auto now = Clock::now();
   const long long done = framesDone();

@@ -6,6 +6,7 @@
 #include <chrono>
 #include <deque>
 #include <map>
+#include <set>
 #include <memory>
 #include <string>
 #include <utility>
@@ -23,8 +24,9 @@ class RunProgress {
 
   // `total_frames` 0 and `source_fps` 0 for a live camera (no end, its own rate).
   RunProgress(const Config& config, long long total_frames, double source_fps);
-  // Takes the heartbeats that arrived and updates the line.
-  void poll();
+  // Takes the heartbeats that arrived from `pids` (this run's children: a
+  // run beside it on the same bus is not this one) and updates the line.
+  void poll(const std::set<int>& pids);
   // The last line, ended.
   void finish();
 
@@ -39,7 +41,13 @@ class RunProgress {
   ProgressLine line_;
   long long total_;
   double source_fps_;
-  std::map<std::string, std::pair<std::string, long long>> services_;  // state, last frame id
+  struct Heard {
+    int pid = 0;
+    std::string state;
+    long long last_frame = -1;
+  };
+  std::map<std::string, Heard> heard_;                                 // every service's newest heartbeat
+  std::map<std::string, std::pair<std::string, long long>> services_;  // this run's: state, last frame id
   std::deque<std::pair<Clock::time_point, long long>> samples_;       // frames done over time
   std::pair<Clock::time_point, long long> first_{}, last_{};          // first frames done, last change
 };
