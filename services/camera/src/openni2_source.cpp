@@ -52,7 +52,7 @@ constexpr double kNominalFx640 = 525.0;
 
 const char* const kOpenHint =
     "rekon cameras lists the devices OpenNI2 sees; a device missing there needs Debian's udev rules "
-    "(/lib/udev/rules.d/60-libopenni2-0.rules, then replug) and a user in group plugdev; a busy one is "
+    "(/lib/udev/rules.d/60-libopenni2-0.rules, then replug) and a user in group video (the group those rules give); a busy one is "
     "open in another program";
 
 // OpenNI2's extended error folded to one line.

@@ -34,7 +34,7 @@ void Inbox::subscribe() {
     if (m.service == "mapper" && m.state == "running") note_mapper(m.pid);
   });
   bus.subscribe<rekon_msgs::replay_request_t>(channel::kReplayRequest, [this](const rekon_msgs::replay_request_t& m) {
-    spdlog::info("rekon-{} (pid {}) asks for a replay", m.service, m.pid);
+    spdlog::debug("rekon-{} (pid {}) asks for a replay", m.service, m.pid);  // every optimiser does at its end
     history_.addReplayRequest(m);
   });
   bus.subscribe<rekon_msgs::graph_update_t>(channel::kGraphUpdates,

@@ -54,7 +54,7 @@ bool trackUntilEndOfStream(ServiceContext& ctx, const Inbox& inbox, const Tracki
 // restarted mapper gets its frames again, whose results go out again from
 // here.
 void finish(ServiceContext& ctx, const Inbox& inbox, History& history, LoopClosureWorker& loops, const PeerWatch& peers) {
-  spdlog::info("end of stream: waiting for the loop-closure checks");
+  spdlog::debug("end of stream: waiting for the loop-closure checks");  // the inbox logged the end once
   while (!loops.waitUntilDrained(kDrainPollMs) && !ctx.stopRequested()) history.serveReplays();
   history.markDone();
   const rekon_msgs::done_t done = doneMessage("tracker", inbox.endFrame());
