@@ -4,6 +4,9 @@
 // not checked: speed is for the benchmarks themselves.
 #include <gtest/gtest.h>
 
+#include <signal.h>
+
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -11,6 +14,7 @@
 #include <map>
 #include <regex>
 #include <sstream>
+#include <thread>
 
 #include "rekon/synth/synth.hpp"
 #include "test_support.hpp"
@@ -175,6 +179,29 @@ TEST(BenchScaling, PrintsTheCurveOfTheGrowingMapAndWritesItsCsvAndPlot) {
   EXPECT_TRUE(fs::exists(dir / "out/scaling_plot.svg"));
   EXPECT_NE(lastLine(out).find("first_integration_ms="), std::string::npos) << out;
   EXPECT_NE(lastLine(out).find(" kf_keyframes=2 "), std::string::npos) << out;
+}
+
+// Issue 26: the curve is written as it goes, so a long run stopped early
+// keeps its points. The bench is killed as soon as its first point is in
+// scaling.csv, long before its 600 frames are done.
+TEST(BenchScaling, AStoppedRunKeepsThePointsItHadMeasured) {
+  rekon::test::TempDir dir;
+  const pid_t pid = rekon::test::spawnShell("exec " + rekonBin() +
+                                            " bench scaling --scene tabletop --laps 1 --frames 600 --every 20 "
+                                            "--level 2 --set log.level=warn --out " + (dir / "out") + " > /dev/null");
+  ASSERT_GT(pid, 0);
+  bool point = false;
+  for (int i = 0; i < 6000 && !point; ++i) {  // at most 10 min on a loaded machine; a point takes about a second
+    point = readRows(dir / "out/scaling.csv").size() >= 1;
+    if (!point) std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  kill(pid, SIGKILL);
+  rekon::test::waitForExit(pid, 10);
+  ASSERT_TRUE(point) << "no point in scaling.csv within 10 minutes";
+  const auto rows = readRows(dir / "out/scaling.csv");
+  ASSERT_GE(rows.size(), 1u);
+  EXPECT_LT(rows.size(), 30u) << "all 30 points: the curve was written only at the end";
+  EXPECT_EQ(rows[0].at("frames"), "20");
 }
 
 // rekon bench peers on 10 frames of 7-Scenes: every volume timed, and the

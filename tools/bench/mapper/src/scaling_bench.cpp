@@ -60,7 +60,7 @@ ScalingPoint pointSince(const Totals& before, const mapper::Mapper& m) {
 }
 
 void writeCurve(const std::vector<ScalingPoint>& points, const std::string& dir, bool cpu_time) {
-  std::ofstream csv(dir + "/scaling.csv");
+  std::ofstream csv(dir + "/scaling.csv", std::ios::trunc);
   csv << "frames,kf_keyframes,blocks,integrations,integration_ms,rounds,round_ms\n";
   report::Series integration, round;
   integration.name = "first integration of a KF keyframe";
@@ -144,9 +144,9 @@ int benchScalingCommand(int argc, char** argv) {
       std::printf("%lld %lld %lld %.2f %.2f\n", static_cast<long long>(p.frames), static_cast<long long>(p.kf_keyframes),
                   static_cast<long long>(p.blocks), p.integration_ms, p.round_ms);
       std::fflush(stdout);
+      writeCurve(points, out, params.cpu_time_counters);  // as it goes: a stopped run keeps its points
     }
   }
-  writeCurve(points, out, params.cpu_time_counters);
   // Means over the first and the last tenth of the points that have an
   // integration (or a round), so that one line says whether time grew with the map.
   auto ends = [&](int64_t ScalingPoint::*count, double ScalingPoint::*ms) {
