@@ -30,7 +30,7 @@ wait_for_line() {
 }
 
 why=""
-if ! wait_for_line "$out/tracker.log" "end of stream: waiting for the loop-closure checks"; then
+if ! wait_for_line "$out/tracker.log" "end of stream after frame"; then
   why="the tracker never reached the end of the stream"
 else
   mapper=$(pid_of mapper)
