@@ -51,7 +51,11 @@ void RunProgress::poll(const std::set<int>& pids) {
 
 double RunProgress::overallRate() const {
   const double seconds = std::chrono::duration<double>(last_.first - first_.first).count();
-  return seconds > 0 ? static_cast<double>(last_.second - first_.second) / seconds : 0.0;
+  if (seconds > 0) return static_cast<double>(last_.second - first_.second) / seconds;
+  // A run so short that one poll saw it all (20 frames between two
+  // heartbeats): its frames over the time since the services started.
+  const double since_start = std::chrono::duration<double>(last_.first - started_).count();
+  return since_start > 0 ? static_cast<double>(last_.second) / since_start : 0.0;
 }
 
 void RunProgress::finish() {

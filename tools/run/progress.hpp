@@ -50,6 +50,7 @@ class RunProgress {
   std::map<std::string, std::pair<std::string, long long>> services_;  // this run's: state, last frame id
   std::deque<std::pair<Clock::time_point, long long>> samples_;       // frames done over time
   std::pair<Clock::time_point, long long> first_{}, last_{};          // first frames done, last change
+  const Clock::time_point started_ = Clock::now();
 };
 
 }  // namespace rekon
