@@ -2,8 +2,13 @@
 // loop (Kinect noise): the end of the loop looks at the start again.
 #include <gtest/gtest.h>
 
+#include <sys/wait.h>
+#include <unistd.h>
+
 #include <algorithm>
+#include <cstdlib>
 #include <filesystem>
+#include <fstream>
 #include <memory>
 #include <numbers>
 #include <vector>
@@ -140,6 +145,38 @@ TEST_F(LoopClosureTest, CandidatesOnDiskGiveTheSameLoopAsCandidatesInMemory) {
   }
   cache.reset();
   EXPECT_FALSE(std::filesystem::exists(dir / "spill")) << "the cache removes its files and the folder it made";
+}
+
+// A tracker killed while keyframes were on disk leaves its automatic spill
+// folder; the next tracker to spill removes the folders of trackers that are
+// gone, and no other.
+TEST_F(LoopClosureTest, AutomaticSpillFoldersOfTrackersThatAreGoneAreRemoved) {
+  rekon::test::TempDir tmp;
+  const pid_t child = fork();
+  if (child == 0) _exit(0);
+  ASSERT_GT(child, 0);
+  waitpid(child, nullptr, 0);  // its pid now names no process
+  const std::string gone = tmp / ("rekon_tracker_" + std::to_string(child) + ".spill");
+  const std::string alive = tmp / "rekon_tracker_1.spill";  // init: always running
+  const std::string other = tmp / "rekon_tracker_notes.txt";
+  for (const std::string& d : {gone, alive}) std::filesystem::create_directories(d + "/tracker");
+  std::ofstream(gone + "/tracker/dvo_000000.rkd") << "left by a killed tracker";
+  std::ofstream(other) << "not a spill folder";
+  const char* old_tmpdir = std::getenv("TMPDIR");
+  const std::string saved = old_tmpdir ? old_tmpdir : "";
+  setenv("TMPDIR", tmp.path().c_str(), 1);
+  params.memory.keyframes_in_memory = 2;  // spill_dir "auto"
+  {
+    LoopClosureDetector d(params);
+    addChain(d, 0, {0, 12, 24});  // the third spills one
+  }
+  if (old_tmpdir) setenv("TMPDIR", saved.c_str(), 1);
+  else unsetenv("TMPDIR");
+  EXPECT_FALSE(std::filesystem::exists(gone));
+  EXPECT_TRUE(std::filesystem::exists(alive));
+  EXPECT_TRUE(std::filesystem::exists(other));
+  EXPECT_FALSE(std::filesystem::exists(tmp / ("rekon_tracker_" + std::to_string(getpid()) + ".spill")))
+      << "its own folder goes with the cache";
 }
 
 // The loop pose of the room's end (frames 550-574) against its start, with

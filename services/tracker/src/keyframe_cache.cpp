@@ -1,9 +1,12 @@
 #include "rekon/tracker/keyframe_cache.hpp"
 
+#include <signal.h>
 #include <spdlog/spdlog.h>
 #include <unistd.h>
 
 #include <algorithm>
+#include <cerrno>
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <vector>
@@ -28,6 +31,22 @@ int64_t residentBytes(const Keyframe& kf) {
   return bytes;
 }
 
+// Automatic spill folders of trackers that died without removing theirs
+// (killed, crashed): rekon_tracker_<pid>.spill whose pid no longer runs.
+void removeStaleSpillFolders(const fs::path& tmp) {
+  std::error_code ec;
+  for (const auto& entry : fs::directory_iterator(tmp, ec)) {
+    const std::string name = entry.path().filename().string();
+    int pid = 0;
+    char rest[8] = {};
+    if (std::sscanf(name.c_str(), "rekon_tracker_%d%7s", &pid, rest) != 2 || std::string(rest) != ".spill") continue;
+    if (pid <= 0 || pid == getpid() || kill(pid, 0) == 0 || errno != ESRCH) continue;
+    std::error_code removed;
+    if (fs::remove_all(entry.path(), removed) > 0 && !removed)
+      spdlog::info("removed {}, the keyframe spill folder of a tracker that is gone", entry.path().string());
+  }
+}
+
 }  // namespace
 
 KeyframeCache::KeyframeCache(const TrackerParams& params)
@@ -46,7 +65,9 @@ std::string KeyframeCache::spillRoot() {
   if (!spill_root_.empty()) return spill_root_;
   if (spill_setting_ == KeyframeMemoryParams::kAutoSpillDir) {
     const char* tmp = std::getenv("TMPDIR");
-    spill_root_ = (fs::path(tmp && *tmp ? tmp : "/tmp") / ("rekon_tracker_" + std::to_string(getpid()) + ".spill")).string();
+    const fs::path root = tmp && *tmp ? tmp : "/tmp";
+    removeStaleSpillFolders(root);
+    spill_root_ = (root / ("rekon_tracker_" + std::to_string(getpid()) + ".spill")).string();
   } else {
     spill_root_ = fs::absolute(spill_setting_).string();
   }
