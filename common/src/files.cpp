@@ -5,11 +5,17 @@
 
 #include <cerrno>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 
 #include "rekon/common/error.hpp"
 
 namespace rekon {
+
+std::string tempFolder() {
+  const char* tmp = std::getenv("TMPDIR");
+  return tmp != nullptr && *tmp != '\0' ? tmp : "/tmp";
+}
 
 void writeFileAtomically(const std::string& path, std::string_view bytes) {
   const std::string tmp = path + ".tmp";

@@ -5,8 +5,8 @@
 #include <algorithm>
 
 #include "rekon/common/error.hpp"
+#include "rekon/common/frame_ack.hpp"
 #include "rekon/common/messages.hpp"
-#include "rekon_msgs/frame_ack_t.hpp"
 
 namespace rekon::mapper {
 
@@ -173,12 +173,7 @@ void Inbox::onEndOfStream(const rekon_msgs::end_of_stream_t& m) {
   end_frame_ = m.last_frame_id;
 }
 
-void Inbox::ack(int64_t frame_id) {
-  rekon_msgs::frame_ack_t a{};
-  a.service = ctx_.name();
-  a.frame_id = frame_id;
-  ctx_.bus().publish(channel::kFrameAck, a);
-}
+void Inbox::ack(int64_t frame_id) { publishFrameAck(ctx_, frame_id); }
 
 void Inbox::join(int64_t id) {
   auto img = images_.find(id);

@@ -96,8 +96,7 @@ void Mapper::restoreFromStore() {
       writeAnchorPoses();
       session_->addKeyframe(rec.kf);
     }
-    const fusion::FusedKeyframe images = rec.kf;
-    leaveImagesAt(rec, ImagesHome::kStore);
+    const fusion::FusedKeyframe images = leaveImagesAt(rec, ImagesHome::kStore);
     keyframes_.push_back(std::move(rec));
     if (infos[i].integrated) integrateRestored(keyframes_.back(), images, infos[i].integrated_pose);
     else integrateStoredOnly(keyframes_.back());
@@ -166,8 +165,7 @@ void Mapper::continueSession() {
     }
     KeyframeRecord rec;
     rec.kf = session.load(i);
-    const fusion::FusedKeyframe images = rec.kf;
-    leaveImagesAt(rec, ImagesHome::kSession);
+    const fusion::FusedKeyframe images = leaveImagesAt(rec, ImagesHome::kSession);
     rec.session_index = i;
     keyframes_.push_back(std::move(rec));
     integrateRestored(keyframes_.back(), images, *pose);
@@ -281,8 +279,7 @@ void Mapper::closeKeyframe() {
     writeAnchorPoses();  // first: a keyframe in the session always finds its anchor
     session_->addKeyframe(rec.kf);
   }
-  const fusion::FusedKeyframe images = rec.kf;
-  if (store_) leaveImagesAt(rec, ImagesHome::kStore);
+  const fusion::FusedKeyframe images = store_ ? leaveImagesAt(rec, ImagesHome::kStore) : rec.kf;
   keyframes_.push_back(std::move(rec));
   const auto pose = currentPose(keyframes_.back().kf);
   if (!pose) throw Error("mapper: KF keyframe's DVO keyframe lost its pose");  // anchors are never forgotten
@@ -305,11 +302,13 @@ fusion::FusedKeyframe Mapper::images(const KeyframeRecord& rec) const {
               "'s images were in the keyframe store, which is removed; use the map before removeStore()");
 }
 
-void Mapper::leaveImagesAt(KeyframeRecord& rec, ImagesHome home) {
+fusion::FusedKeyframe Mapper::leaveImagesAt(KeyframeRecord& rec, ImagesHome home) {
+  fusion::FusedKeyframe with_images = rec.kf;  // shares the pixels: releasing rec's leaves them here
   rec.home = home;
   rec.kf.depth.release();
   rec.kf.weight.release();
   rec.kf.color.release();
+  return with_images;
 }
 
 void Mapper::integrateKeyframe(KeyframeRecord& rec, const fusion::FusedKeyframe& images, const Pose& pose) {

@@ -7,9 +7,9 @@
 #include <utility>
 
 #include "rekon/common/error.hpp"
+#include "rekon/common/frame_ack.hpp"
 #include "rekon/common/graph_update.hpp"
 #include "rekon/common/pose.hpp"
-#include "rekon_msgs/frame_ack_t.hpp"
 #include "rekon_msgs/heartbeat_t.hpp"
 #include "rekon_msgs/replay_request_t.hpp"
 #include "rekon_msgs/resume_point_t.hpp"
@@ -61,10 +61,7 @@ void Inbox::onFrame(const rekon_msgs::frame_t& msg) {
     tracked = worker_.track(msg);  // a frame that does not decode is acknowledged all the same: the source goes on
     publishLive();
   }
-  rekon_msgs::frame_ack_t ack{};
-  ack.service = ctx_.name();
-  ack.frame_id = msg.frame_id;
-  ctx_.bus().publish(channel::kFrameAck, ack);
+  publishFrameAck(ctx_, msg.frame_id);
   // Only a tracked frame moves the mark: a rejected one with a huge id would
   // make every later frame a duplicate and end the stream early.
   if (tracked && msg.frame_id > last_handled_.load()) {

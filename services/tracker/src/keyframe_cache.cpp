@@ -7,11 +7,11 @@
 #include <algorithm>
 #include <cerrno>
 #include <cstdio>
-#include <cstdlib>
 #include <filesystem>
 #include <vector>
 
 #include "rekon/common/error.hpp"
+#include "rekon/common/files.hpp"
 #include "rekon/tracker/keyframe_archive.hpp"
 
 namespace rekon::tracker {
@@ -64,8 +64,7 @@ KeyframeCache::~KeyframeCache() {
 std::string KeyframeCache::spillRoot() {
   if (!spill_root_.empty()) return spill_root_;
   if (spill_setting_ == KeyframeMemoryParams::kAutoSpillDir) {
-    const char* tmp = std::getenv("TMPDIR");
-    const fs::path root = tmp && *tmp ? tmp : "/tmp";
+    const fs::path root = tempFolder();
     removeStaleSpillFolders(root);
     spill_root_ = (root / ("rekon_tracker_" + std::to_string(getpid()) + ".spill")).string();
   } else {

@@ -14,6 +14,10 @@ namespace rekon {
 // rekon::Error naming the file and the reason (e.g. no space left) when it cannot be written.
 void writeFileAtomically(const std::string& path, std::string_view bytes);
 
+// $TMPDIR, else /tmp: where rekon's automatic spill folders go (the
+// mapper's keyframe store, the tracker's keyframe cache).
+std::string tempFolder();
+
 // FNV-1a 64 of `n` bytes, continuing from `h` (the offset basis to start): the
 // checksum of rekon's binary files and the hash of frames.
 inline constexpr uint64_t kFnv1aOffset = 14695981039346656037ull;

@@ -9,11 +9,17 @@
 
 namespace rekon {
 
-inline void acknowledgeFrame(ServiceContext& ctx, int64_t frame_id) {
+// The acknowledgement alone, for a consumer that moves its heartbeat's frame
+// on its own terms (the tracker: only for frames it tracked).
+inline void publishFrameAck(ServiceContext& ctx, int64_t frame_id) {
   rekon_msgs::frame_ack_t ack{};
   ack.service = ctx.name();
   ack.frame_id = frame_id;
   ctx.bus().publish(channel::kFrameAck, ack);
+}
+
+inline void acknowledgeFrame(ServiceContext& ctx, int64_t frame_id) {
+  publishFrameAck(ctx, frame_id);
   ctx.setLastFrame(frame_id);
 }
 

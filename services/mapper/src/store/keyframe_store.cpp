@@ -10,13 +10,13 @@
 #include <cerrno>
 #include <chrono>
 #include <cstdio>
-#include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <limits>
 #include <thread>
 
 #include "rekon/common/error.hpp"
+#include "rekon/common/files.hpp"
 #include "spill_file.hpp"
 
 namespace rekon::store {
@@ -113,9 +113,7 @@ Intrinsics intrinsicsOf(const Header& h) {
 }  // namespace
 
 std::string autoSpillDir(const std::string& segment) {
-  const char* tmp = std::getenv("TMPDIR");
-  const std::string root = tmp != nullptr && *tmp != '\0' ? tmp : "/tmp";
-  return (std::filesystem::path(root) / (segment + ".spill")).string();
+  return (std::filesystem::path(tempFolder()) / (segment + ".spill")).string();
 }
 
 StoreOptions StoreOptions::fromConfig(const Config& c) {

@@ -161,8 +161,9 @@ class Mapper {
   void closeKeyframe();
   // `images`: rec's keyframe with its images (images(rec)).
   void integrateKeyframe(KeyframeRecord& rec, const fusion::FusedKeyframe& images, const Pose& pose);
-  // Releases rec's images now that `home` keeps them.
-  static void leaveImagesAt(KeyframeRecord& rec, ImagesHome home);
+  // Releases rec's images now that `home` keeps them; returns rec's keyframe
+  // with them, for the integration under way.
+  static fusion::FusedKeyframe leaveImagesAt(KeyframeRecord& rec, ImagesHome home);
   // De-integrates the chosen keyframes at their old poses, re-integrates them
   // at their current ones (paper 4.3's streaming order); returns how many.
   ReintegrationRound reintegrate(const std::vector<size_t>& chosen);
