@@ -164,9 +164,26 @@ void configureContinue(Config& config, const RunOptions& opt) {
       throw Error(dir.string() + " was made with another camera (" + describeCamera(session.info().camera) + ") than " +
                   opt.dataset + "'s (" + describeCamera(k) + "); continue a session with the camera it was made with");
   }
-  spdlog::info("continuing session {}: {} KF keyframes, {} DVO keyframes", dir.string(), session.keyframes().size(), dvo);
+  spdlog::info("{} session {}: {} KF keyframes, {} DVO keyframes", opt.localise_only ? "localising in" : "continuing",
+               dir.string(), session.keyframes().size(), dvo);
   config.set("session.dir", dir.string());
   config.set("session.continue", "true");
+}
+
+// --localise-only (session.localise_only): the player and the tracker, which
+// localises in the session's map and writes trajectory.txt itself. The
+// optimiser and the mapper would add to the graph and the map (and write
+// them into the session): they do not run, and neither does any other
+// service that is not a frame source, the tracker or the viewer.
+void planLocalisation(Config& config, const RunOptions& opt, std::vector<std::string>& services) {
+  if (opt.localise_only) config.set("session.localise_only", "true");
+  if (!config.getBool("session.localise_only")) return;
+  if (opt.continued.empty())
+    throw Error("session.localise_only localises in a saved session: give it with --continue SESSION "
+                "(rekon run --continue SESSION --localise-only)");
+  std::erase_if(services, [&](const std::string& s) { return s != frameSource(opt) && s != "tracker"; });
+  if (std::find(services.begin(), services.end(), "tracker") == services.end())
+    throw Error("--localise-only needs the tracker: add tracker to run.services");
 }
 
 // A camera run: the device, its calibration and the recording folder go into
@@ -212,6 +229,7 @@ RunPlan planRun(const RunOptions& opt) {
 
   const std::string source = frameSource(opt);
   std::vector<std::string> services = servicesToRun(config, bin, source);
+  planLocalisation(config, opt, services);
   if (!opt.continued.empty()) configureContinue(config, opt);
   createOutputFolder(opt.out);  // every check passed: a refused run leaves no folder behind
   plan.out = fs::canonical(opt.out).string();
@@ -458,6 +476,7 @@ void writeRunStats(const RunPlan& plan, double wall, bool interrupted) {
   JsonObject stats;
   double sequence_seconds = 0;
   long long frames = 0;
+  std::optional<std::pair<long long, long long>> localised_lost;  // --localise-only: the tracker's frames placed, lost
   std::vector<std::pair<std::string, std::string>> per_service;
   for (const auto& c : plan.children) {
     const std::string path = plan.out + "/" + c.name() + "_stats.json";
@@ -468,12 +487,20 @@ void writeRunStats(const RunPlan& plan, double wall, bool interrupted) {
         frames = node["frames"].as<long long>(0);
         sequence_seconds = node["sequence_seconds"].as<double>(0.0);
       }
+      if (c.name() == "tracker" && plan.config.getBool("session.localise_only"))
+        localised_lost.emplace(node["localised_frames"].as<long long>(0), node["lost_frames"].as<long long>(0));
       per_service.emplace_back(c.name(), jsonOf(node));
     } catch (const YAML::Exception& e) {
       spdlog::warn("{}: unreadable stats ({}); left out of stats.json", path, e.msg);
     }
   }
   stats.set("frames", frames).set("wall_seconds", wall);
+  if (localised_lost) {
+    stats.set("localised_frames", localised_lost->first).set("lost_frames", localised_lost->second);
+    if (localised_lost->first == 0)
+      spdlog::warn("no frame was placed in the session's map ({} lost): is the camera in the space that session scanned?",
+                   localised_lost->second);
+  }
   if (interrupted) stats.set("interrupted", true);  // Ctrl-C: the outputs cover the frames up to then
   JsonObject restarts;
   for (const auto& c : plan.children) {
@@ -563,6 +590,8 @@ int runCommand(int argc, char** argv) {
       .option("out", "output folder (required)")
       .option("session", "also keep a session in this new folder as the run goes: rekon remesh and rekon export read it")
       .option("continue", "extend the session in this folder: relocalise against it, then map into it (same camera)")
+      .flag("localise-only", "with --continue: only localise in that session's map (tracker alone; poses on the bus and "
+                             "in trajectory.txt); the session stays as it is")
       .option("config", "YAML config laid over config/default.yaml")
       .repeated("set", "override one config key, e.g. --set volume.voxel_size=0.02")
       .flag("report", "also write report.html (mesh views, trajectory, timing, stats) into --out")
@@ -572,7 +601,8 @@ int runCommand(int argc, char** argv) {
       .examples("rekon run --dataset ../shared/data/7scenes_loop_1000 --out out/7scenes --report\n"
                 "rekon run --dataset out/room --out out/room_run --view --set mapper.kappa=10\n"
                 "rekon run --camera openni2 --out out/live --record out/live_frames --session out/live_session\n"
-                "rekon run --dataset DATA --out OUT --continue out/live_session   # extend a session");
+                "rekon run --dataset DATA --out OUT --continue out/live_session   # extend a session\n"
+                "rekon run --dataset DATA --out OUT --continue out/live_session --localise-only   # localise in it");
   if (!args.parse(argc, argv)) return 0;
   RunOptions opt;
   opt.dataset = args.get("dataset");
@@ -582,6 +612,7 @@ int runCommand(int argc, char** argv) {
   opt.out = args.get("out");
   opt.session = args.get("session");
   opt.continued = args.get("continue");
+  opt.localise_only = args.flagSet("localise-only");
   opt.config_file = args.get("config");
   opt.sets = args.all("set");
   opt.report = args.flagSet("report");
@@ -595,6 +626,8 @@ int runCommand(int argc, char** argv) {
   }
   if (!opt.session.empty() && !opt.continued.empty())
     throw Error("--session starts a new session and --continue extends one; give one of them");
+  if (opt.localise_only && opt.continued.empty())
+    throw Error("--localise-only localises in a saved session: give the session with --continue SESSION");
   if (opt.camera.empty() && !(opt.calibration.empty() && opt.record.empty())) {
     throw Error("--calibration and --record go with --camera (a dataset has its own camera.yaml)");
   }

@@ -13,6 +13,7 @@ struct RunOptions {
   std::string out, config_file;
   std::string session;  // a new folder kept as the run goes (session.dir), for rekon remesh and rekon export
   std::string continued;  // a session this run extends (session.dir with session.continue)
+  bool localise_only = false;  // with `continued`: only localise in its map (session.localise_only)
   std::vector<std::string> sets;
   bool report = false;  // also write report.html
   bool view = false;    // also start rekon-viewer (a live web page of the run; its URL is printed)

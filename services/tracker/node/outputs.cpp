@@ -34,7 +34,7 @@ void writeTiming(const std::vector<std::pair<int64_t, double>>& frame_ms, const 
 }  // namespace
 
 void writeOutputs(ServiceContext& ctx, const TrackingTotals& totals, int64_t frames_sent_again,
-                  const LoopClosureStats& loops, const KeyframeCacheStats& keyframes) {
+                  const LoopClosureStats& loops, const KeyframeCacheStats& keyframes, bool localise_only) {
   std::vector<double> ms;
   double ms_sum = 0.0;
   for (const auto& f : totals.frame_ms) {
@@ -67,6 +67,14 @@ void writeOutputs(ServiceContext& ctx, const TrackingTotals& totals, int64_t fra
       .set("keyframes_in_memory_mb", static_cast<double>(keyframes.resident_bytes) / (1024.0 * 1024.0))
       .set("keyframes_spilled", static_cast<long long>(keyframes.spilled))
       .set("keyframes_read_back", static_cast<long long>(keyframes.loaded));
+  if (localise_only) {
+    // What a localisation run gives: frames placed in the map, and how its keyframes were placed.
+    ctx.stats()
+        .set("localised_frames", static_cast<long long>(totals.localised.size()))
+        .set("keyframes_placed_by_map", static_cast<long long>(totals.reanchored))
+        .set("keyframes_placed_by_odometry",
+             static_cast<long long>(totals.keyframes - totals.relocalisations - totals.reanchored));
+  }
   LostIntervals lost = totals.lost_intervals;
   lost.finish();
   ctx.stats().set("lost_intervals_count", static_cast<long long>(lost.count())).setRaw("lost_intervals", lost.json());
@@ -79,6 +87,12 @@ void writeOutputs(ServiceContext& ctx, const TrackingTotals& totals, int64_t fra
     writeTumTrajectory(totals.odometry, path);
     spdlog::info("wrote {} odometry poses to {}", totals.odometry.size(), path);
     writeTiming(totals.frame_ms, (std::filesystem::path(ctx.outDir()) / "tracker_timing.csv").string());
+    if (localise_only) {
+      const std::string localised = (std::filesystem::path(ctx.outDir()) / "trajectory.txt").string();
+      writeTumTrajectory(totals.localised, localised);
+      spdlog::info("wrote {} poses in the session's map to {} ({} frames lost)", totals.localised.size(), localised,
+                   totals.lost);
+    }
   }
   spdlog::info("loop closures: {} candidates, {} accepted, {} rejected, {} checks dropped", loops.candidates,
                loops.accepted, loops.rejected, loops.checks_dropped);

@@ -78,7 +78,8 @@ void runTrackerService(ServiceContext& ctx) {
   const auto keyframes = std::make_shared<KeyframeCache>(params);
   LoopClosureWorker loops(params, [&history](const LoopConstraint& c) { history.publishLoopConstraint(c); }, true,
                           keyframes);
-  TrackingWorker worker(params, TrackerSession::fromConfig(ctx.config()), history, loops, keyframes);
+  const TrackerSession session = TrackerSession::fromConfig(ctx.config());
+  TrackingWorker worker(params, session, history, loops, keyframes);
   PeerWatch peers(ctx.bus(), ctx.lifecycle());
   Inbox inbox(ctx, worker, history, loops);
   StopThreadsOnExit stop_threads(ctx);  // before the state above dies: the bus handlers use it
@@ -92,7 +93,7 @@ void runTrackerService(ServiceContext& ctx) {
   ctx.setState("finishing");
   if (ended) finish(ctx, inbox, history, loops, peers);
   ctx.stopThreads();  // no handler runs after this
-  writeOutputs(ctx, worker.totals(), inbox.framesSentAgain(), loops.stats(), keyframes->stats());
+  writeOutputs(ctx, worker.totals(), inbox.framesSentAgain(), loops.stats(), keyframes->stats(), session.localise_only);
   if (const auto failure = worker.failure()) throw Error(*failure);  // after the outputs: what was tracked is kept
 }
 

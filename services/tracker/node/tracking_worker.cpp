@@ -18,8 +18,12 @@ TrackerSession TrackerSession::fromConfig(const Config& config) {
   TrackerSession s;
   s.dir = config.getString("session.dir");
   s.continued = config.getBool("session.continue");
+  s.localise_only = config.getBool("session.localise_only");
   s.relocalise_frames = config.getInt("session.relocalise_frames");
   if (s.continued && s.dir.empty()) throw Error("session.continue needs session.dir (rekon run --continue DIR sets both)");
+  if (s.localise_only && !s.continued)
+    throw Error("session.localise_only localises in a saved session: it needs session.continue and session.dir "
+                "(rekon run --continue DIR --localise-only sets them)");
   if (s.relocalise_frames < 1) throw Error("session.relocalise_frames must be at least 1");
   return s;
 }
@@ -34,11 +38,23 @@ void TrackingWorker::continueSession(const TrackerParams& params) {
   const std::vector<StoredKeyframe> stored = loadKeyframes(session_.dir, params.aligner);
   for (const StoredKeyframe& s : stored) {
     tracker_.addStoredKeyframe(s.keyframe, s.incoming);
-    loops_.addStored(s.keyframe, s.incoming);
+    if (!session_.localise_only) loops_.addStored(s.keyframe, s.incoming);  // localising closes no loops
   }
   session_camera_ = stored.front().camera;
   stored_keyframes_ = stored.size();
   tracker_.relocaliseFirstFrame(session_.relocalise_frames);
+  if (session_.localise_only) {
+    // No optimiser runs: the map's poses are the session's newest ones.
+    std::unordered_map<int64_t, Pose> map = loadMapPoses(session_.dir);
+    size_t placed = 0;
+    for (const StoredKeyframe& s : stored) placed += map.count(s.keyframe->id);
+    if (placed < stored.size())
+      spdlog::warn("session {}: {} of its {} DVO keyframes have no pose in anchors.txt; their odometry places them",
+                   session_.dir, stored.size() - placed, stored.size());
+    tracker_.updateGraph(0, std::move(map));
+    tracker_.localiseOnly();
+    spdlog::info("session {}: localising only (the session is read, never written)", session_.dir);
+  }
   spdlog::info("session {}: {} DVO keyframes (ids {}..{}); relocalising the first frame against them", session_.dir,
                stored.size(), stored.front().keyframe->id, stored.back().keyframe->id);
 }
@@ -54,7 +70,7 @@ void TrackingWorker::keepInSession(const TrackResult& r, const Intrinsics& k) {
     throw Error(fmt::format("none of the first {} frames relocalised against the {} keyframes of {}: is the camera "
                             "in the space that session scanned? (session.relocalise_frames sets how long to try)",
                             session_.relocalise_frames, stored_keyframes_, session_.dir));
-  if (!session_.dir.empty() && r.new_keyframe)
+  if (!session_.dir.empty() && !session_.localise_only && r.new_keyframe)
     saveKeyframe(session_.dir, *tracker_.currentKeyframe(), r.odometry, k);
 }
 
@@ -97,11 +113,21 @@ bool TrackingWorker::trackLocked(const rekon_msgs::frame_t& msg) {
   totals_.lost += r.state == TrackingState::Lost;
   totals_.keyframes += r.new_keyframe;
   totals_.constraints += r.odometry.has_value();
-  totals_.relocalisations += r.relocalised_from.has_value();
+  totals_.relocalisations += r.relocalised_from.has_value() && !r.reanchored;
+  totals_.reanchored += r.reanchored;
+  if (session_.localise_only && r.state == TrackingState::Ok) totals_.localised.push_back({r.timestamp, r.pose_world});
   totals_.odometry.push_back({r.timestamp, r.pose_world});
   totals_.lost_intervals.add(r);
   if (r.state == TrackingState::Lost) spdlog::warn("frame {}: lost ({})", r.frame_id, toString(r.lost_reason));
   keepInSession(r, k);
+  if (session_.localise_only) {
+    // Poses only: no back end runs, and the edges name the session's keyframes, never announced on the bus.
+    TrackResult poses = r;
+    poses.odometry.reset();
+    poses.relocalised_from.reset();
+    history_.publishResult(poses);
+    return true;
+  }
   history_.publishResult(r);
   if (r.new_keyframe) loops_.submit(tracker_.currentKeyframe(), r.odometry);
   return true;

@@ -25,20 +25,25 @@ namespace rekon::tracker {
 
 struct TrackingCounts {
   int64_t frames = 0, lost = 0, keyframes = 0, constraints = 0, undecodable = 0, relocalisations = 0;
+  int64_t reanchored = 0;  // session.localise_only: due keyframes placed by the map (not in relocalisations)
 };
 
 struct TrackingTotals : TrackingCounts {
   double track_cpu_s = 0.0;
   std::vector<std::pair<int64_t, double>> frame_ms;  // wall time of track() (pyramid included) per frame
   Trajectory odometry;                               // world poses by odometry alone
+  Trajectory localised;                              // session.localise_only: the frames placed in the map
   LostIntervals lost_intervals;
 };
 
 // The session (issue 18): where the DVO keyframes are kept, and whether the
-// run continues one (session.dir, session.continue, session.relocalise_frames).
+// run continues one (session.dir, session.continue, session.relocalise_frames)
+// or only localises in it (session.localise_only, issue 28: nothing written
+// to the session, its keyframes at their poses in anchors.txt are the map).
 struct TrackerSession {
   std::string dir;  // "" = none
   bool continued = false;
+  bool localise_only = false;
   int relocalise_frames = 0;
   static TrackerSession fromConfig(const Config& config);
 };

@@ -11,6 +11,7 @@
 
 #include "rekon/common/error.hpp"
 #include "rekon/common/files.hpp"
+#include "rekon/common/pose.hpp"
 
 namespace rekon::tracker {
 namespace {
@@ -223,6 +224,17 @@ std::vector<StoredKeyframe> loadKeyframes(const std::string& session_dir, const 
                 "stopped before the first keyframe; there is nothing to relocalise against, start a new session instead");
   std::sort(out.begin(), out.end(), [](const StoredKeyframe& a, const StoredKeyframe& b) { return a.keyframe->id < b.keyframe->id; });
   return out;
+}
+
+std::unordered_map<int64_t, Pose> loadMapPoses(const std::string& session_dir) {
+  const fs::path path = fs::path(session_dir) / "anchors.txt";
+  if (!fs::exists(path))
+    throw Error(path.string() + " is missing: localising needs the map's keyframe poses, which the mapper writes "
+                "there; localise in a session that a run with the mapper made");
+  // Its lines are TUM's ("id tx ty tz qx qy qz qw", the id where TUM has the time): one reader for both.
+  std::unordered_map<int64_t, Pose> poses;
+  for (const StampedPose& p : readTumTrajectory(path.string())) poses[static_cast<int64_t>(p.timestamp)] = p.pose;
+  return poses;
 }
 
 }  // namespace rekon::tracker

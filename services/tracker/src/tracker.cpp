@@ -47,6 +47,11 @@ void Tracker::addStoredKeyframe(std::shared_ptr<const Keyframe> keyframe, const 
 
 void Tracker::relocaliseFirstFrame(int frames) { relocalise_first_within_ = frames; }
 
+void Tracker::localiseOnly() {
+  localise_only_ = true;
+  relocalise_first_within_ = std::max(relocalise_first_within_, 1);
+}
+
 void Tracker::updateGraph(int64_t version, std::unordered_map<int64_t, Pose> poses) {
   relocaliser_->updateGraph(version, std::move(poses));
 }
@@ -79,7 +84,8 @@ void Tracker::startFrom(std::shared_ptr<const Keyframe> keyframe, double timesta
   lost_in_a_row_ = 0;
 }
 
-bool Tracker::relocalise(const RgbdFrame& frame, const std::optional<Pose>& guess_world, TrackResult& r) {
+bool Tracker::relocalise(const RgbdFrame& frame, const std::optional<Pose>& guess_world, TrackResult& r,
+                         spdlog::level::level_enum log_level) {
   if (relocaliser_->size() == 0) return false;
   std::shared_ptr<Keyframe> kf = keyframeOf(frame, next_keyframe_id_);
   const auto found = relocaliser_->relocalise(*kf, guess_world, params_.lost.relocalise_budget_ms);
@@ -103,8 +109,19 @@ bool Tracker::relocalise(const RgbdFrame& frame, const std::optional<Pose>& gues
   r.keyframe_id = kf->id;
   r.keyframe_pose_world = kf->pose_world;
   r.pose_world = kf->pose_world;
-  spdlog::info("frame {}: relocalised against keyframe {} ({} candidates tried; ln det ratios coarse {:.2f}, fine {:.2f})",
-               frame.id, edge.from_id, found->candidates_tried, found->edge.coarse_ratio, found->edge.fine_ratio);
+  spdlog::log(log_level, "frame {}: relocalised against keyframe {} ({} candidates tried; ln det ratios coarse {:.2f}, fine {:.2f})",
+              frame.id, edge.from_id, found->candidates_tried, found->edge.coarse_ratio, found->edge.fine_ratio);
+  return true;
+}
+
+bool Tracker::reanchor(const RgbdFrame& frame, const Pose& pose_world, TrackResult& r) {
+  const Pose velocity = velocity_;
+  const double velocity_dt = velocity_dt_;
+  relocaliser_->restart();  // nearest `pose_world` first, not where an earlier search stopped
+  if (!relocalise(frame, pose_world, r, spdlog::level::debug)) return false;  // one a keyframe: not news
+  velocity_ = velocity;  // the camera's motion, whichever keyframe it is tracked against
+  velocity_dt_ = velocity_dt;
+  r.reanchored = true;
   return true;
 }
 
@@ -125,7 +142,7 @@ bool Tracker::keyframeDue(const AlignResult& aligned) const {
 
 TrackResult Tracker::track(const RgbdFrame& frame, const Intrinsics& k) {
   TrackResult r = trackFrame(frame, k);
-  if (r.new_keyframe) relocaliser_->addKeyframe(keyframe_, r.odometry);
+  if (r.new_keyframe && !localise_only_) relocaliser_->addKeyframe(keyframe_, r.odometry);
   return r;
 }
 
@@ -163,7 +180,7 @@ void Tracker::startTracking(const RgbdFrame& frame, LostReason reason, TrackResu
     ++frames_before_first_;
     if (reason == LostReason::None && relocalise(frame, std::nullopt, r)) return;
     r.lost_reason = reason == LostReason::None ? LostReason::Relocalising : reason;
-    gave_up_ = frames_before_first_ >= relocalise_first_within_;
+    gave_up_ = !localise_only_ && frames_before_first_ >= relocalise_first_within_;
     return;
   }
   if (reason != LostReason::None) {
@@ -233,7 +250,7 @@ void Tracker::markLost(const RgbdFrame& frame, LostReason reason, bool trackable
   r.state = TrackingState::Lost;
   r.lost_reason = reason;
   spdlog::debug("frame {}: lost ({})", frame.id, toString(reason));
-  if (trackable && lost_in_a_row_ >= params_.lost.max_lost_frames) {
+  if (trackable && !localise_only_ && lost_in_a_row_ >= params_.lost.max_lost_frames) {
     // Re-initialising from the last good keyframe has not worked for too
     // long: restart from this frame at the last good pose.
     spdlog::warn("frame {}: lost for {} frames, new keyframe at the last good pose", frame.id, lost_in_a_row_);
@@ -260,6 +277,7 @@ void Tracker::followAlignment(const RgbdFrame& frame, const AlignResult& aligned
   if (!reference_entropy_) reference_entropy_ = aligned.entropy;
   r.entropy_ratio = aligned.entropy / *reference_entropy_;
   if (keyframeDue(aligned)) {
+    if (localise_only_ && reanchor(frame, keyframe_->pose_world * aligned.pose, r)) return;
     OdometryConstraint c;
     c.from_id = keyframe_->id;
     c.relative = aligned.pose;

@@ -8,6 +8,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <unordered_map>
 #include <vector>
 
 #include "rekon/common/camera.hpp"
@@ -38,5 +39,10 @@ std::vector<StoredKeyframe> loadKeyframes(const std::string& session_dir, const 
 // (rekon::Error as loadKeyframes for a missing or damaged file).
 std::string keyframeFile(const std::string& session_dir, int64_t id);
 StoredKeyframe loadKeyframe(const std::string& session_dir, int64_t id, const AlignerParams& params);
+
+// SESSION/anchors.txt (written by the mapper; SESSION.md): every DVO
+// keyframe's newest world pose, the optimised one once the graph placed it,
+// by id. rekon::Error naming the file when it is missing or damaged.
+std::unordered_map<int64_t, Pose> loadMapPoses(const std::string& session_dir);
 
 }  // namespace rekon::tracker

@@ -9,6 +9,8 @@
 #include <optional>
 #include <unordered_map>
 
+#include <spdlog/common.h>
+
 #include "rekon/common/camera.hpp"
 #include "rekon/common/pose.hpp"
 #include "rekon/common/rgbd_frame.hpp"
@@ -75,6 +77,9 @@ struct TrackResult {
   // Set when the frame was relocalised (relocaliser.hpp): its new keyframe's
   // validated edge from an earlier keyframe, published as a loop edge.
   std::optional<OdometryConstraint> relocalised_from;
+  // localiseOnly(): a due keyframe placed by relocalising it against the map
+  // (relocalised_from is its edge), not a relocalisation after a loss.
+  bool reanchored = false;
   Pose keyframe_pose_world = Pose::Identity();  // odometry estimate of the keyframe
   Pose pose_world = Pose::Identity();           // keyframe_pose_world * pose_in_keyframe
   double entropy = 0.0;                         // of the alignment, when one ran
@@ -111,6 +116,15 @@ class Tracker {
   // gaveUp() turns true.
   void relocaliseFirstFrame(int frames);
   bool gaveUp() const { return gave_up_; }
+  // Localisation in a saved map (session.localise_only): the stored keyframes
+  // are the map and stay the only relocalisation candidates. The first frame
+  // is relocalised against them, and so is a lost one, however long that
+  // takes (frames stay lost until then: no restart at a guessed pose). Each
+  // keyframe tracking makes is placed by relocalising it against the stored
+  // ones nearest its odometry pose, by odometry only when none validates
+  // within tracker.lost_relocalise_budget_ms. The tracker's own keyframes are
+  // kept only while frames track against them.
+  void localiseOnly();
   // The optimiser's keyframe poses, for ranking and placing relocalisations (any thread).
   void updateGraph(int64_t version, std::unordered_map<int64_t, Pose> poses);
 
@@ -129,7 +143,12 @@ class Tracker {
   void startTracking(const RgbdFrame& frame, LostReason reason, TrackResult& r);
   // Relocalises current_ (nearest `guess_world` first); on success the frame
   // becomes the keyframe at the validated pose and `r` says so.
-  bool relocalise(const RgbdFrame& frame, const std::optional<Pose>& guess_world, TrackResult& r);
+  bool relocalise(const RgbdFrame& frame, const std::optional<Pose>& guess_world, TrackResult& r,
+                  spdlog::level::level_enum log_level = spdlog::level::info);
+  // localiseOnly(): a due keyframe at `pose_world` (odometry) placed by the
+  // map instead when one of the stored keyframes nearest it validates; the
+  // motion model goes on.
+  bool reanchor(const RgbdFrame& frame, const Pose& pose_world, TrackResult& r);
   bool keyframeDue(const AlignResult& aligned) const;
   bool entropyRatioBelow(double entropy, double threshold) const;
 
@@ -168,6 +187,7 @@ class Tracker {
   int relocalise_first_within_ = 0;           // > 0: the first keyframe must be relocalised within this many frames
   int frames_before_first_ = 0;
   bool gave_up_ = false;
+  bool localise_only_ = false;
 };
 
 }  // namespace rekon::tracker
