@@ -39,6 +39,19 @@ TEST(Reintegration, NothingMovedSelectsNothing) {
   EXPECT_TRUE(selectMostMoved({0, 0, 0, 0}, 2).empty());
 }
 
+TEST(Reintegration, ANearSlackPicksTheNearestOfTheWindowsThatMovedNearlyAsMuch) {
+  // Figure 4 with m = 5: sums 16 19 17 20 19 15 12 19 18 18 17. Distances from
+  // the camera fall along the trajectory (keyframe 15 is the newest).
+  std::vector<double> distance;
+  for (int i = 15; i >= 1; --i) distance.push_back(i);
+  EXPECT_EQ(oneBased(selectConsecutive(kFigure4, 5, 0.0, distance, 0.0)), (std::vector<size_t>{4, 5, 6, 7, 8}));
+  // Within 6 % of 20 (>= 18.8): windows from 2, 4, 5 and 8; the nearest starts at 8.
+  EXPECT_EQ(oneBased(selectConsecutive(kFigure4, 5, 0.0, distance, 0.06)), (std::vector<size_t>{8, 9, 10, 11, 12}));
+  // Within 16 % (>= 16.8): also 3, 9, 10 and 11; the nearest starts at 11 (keyframe 15 did not move).
+  EXPECT_EQ(oneBased(selectConsecutive(kFigure4, 5, 0.0, distance, 0.16)), (std::vector<size_t>{11, 12, 13, 14}));
+  EXPECT_THROW(selectConsecutive(kFigure4, 5, 0.0, distance, 1.0), rekon::Error);
+}
+
 TEST(Reintegration, ZeroMIsAnError) { EXPECT_THROW(selectConsecutive({1, 2}, 0), rekon::Error); }
 
 TEST(PoseMovement, TranslationCountsOnceRotationTwice) {

@@ -4,6 +4,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
+#include <fstream>
 #include <map>
 #include <set>
 #include <tuple>
@@ -296,6 +298,108 @@ TEST_P(VolumeTest, StreamingKeepsActiveBlocksBoundedAlongACorridor) {
   EXPECT_GT(s.blocks, 3 * s.active_blocks);  // most of the corridor lives in the host store
   EXPECT_LT(peak_recent, s.blocks / 2);      // active blocks stay bounded while the total grows
   EXPECT_GT(s.streamed_out, 0);
+}
+
+// 41 views along a 10 m corridor (z), looking at the wall at x = 1.2; the
+// volume streams around each eye before integrating. Returns the active
+// blocks after each streamAround.
+std::vector<int64_t> walkCorridor(TsdfVolume& vol, std::vector<Eigen::Vector3d>* eyes_out = nullptr) {
+  const rekon::Intrinsics k = rekon::test::smallCamera(80, 60);
+  std::vector<int64_t> active;
+  for (int i = 0; i <= 40; ++i) {
+    const Eigen::Vector3d eye(0.0, 0.0, 0.25 * i);
+    const Pose pose = rekon::test::lookAt(eye, eye + Eigen::Vector3d(1.0, 0.3, 0.2));
+    cv::Mat depth, color;
+    rekon::test::renderCorridor(1.2, 1.0, k, pose, depth, color);
+    vol.streamAround(eye);
+    active.push_back(vol.stats().active_blocks);
+    vol.integrate(depth, color, cv::Mat(), k, pose);
+    if (eyes_out) eyes_out->push_back(eye);
+  }
+  return active;
+}
+
+void expectSameVoxels(const TsdfVolume& a, const TsdfVolume& b) {
+  const Difference d = compare(snapshot(a), snapshot(b));
+  EXPECT_TRUE(d.same_blocks);
+  EXPECT_EQ(d.sdf + d.weight + d.color, 0);
+}
+
+TEST_P(VolumeTest, AnActiveBudgetKeepsBlocksOutsideTheSphereUntilItIsFullAndChangesNoVoxel) {
+  // The same walk into a volume without a budget (every block outside the
+  // sphere leaves at each streamAround) and one with a budget of twice the
+  // sphere: its pool stays within the budget or the sphere, whichever is
+  // larger, a round trip to the start and back streams nothing once both
+  // ends fit, and the voxels are the same.
+  VolumeParams p = params();
+  p.streaming_radius = 2.0;
+  TsdfVolume unbudgeted(p);
+  std::vector<Eigen::Vector3d> eyes;
+  const std::vector<int64_t> sphere = walkCorridor(unbudgeted, &eyes);
+  p.active_max_blocks = 2 * *std::max_element(sphere.begin(), sphere.end());
+  TsdfVolume budgeted(p);
+  const std::vector<int64_t> active = walkCorridor(budgeted);
+  for (size_t i = 0; i < active.size(); ++i)
+    EXPECT_LE(active[i], std::max(p.active_max_blocks, sphere[i])) << "after streaming around view " << i;
+  ASSERT_GT(budgeted.stats().streamed_out, 0) << "the walk must overflow the budget for this test to mean anything";
+  EXPECT_LT(budgeted.stats().streamed_out, unbudgeted.stats().streamed_out);
+
+  // A correction round at the start of the corridor, then back to the camera, twice.
+  for (TsdfVolume* vol : {&unbudgeted, &budgeted}) {
+    vol->streamAround(eyes.front());
+    vol->streamAround(eyes.back());
+  }
+  const int64_t unbudgeted_in = unbudgeted.stats().streamed_in, budgeted_in = budgeted.stats().streamed_in;
+  for (TsdfVolume* vol : {&unbudgeted, &budgeted}) {
+    vol->streamAround(eyes.front());
+    vol->streamAround(eyes.back());
+  }
+  EXPECT_GT(unbudgeted.stats().streamed_in, unbudgeted_in);  // without a budget each trip streams both ways
+  EXPECT_EQ(budgeted.stats().streamed_in, budgeted_in);      // with one both ends stay
+  expectSameVoxels(unbudgeted, budgeted);
+}
+
+TEST_P(VolumeTest, AHostBudgetSpillsTheFarthestBlocksToDiskAndReadsThemBackUnchanged) {
+  // A host tier of 40 blocks (the walk streams out thousands): the rest go to
+  // disk, come back for a walk to the start, and every voxel and the mesh
+  // are those of a volume without the budget.
+  rekon::test::TempDir dir;
+  VolumeParams p = params();
+  p.streaming_radius = 2.0;
+  TsdfVolume unbudgeted(p);
+  std::vector<Eigen::Vector3d> eyes;
+  walkCorridor(unbudgeted, &eyes);
+  p.host_max_blocks = 40;
+  p.spill_dir = dir.path();
+  TsdfVolume budgeted(p);
+  walkCorridor(budgeted);
+  const rekon::volume::VolumeStats s = budgeted.stats();
+  EXPECT_GT(s.host_blocks_on_disk, s.host_blocks - 40);  // at most the budget in memory
+  EXPECT_EQ(s.host_blocks, unbudgeted.stats().host_blocks);
+  EXPECT_EQ(s.read_back_from_disk, 0);  // the walk never came back
+  for (TsdfVolume* vol : {&unbudgeted, &budgeted}) vol->streamAround(eyes.front());
+  EXPECT_GT(budgeted.stats().read_back_from_disk, 0);
+  EXPECT_EQ(budgeted.stats().active_blocks, unbudgeted.stats().active_blocks);
+  expectSameVoxels(unbudgeted, budgeted);
+  EXPECT_EQ(budgeted.extractMesh().vertices.size(), unbudgeted.extractMesh().vertices.size());
+  EXPECT_TRUE(std::filesystem::is_empty(dir.path())) << "the spill file is unlinked once open";
+}
+
+TEST_P(VolumeTest, AHostTierThatCannotSpillNamesTheFileAndTheFix) {
+  rekon::test::TempDir dir;
+  VolumeParams p = params();
+  p.streaming_radius = 2.0;
+  p.host_max_blocks = 40;
+  p.spill_dir = dir / "not_a_folder/voxels";
+  { std::ofstream(dir / "not_a_folder") << "a file where the folder should be"; }
+  TsdfVolume vol(p);
+  try {
+    walkCorridor(vol);
+    FAIL() << "spilling into a path under a file must throw";
+  } catch (const rekon::Error& e) {
+    EXPECT_NE(std::string(e.what()).find("not_a_folder/voxels/rekon_voxels_"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("mapper.voxel_spill_dir"), std::string::npos) << e.what();
+  }
 }
 
 TEST_P(VolumeTest, InvalidPosesAreRejected) {

@@ -9,6 +9,7 @@
 
 #include "rekon/common/cpu_time.hpp"
 #include "rekon/common/error.hpp"
+#include "rekon/common/files.hpp"
 #include "rekon/mapper/volume/volume_config.hpp"
 
 namespace rekon::mapper {
@@ -35,12 +36,27 @@ MapperParams MapperParams::fromConfig(const Config& c) {
   p.fusion = fusion::fusionParamsFromConfig(c);
   p.volume = volume::volumeParamsFromConfig(c);
   p.volume.streaming_radius = c.getDouble("mapper.streaming_radius");
+  const double active_mb = c.getDouble("mapper.active_mb");
+  if (!(active_mb >= 0.0 && active_mb <= 1.0e6))
+    throw Error("mapper.active_mb = " + std::to_string(active_mb) + " is invalid; it must be in [0, 1e6] MiB (0 = only the streaming sphere stays active)");
+  const double block_bytes = volume::kBlockVoxels * sizeof(volume::Voxel);
+  p.volume.active_max_blocks = static_cast<int64_t>(active_mb * 1048576.0 / block_bytes);
+  const double host_mb = c.getDouble("mapper.host_mb");
+  if (!(host_mb >= 0.0 && host_mb <= 1.0e7))
+    throw Error("mapper.host_mb = " + std::to_string(host_mb) + " is invalid; it must be in [0, 1e7] MiB (0 = no budget)");
+  p.volume.host_max_blocks = static_cast<int64_t>(host_mb * 1048576.0 / block_bytes);
+  p.volume.spill_dir = c.getString("mapper.voxel_spill_dir");
+  if (p.volume.spill_dir.empty()) throw Error("mapper.voxel_spill_dir is empty; give a folder or auto ($TMPDIR or /tmp)");
+  if (p.volume.spill_dir == "auto") p.volume.spill_dir = tempFolder();
   p.volume.validate();
   p.mode = parseReintegrationMode(c.getString("mapper.reintegration"));
   p.m = c.getInt("mapper.m");
   if (p.m < 1) throw Error("mapper.m must be at least 1 (keyframes re-integrated per graph update)");
   p.min_movement = c.getDouble("mapper.min_movement");
   if (!(p.min_movement >= 0)) throw Error("mapper.min_movement must not be negative");
+  p.near_window_slack = c.getDouble("mapper.near_window_slack");
+  if (!(p.near_window_slack >= 0.0 && p.near_window_slack < 1.0))
+    throw Error("mapper.near_window_slack = " + std::to_string(p.near_window_slack) + " is invalid; it must be in [0, 1)");
   p.use_store = c.getBool("mapper.use_store");
   p.resume = c.getBool("mapper.resume");
   p.store = store::StoreOptions::fromConfig(c);  // segment, size and spill folder (mapper.store_*)
@@ -365,7 +381,10 @@ ReintegrationRound Mapper::applyGraphUpdate(const std::vector<std::pair<int64_t,
   // (a continued run that stops early leaves its session untouched).
   if (firstMissingFrame() >= 0) writeAnchorPoses();
   const std::vector<double> moved = movements();
-  const auto chosen = selectForReintegration(params_.mode, moved, params_.m, params_.min_movement);
+  std::vector<double> distance;
+  for (const KeyframeRecord& r : keyframes_) distance.push_back((r.integrated_pose.translation() - camera_position_).norm());
+  const auto chosen =
+      selectForReintegration(params_.mode, moved, params_.m, params_.min_movement, distance, params_.near_window_slack);
   const ReintegrationRound round = reintegrate(chosen);
   counters_.reintegration_ms_total += round.ms;
   counters_.reintegration_blocks_streamed += round.blocks_streamed;

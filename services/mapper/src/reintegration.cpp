@@ -42,19 +42,41 @@ double poseMovement(const Pose& integrated, const Pose& updated) {
   return s.cwiseProduct(d).norm();
 }
 
-std::vector<size_t> selectConsecutive(const std::vector<double>& movement, int m, double min_movement) {
+namespace {
+
+// Calls visit(j, window sum of a) for every window start j in [0, K - window].
+template <typename Visit>
+void slideWindow(const std::vector<double>& a, size_t window, Visit visit) {
+  double sum = std::accumulate(a.begin(), a.begin() + static_cast<std::ptrdiff_t>(window), 0.0);
+  visit(size_t{0}, sum);
+  for (size_t j = 1; j + window <= a.size(); ++j) {
+    sum += a[j + window - 1] - a[j - 1];  // sliding window: O(K) for all j
+    visit(j, sum);
+  }
+}
+
+}  // namespace
+
+std::vector<size_t> selectConsecutive(const std::vector<double>& movement, int m, double min_movement,
+                                      const std::vector<double>& distance, double near_slack) {
   if (m < 1) throw Error("mapper.m must be at least 1 (keyframes re-integrated per graph update)");
+  if (!(near_slack >= 0.0 && near_slack < 1.0)) throw Error("mapper.near_window_slack must be in [0, 1)");
   const size_t k = movement.size(), window = std::min(k, static_cast<size_t>(m));
   if (k == 0) return {};
-  double sum = std::accumulate(movement.begin(), movement.begin() + static_cast<std::ptrdiff_t>(window), 0.0);
-  double best = sum;
+  double best = -1.0;
   size_t best_j = 0;
-  for (size_t j = 1; j + window <= k; ++j) {
-    sum += movement[j + window - 1] - movement[j - 1];  // sliding window: O(K) for all j
-    if (sum > best) {
-      best = sum;
-      best_j = j;
-    }
+  slideWindow(movement, window, [&](size_t j, double sum) {
+    if (sum > best) best = sum, best_j = j;
+  });
+  if (near_slack > 0.0 && distance.size() == k) {
+    // Among the windows that moved nearly as much, the one nearest the camera
+    // (smallest summed distance): its blocks are active already.
+    std::vector<char> moved_enough(k - window + 1, 0);
+    slideWindow(movement, window, [&](size_t j, double sum) { moved_enough[j] = sum >= (1.0 - near_slack) * best; });
+    double nearest = -1.0;
+    slideWindow(distance, window, [&](size_t j, double sum) {
+      if (moved_enough[j] && (nearest < 0.0 || sum < nearest)) nearest = sum, best_j = j;
+    });
   }
   std::vector<size_t> chosen;
   for (size_t i = best_j; i < best_j + window; ++i)
@@ -75,9 +97,9 @@ std::vector<size_t> selectMostMoved(const std::vector<double>& movement, int m, 
 }
 
 std::vector<size_t> selectForReintegration(ReintegrationMode mode, const std::vector<double>& movement, int m,
-                                           double min_movement) {
+                                           double min_movement, const std::vector<double>& distance, double near_slack) {
   switch (mode) {
-    case ReintegrationMode::kConsecutive: return selectConsecutive(movement, m, min_movement);
+    case ReintegrationMode::kConsecutive: return selectConsecutive(movement, m, min_movement, distance, near_slack);
     case ReintegrationMode::kMostMoved: return selectMostMoved(movement, m, min_movement);
     case ReintegrationMode::kNone: return {};
   }

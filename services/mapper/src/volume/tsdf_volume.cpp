@@ -8,6 +8,7 @@
 #include <opencv2/core.hpp>
 #include <tuple>
 
+#include "host_blocks.hpp"
 #include "marching_cubes.hpp"
 #include "rekon/common/error.hpp"
 
@@ -47,13 +48,6 @@ void requireImage(const cv::Mat& m, int type, const Intrinsics& k, const char* w
 
 bool coordLess(const BlockCoord& a, const BlockCoord& b) { return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z); }
 
-Eigen::Vector3d blockCentre(const BlockCoord& c, double voxel_size) {
-  const double side = kBlockSide * voxel_size;
-  // Voxels sit at integer multiples of voxel_size, so a block spans [c*side, (c+1)*side - voxel_size].
-  const double half = 0.5 * (side - voxel_size);
-  return {c.x * side + half, c.y * side + half, c.z * side + half};
-}
-
 }  // namespace
 
 void VolumeParams::validate() const {
@@ -65,6 +59,8 @@ void VolumeParams::validate() const {
   if (!(max_depth > 0.0)) bad("max_depth", max_depth, "positive (metres)");
   if (block_capacity < 1 || block_capacity > (1 << 28)) bad("block_capacity", block_capacity, "in [1, 2^28]");
   if (!(streaming_radius >= 0.0)) bad("streaming_radius", streaming_radius, ">= 0 metres (0 = no streaming)");
+  if (active_max_blocks < 0 || active_max_blocks > (1 << 28)) bad("active_max_blocks", static_cast<double>(active_max_blocks), "in [0, 2^28] (0 = no budget)");
+  if (host_max_blocks < 0) bad("host_max_blocks", static_cast<double>(host_max_blocks), ">= 0 (0 = no budget)");
   if (!(weight_units >= 1.0 && weight_units <= 4096.0)) bad("weight_units", weight_units, "in [1, 4096]");
   if (allocation_stride < 1 || allocation_stride > 16) bad("allocation_stride", allocation_stride, "in [1, 16]");
   if (cpu_threads < 0) bad("cpu_threads", cpu_threads, ">= 0 (0 = all)");
@@ -72,6 +68,7 @@ void VolumeParams::validate() const {
 
 TsdfVolume::TsdfVolume(const VolumeParams& params) : params_(params) {
   params_.validate();
+  host_ = std::make_unique<HostBlocks>(params_.voxel_size, params_.host_max_blocks, params_.spill_dir);
   backend_ = makeBackend(params_.backend, params_.cpu_threads);
   backend_name_ = backend_->name();
   backend_->resizePool(params_.block_capacity);
@@ -171,7 +168,7 @@ std::vector<BlockRef> TsdfVolume::resolveBandBlocks(const std::vector<BlockCoord
   // Blocks of this band that were streamed out come back first: the frame's
   // contribution to them must be added (or removed) like anywhere else.
   std::vector<BlockCoord> stored, fresh;
-  for (const BlockCoord& c : missing) (host_store_.count(c) ? stored : fresh).push_back(c);
+  for (const BlockCoord& c : missing) (host_->contains(c) ? stored : fresh).push_back(c);
   if (!allocate) fresh.clear();
   ensureCapacity(active_blocks_ + static_cast<int64_t>(stored.size() + fresh.size()));
   std::vector<int32_t> slots;
@@ -194,7 +191,9 @@ void TsdfVolume::ensureCapacity(int64_t active_needed) {
                 std::to_string(capacity) + "; raise block_capacity to at least " + std::to_string(active_needed) +
                 " (or set grow_capacity, or lower streaming_radius)");
   }
-  const int64_t grown = std::max<int64_t>(active_needed, 2 * capacity);
+  // Doubling, but not past the active budget when that is enough.
+  const int64_t doubled = params_.active_max_blocks > 0 ? std::min(2 * capacity, params_.active_max_blocks) : 2 * capacity;
+  const int64_t grown = std::max<int64_t>(active_needed, doubled);
   if (grown > (1 << 28)) {
     throw Error("volume: " + std::to_string(active_needed) + " active blocks exceed the limit of 2^28; lower streaming_radius");
   }
@@ -278,9 +277,9 @@ void TsdfVolume::streamIn(const std::vector<BlockCoord>& coords, std::vector<int
   ensureCapacity(active_blocks_ + static_cast<int64_t>(coords.size()));
   std::vector<Voxel> data(coords.size() * kBlockVoxels);
   for (size_t i = 0; i < coords.size(); ++i) {
-    const std::vector<Voxel> voxels = hostTake(coords[i]);
-    std::copy(voxels.begin(), voxels.end(), data.begin() + i * kBlockVoxels);
+    host_->take(coords[i], data.data() + i * kBlockVoxels);
     slots.push_back(takeSlot(coords[i]));
+    slot_stamp_[slots.back()] = frame_stamp_;  // used now: not the first to leave again
   }
   backend_->writeBlocks(slots, data.data());
   streamed_in_ += static_cast<int64_t>(coords.size());
@@ -290,81 +289,53 @@ void TsdfVolume::streamAround(const Eigen::Vector3d& centre) {
   if (!centre.allFinite()) throw Error("volume: streaming centre is not finite; pass the camera position");
   if (params_.streaming_radius <= 0.0) return;
   const double r = params_.streaming_radius;
-  std::vector<int32_t> out_slots;
-  for (size_t s = 0; s < slot_used_.size(); ++s) {
-    if (slot_used_[s] && (blockCentre(slot_coord_[s], params_.voxel_size) - centre).norm() > r) {
-      out_slots.push_back(static_cast<int32_t>(s));
-    }
-  }
-  if (!out_slots.empty()) {
-    std::vector<Voxel> data(out_slots.size() * kBlockVoxels);
-    backend_->readBlocks(out_slots, data.data());
-    for (size_t i = 0; i < out_slots.size(); ++i) {
-      hostInsert(slot_coord_[out_slots[i]],
-                 std::vector<Voxel>(data.begin() + i * kBlockVoxels, data.begin() + (i + 1) * kBlockVoxels));
-      releaseSlot(out_slots[i]);
-    }
-    streamed_out_ += static_cast<int64_t>(out_slots.size());
-  }
-  std::vector<BlockCoord> in_coords;
-  const double cell_side = kCellBlocks * kBlockSide * params_.voxel_size;
-  const Eigen::Vector3i lo = ((centre.array() - r) / cell_side).floor().cast<int>();
-  const Eigen::Vector3i hi = ((centre.array() + r) / cell_side).floor().cast<int>();
-  for (int z = lo.z(); z <= hi.z(); ++z) {
-    for (int y = lo.y(); y <= hi.y(); ++y) {
-      for (int x = lo.x(); x <= hi.x(); ++x) {
-        const auto cell = host_cells_.find({x, y, z});
-        if (cell == host_cells_.end()) continue;
-        for (const BlockCoord& coord : cell->second) {
-          if ((blockCentre(coord, params_.voxel_size) - centre).norm() <= r) in_coords.push_back(coord);
-        }
-      }
-    }
-  }
+  const std::vector<BlockCoord> in_coords = host_->within(centre, r);
+  streamOutBeyond(centre, active_blocks_ + static_cast<int64_t>(in_coords.size()) - params_.active_max_blocks);
   std::vector<int32_t> slots;
   streamIn(in_coords, slots);
+  host_->spillBeyondBudget(centre);
 }
 
-void TsdfVolume::hostInsert(const BlockCoord& coord, std::vector<Voxel> voxels) {
-  host_store_[coord] = std::move(voxels);
-  host_cells_[{floorDiv(coord.x, kCellBlocks), floorDiv(coord.y, kCellBlocks), floorDiv(coord.z, kCellBlocks)}].push_back(coord);
-}
-
-std::vector<Voxel> TsdfVolume::hostTake(const BlockCoord& coord) {
-  auto it = host_store_.find(coord);
-  std::vector<Voxel> voxels = std::move(it->second);
-  host_store_.erase(it);
-  const BlockCoord cell{floorDiv(coord.x, kCellBlocks), floorDiv(coord.y, kCellBlocks), floorDiv(coord.z, kCellBlocks)};
-  auto& members = host_cells_[cell];
-  const auto m = std::find(members.begin(), members.end(), coord);
-  *m = members.back();
-  members.pop_back();
-  if (members.empty()) host_cells_.erase(cell);
-  return voxels;
+void TsdfVolume::streamOutBeyond(const Eigen::Vector3d& centre, int64_t excess) {
+  // Without a budget every block outside the sphere leaves; with one, only the
+  // excess, least recently updated first (then farthest): a round's blocks stay
+  // for the next round, the camera's for the next integration.
+  struct Candidate {
+    uint32_t last_use;
+    double distance;
+    int32_t slot;
+  };
+  std::vector<Candidate> outside;
+  for (size_t s = 0; s < slot_used_.size(); ++s) {
+    if (!slot_used_[s]) continue;
+    const double d = (blockCentre(slot_coord_[s], params_.voxel_size) - centre).norm();
+    if (d > params_.streaming_radius) outside.push_back({slot_stamp_[s], d, static_cast<int32_t>(s)});
+  }
+  size_t n = outside.size();
+  if (params_.active_max_blocks > 0) {
+    n = std::min(n, static_cast<size_t>(std::max<int64_t>(0, excess)));
+    std::nth_element(outside.begin(), outside.begin() + static_cast<std::ptrdiff_t>(n), outside.end(),
+                     [](const Candidate& a, const Candidate& b) {
+                       return a.last_use < b.last_use || (a.last_use == b.last_use && a.distance > b.distance);
+                     });
+  }
+  if (n == 0) return;
+  std::vector<int32_t> out_slots;
+  for (size_t i = 0; i < n; ++i) out_slots.push_back(outside[i].slot);
+  std::vector<Voxel> data(out_slots.size() * kBlockVoxels);
+  backend_->readBlocks(out_slots, data.data());
+  for (size_t i = 0; i < out_slots.size(); ++i) {
+    host_->insert(slot_coord_[out_slots[i]], data.data() + i * kBlockVoxels);
+    releaseSlot(out_slots[i]);
+  }
+  streamed_out_ += static_cast<int64_t>(out_slots.size());
 }
 
 Mesh TsdfVolume::extractMesh() const {
-  std::vector<BlockCoord> coords;
-  std::vector<int32_t> active_slots;
-  for (size_t s = 0; s < slot_used_.size(); ++s) {
-    if (slot_used_[s]) active_slots.push_back(static_cast<int32_t>(s));
-  }
-  std::vector<Voxel> copied;
-  const Voxel* pool = backend_->hostPool();
-  if (pool == nullptr) {
-    copied.resize(active_slots.size() * kBlockVoxels);
-    backend_->readBlocks(active_slots, copied.data());
-  }
+  const std::vector<BlockCoord> coords = blockCoords();
   std::vector<const Voxel*> data;
-  for (size_t i = 0; i < active_slots.size(); ++i) {
-    coords.push_back(slot_coord_[active_slots[i]]);
-    data.push_back(pool ? pool + static_cast<size_t>(active_slots[i]) * kBlockVoxels
-                        : copied.data() + i * kBlockVoxels);
-  }
-  for (const auto& [coord, voxels] : host_store_) {
-    coords.push_back(coord);
-    data.push_back(voxels.data());
-  }
+  std::vector<Voxel> copied;
+  voxelPointers(coords, data, copied);
   return marchingCubes(coords, data, static_cast<float>(params_.voxel_size), static_cast<float>(params_.truncation));
 }
 
@@ -377,7 +348,7 @@ std::vector<BlockCoord> TsdfVolume::takeMeshChanges() {
   out.reserve(changed.size());
   for (const BlockCoord& c : changed) {
     // A neighbour that does not exist has no mesh to change, unless it was freed (then it was touched itself).
-    if (tableFind(c) != kEmptySlot || host_store_.count(c) || touched_.count(c)) out.push_back(c);
+    if (tableFind(c) != kEmptySlot || host_->contains(c) || touched_.count(c)) out.push_back(c);
   }
   touched_.clear();
   return out;
@@ -387,7 +358,7 @@ std::vector<BlockMesh> TsdfVolume::meshBlocks(const std::vector<BlockCoord>& wan
   // The wanted blocks that exist first, then their +x/+y/+z neighbours (whose voxels and vertices their cubes use).
   std::vector<BlockCoord> coords;
   std::unordered_set<BlockCoord, CoordHash> listed;
-  auto exists = [&](const BlockCoord& c) { return tableFind(c) != kEmptySlot || host_store_.count(c); };
+  auto exists = [&](const BlockCoord& c) { return tableFind(c) != kEmptySlot || host_->contains(c); };
   for (const BlockCoord& c : wanted) {
     if (exists(c) && listed.insert(c).second) coords.push_back(c);
   }
@@ -412,24 +383,32 @@ std::vector<BlockMesh> TsdfVolume::meshBlocks(const std::vector<BlockCoord>& wan
 
 void TsdfVolume::voxelPointers(const std::vector<BlockCoord>& coords, std::vector<const Voxel*>& data,
                                std::vector<Voxel>& copied) const {
+  // Copies (of active blocks when the pool is not on the host, of host blocks
+  // on disk) go to `copied`, sized once so that the pointers into it hold.
   const Voxel* pool = backend_->hostPool();
   std::vector<int32_t> slots;
+  size_t from_disk = 0;
   for (const BlockCoord& c : coords) {
     const int32_t slot = tableFind(c);
     if (slot != kEmptySlot) slots.push_back(slot);
+    else if (!host_->inMemory(c)) ++from_disk;
   }
-  if (pool == nullptr) {
-    copied.resize(slots.size() * kBlockVoxels);
-    backend_->readBlocks(slots, copied.data());
-  }
-  size_t active = 0;
+  const size_t active_copies = pool == nullptr ? slots.size() : 0;
+  copied.resize((active_copies + from_disk) * kBlockVoxels);
+  if (active_copies > 0) backend_->readBlocks(slots, copied.data());
+  size_t active = 0, disk = active_copies;
+  data.reserve(data.size() + coords.size());
   for (const BlockCoord& c : coords) {
     const int32_t slot = tableFind(c);
-    if (slot == kEmptySlot) {
-      data.push_back(host_store_.at(c).data());
-    } else {
+    if (slot != kEmptySlot) {
       data.push_back(pool ? pool + static_cast<size_t>(slot) * kBlockVoxels : copied.data() + active * kBlockVoxels);
       ++active;
+    } else if (const Voxel* v = host_->inMemory(c)) {
+      data.push_back(v);
+    } else {
+      Voxel* dst = copied.data() + disk++ * kBlockVoxels;
+      if (!host_->read(c, dst)) throw Error("volume: internal error: block listed but not allocated");
+      data.push_back(dst);
     }
   }
 }
@@ -503,7 +482,11 @@ RaycastImages TsdfVolume::raycast(const Intrinsics& k, const Pose& camera_to_wor
 VolumeStats TsdfVolume::stats() const {
   VolumeStats s;
   s.active_blocks = active_blocks_;
-  s.host_blocks = static_cast<int64_t>(host_store_.size());
+  s.host_blocks = host_->size();
+  const HostTierStats h = host_->stats();
+  s.host_blocks_on_disk = h.on_disk;
+  s.spilled_to_disk = h.spilled;
+  s.read_back_from_disk = h.read_back;
   s.blocks = s.active_blocks + s.host_blocks;
   s.peak_active_blocks = peak_active_blocks_;
   s.block_capacity = static_cast<int64_t>(slot_used_.size());
@@ -521,10 +504,8 @@ bool TsdfVolume::readBlock(const BlockCoord& coord, std::vector<Voxel>& voxels) 
     backend_->readBlocks({slot}, voxels.data());
     return true;
   }
-  auto it = host_store_.find(coord);
-  if (it == host_store_.end()) return false;
-  voxels = it->second;
-  return true;
+  voxels.resize(kBlockVoxels);
+  return host_->read(coord, voxels.data());
 }
 
 std::vector<BlockCoord> TsdfVolume::blockCoords() const {
@@ -532,7 +513,8 @@ std::vector<BlockCoord> TsdfVolume::blockCoords() const {
   for (size_t s = 0; s < slot_used_.size(); ++s) {
     if (slot_used_[s]) out.push_back(slot_coord_[s]);
   }
-  for (const auto& [coord, voxels] : host_store_) out.push_back(coord);
+  const std::vector<BlockCoord> host = host_->coords();
+  out.insert(out.end(), host.begin(), host.end());
   return out;
 }
 

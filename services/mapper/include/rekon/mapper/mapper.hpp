@@ -31,6 +31,9 @@ struct MapperParams {
   ReintegrationMode mode = ReintegrationMode::kConsecutive;
   int m = kDefaultM;
   double min_movement = kDefaultMinMovement;
+  // mapper.near_window_slack: a consecutive window nearer the camera wins when
+  // its movement is within this fraction of the largest (0: eq. 3 as is).
+  double near_window_slack = 0.0;
   // The *_ms counters in CPU time of the whole process instead of wall time:
   // benchmarks on a shared machine, where other processes inflate wall time.
   bool cpu_time_counters = false;

@@ -25,11 +25,16 @@ double poseMovement(const Pose& integrated, const Pose& updated);
 // Eq. (3): the 0-based j* maximising the sum of movement[j .. j+m-1] over
 // j in [0, K-m] (the first such j on ties); all K when K <= m. Returns the
 // indices of that window whose movement exceeds min_movement (none when no
-// keyframe moved).
-std::vector<size_t> selectConsecutive(const std::vector<double>& movement, int m, double min_movement = 0.0);
+// keyframe moved). With near_slack > 0 and a distance per keyframe (from the
+// camera), the window chosen is instead the nearest (smallest summed
+// distance) of those whose summed movement is at least (1 - near_slack) x the
+// largest: nearly the same correction, with blocks that are active already.
+std::vector<size_t> selectConsecutive(const std::vector<double>& movement, int m, double min_movement = 0.0,
+                                      const std::vector<double>& distance = {}, double near_slack = 0.0);
 // BundleFusion: the m largest movements above min_movement, in descending order.
 std::vector<size_t> selectMostMoved(const std::vector<double>& movement, int m, double min_movement = 0.0);
 std::vector<size_t> selectForReintegration(ReintegrationMode mode, const std::vector<double>& movement, int m,
-                                           double min_movement);
+                                           double min_movement, const std::vector<double>& distance = {},
+                                           double near_slack = 0.0);
 
 }  // namespace rekon::mapper

@@ -20,6 +20,8 @@
 
 namespace rekon::volume {
 
+class HostBlocks;
+
 struct VolumeParams {
   static constexpr double kDefaultVoxelSize = 0.01;     // metres
   static constexpr double kDefaultTruncation = 0.04;    // metres
@@ -42,6 +44,14 @@ struct VolumeParams {
   int block_capacity = kDefaultBlockCapacity;
   bool grow_capacity = true;  // false: running out throws rekon::Error naming the number to raise
   double streaming_radius = kDefaultStreamingRadius;
+  // Blocks outside the streaming sphere may stay active up to this many in
+  // all (the active pool's budget); 0 = none stays: each streamAround moves
+  // every block outside the sphere to the host store.
+  int64_t active_max_blocks = 0;
+  // Blocks of the host tier kept in memory; beyond, the farthest from the
+  // streaming centre go to a spill file in spill_dir (0 = no budget).
+  int64_t host_max_blocks = 0;
+  std::string spill_dir;
   double weight_units = kDefaultWeightUnits;
   int allocation_stride = kDefaultAllocationStride;
   std::string backend = "auto";  // "auto", "cpu" or "cuda"
@@ -54,7 +64,10 @@ struct VolumeParams {
 struct VolumeStats {
   int64_t blocks = 0;         // active + host store
   int64_t active_blocks = 0;  // in the backend's pool (GPU memory for CUDA)
-  int64_t host_blocks = 0;
+  int64_t host_blocks = 0;          // in memory and on disk
+  int64_t host_blocks_on_disk = 0;
+  int64_t spilled_to_disk = 0;      // blocks moved host memory -> disk, in total
+  int64_t read_back_from_disk = 0;  // blocks taken back from disk, in total
   int64_t peak_active_blocks = 0;
   int64_t block_capacity = 0;
   int64_t streamed_out = 0;  // blocks moved active -> host store, in total
@@ -88,11 +101,13 @@ class TsdfVolume {
   void deintegrate(const cv::Mat& depth_m, const cv::Mat& color, const cv::Mat& weights, const Intrinsics& k,
                    const Pose& camera_to_world);
 
-  // Keeps blocks whose centre lies within streaming_radius of `centre` in the
-  // active volume and moves the others to the host store (radius 0: no-op).
+  // Brings the blocks whose centre lies within streaming_radius of `centre`
+  // into the active volume; blocks outside the sphere move to the host store,
+  // all of them without a budget (active_max_blocks 0), else only as many as
+  // keep the pool within it, least recently updated first (radius 0: no-op).
   void streamAround(const Eigen::Vector3d& centre);
 
-  // Marching cubes over active and host blocks; vertices are shared along
+  // Marching cubes over active and host blocks (those on disk read back); vertices are shared along
   // voxel edges, colors are RGB.
   Mesh extractMesh() const;
   // Blocks whose mesh may have changed since the last call: (de-)integration
@@ -120,7 +135,6 @@ class TsdfVolume {
   struct CoordHash {
     size_t operator()(const BlockCoord& c) const { return hashBlock(c); }
   };
-  using HostStore = std::unordered_map<BlockCoord, std::vector<Voxel>, CoordHash>;
 
   void update(const cv::Mat& depth_m, const cv::Mat& color, const cv::Mat& weights, const Intrinsics& k,
               const Pose& camera_to_world, int sign);
@@ -134,6 +148,9 @@ class TsdfVolume {
   void tableErase(const BlockCoord& coord);
   int32_t tableFind(const BlockCoord& coord) const;
   void streamIn(const std::vector<BlockCoord>& coords, std::vector<int32_t>& slots);
+  // Moves active blocks outside the sphere around centre to the host store:
+  // all of them without a budget, else `excess` of them (see streamAround).
+  void streamOutBeyond(const Eigen::Vector3d& centre, int64_t excess);
   // Voxels of each block of coords (active or host; every one must exist), copied when the pool is not on the host.
   void voxelPointers(const std::vector<BlockCoord>& coords, std::vector<const Voxel*>& data, std::vector<Voxel>& copied) const;
 
@@ -144,7 +161,7 @@ class TsdfVolume {
   uint64_t table_version_ = 0;
   std::vector<BlockCoord> slot_coord_;
   std::vector<uint8_t> slot_used_;
-  std::vector<uint32_t> slot_stamp_;  // last frame that touched the slot (dedup)
+  std::vector<uint32_t> slot_stamp_;  // last update that touched the slot (dedup; least recent streams out first)
   std::vector<int32_t> free_slots_;
   uint32_t frame_stamp_ = 0;
   int64_t active_blocks_ = 0;
@@ -152,14 +169,8 @@ class TsdfVolume {
   int64_t streamed_out_ = 0;
   int64_t streamed_in_ = 0;
   int64_t last_update_blocks_ = 0;
-  HostStore host_store_;
+  std::unique_ptr<HostBlocks> host_;  // blocks streamed out: memory, then disk
   std::unordered_set<BlockCoord, CoordHash> touched_;  // voxels changed since takeMeshChanges()
-  // The host store's blocks by coarse cell (kCellBlocks^3 blocks), so that
-  // stream-in visits only the cells the sphere overlaps, not the whole store.
-  static constexpr int kCellBlocks = 8;
-  std::unordered_map<BlockCoord, std::vector<BlockCoord>, CoordHash> host_cells_;
-  void hostInsert(const BlockCoord& coord, std::vector<Voxel> voxels);
-  std::vector<Voxel> hostTake(const BlockCoord& coord);
 };
 
 // Raw 16-bit depth (depth_scale units per metre, 0 = none) to CV_32F metres.
