@@ -241,6 +241,12 @@ TEST(SessionLocalise, ASecondPassIsPlacedInTheSessionsMapAndTheSessionStaysAsItW
             << " localised " << in_map << "; " << placed << " frames placed, " << lost << " lost, "
             << jsonNumber(stats, "wall_seconds") << " s\n";
 
+  // A spill folder that is the session's: the tracker's keyframes would replace the session's own files.
+  EXPECT_NE(runInNetns("--dataset " + cut + " --out " + (dir / "spill") + " --continue " + session +
+                       " --localise-only --set tracker.keyframe_spill_dir=" + session, &log), 0);
+  EXPECT_NE(log.find("tracker.keyframe_spill_dir is the session folder"), std::string::npos) << log;
+  EXPECT_TRUE(contents(session) == before) << "the session changed";
+
   // A scene the session never saw: every frame lost, no pose, the run says so (and ends well: a localiser waits).
   const std::string tabletop = dir / "tabletop";
   ASSERT_EQ(runCommand("timeout 120 " + binDir() + "/rekon synth --scene tabletop --frames 20 --out " + tabletop), 0);

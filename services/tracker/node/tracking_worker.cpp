@@ -4,6 +4,7 @@
 #include <spdlog/spdlog.h>
 
 #include <chrono>
+#include <filesystem>
 #include <optional>
 
 #include "rekon/common/camera.hpp"
@@ -21,6 +22,12 @@ TrackerSession TrackerSession::fromConfig(const Config& config) {
   s.localise_only = config.getBool("session.localise_only");
   s.relocalise_frames = config.getInt("session.relocalise_frames");
   if (s.continued && s.dir.empty()) throw Error("session.continue needs session.dir (rekon run --continue DIR sets both)");
+  // Spilled keyframes are files of the session's own names (keyframe_archive.hpp), removed at exit.
+  const std::string spill = config.getString("tracker.keyframe_spill_dir");
+  if (!s.dir.empty() && spill != KeyframeMemoryParams::kAutoSpillDir &&
+      std::filesystem::weakly_canonical(spill) == std::filesystem::weakly_canonical(s.dir))
+    throw Error("tracker.keyframe_spill_dir is the session folder " + s.dir + ": the keyframes spilled there would "
+                "replace the session's own and be removed at exit; set it to another folder, or auto");
   if (s.localise_only && !s.continued)
     throw Error("session.localise_only localises in a saved session: it needs session.continue and session.dir "
                 "(rekon run --continue DIR --localise-only sets them)");
