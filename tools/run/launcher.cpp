@@ -164,7 +164,8 @@ void configureContinue(Config& config, const RunOptions& opt) {
       throw Error(dir.string() + " was made with another camera (" + describeCamera(session.info().camera) + ") than " +
                   opt.dataset + "'s (" + describeCamera(k) + "); continue a session with the camera it was made with");
   }
-  spdlog::info("{} session {}: {} KF keyframes, {} DVO keyframes", opt.localise_only ? "localising in" : "continuing",
+  spdlog::info("{} session {}: {} KF keyframes, {} DVO keyframes",
+               config.getBool("session.localise_only") ? "localising in" : "continuing",
                dir.string(), session.keyframes().size(), dvo);
   config.set("session.dir", dir.string());
   config.set("session.continue", "true");
