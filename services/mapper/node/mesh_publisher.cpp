@@ -2,11 +2,14 @@
 
 #include <spdlog/spdlog.h>
 
+#include <Eigen/Core>
 #include <algorithm>
+#include <optional>
 #include <string>
 #include <thread>
 #include <tuple>
 
+#include "../src/volume/marching_cubes.hpp"
 #include "rekon/common/bus.hpp"
 #include "rekon/common/cpu_time.hpp"
 #include "rekon/common/error.hpp"
@@ -25,6 +28,16 @@ int64_t wallMicros() {
   return std::chrono::duration_cast<std::chrono::microseconds>(std::chrono::system_clock::now().time_since_epoch()).count();
 }
 
+// Where the newest integrated KF keyframe's camera is now (none yet: the origin).
+Eigen::Vector3d cameraPosition(const Mapper& mapper) {
+  const std::vector<KeyframeRecord>& kfs = mapper.keyframes();
+  for (auto it = kfs.rbegin(); it != kfs.rend(); ++it) {
+    if (!it->integrated) continue;
+    if (const std::optional<Pose> pose = mapper.currentPose(it->kf)) return pose->translation();
+  }
+  return Eigen::Vector3d::Zero();
+}
+
 }  // namespace
 
 MeshPublisherSettings MeshPublisherSettings::fromConfig(const Config& config) {
@@ -34,6 +47,7 @@ MeshPublisherSettings MeshPublisherSettings::fromConfig(const Config& config) {
   s.max_bytes_per_s = config.getDouble("mapper.mesh_max_bytes_per_s");
   const int max_message = config.getInt("mapper.mesh_max_message_bytes");
   s.full_every_s = config.getDouble("mapper.mesh_full_every_s");
+  s.coarse_first = config.getBool("mapper.mesh_coarse_first");
   auto bad = [](const std::string& key, double value, const std::string& want) {
     throw Error("mapper." + key + " = " + std::to_string(value) + " is invalid; it must be " + want);
   };
@@ -105,12 +119,14 @@ void MeshPublisher::finish(Mapper& mapper, BlockCause cause) {
     spdlog::error("mapper: the last mesh update failed: {}", e.what());
   }
   stats_.cpu_ms += threadCpuMs() - cpu0;
-  spdlog::info("mapper: mesh on the bus: {} updates ({} full), {} blocks, {:.1f} MB, {:.0f} ms CPU", stats_.updates,
-               stats_.full_snapshots, stats_.blocks_sent, static_cast<double>(stats_.bytes) / 1e6, stats_.cpu_ms);
+  spdlog::info("mapper: mesh on the bus: {} updates ({} full), {} blocks and {} coarse ones first, {:.1f} MB, {:.0f} ms CPU",
+               stats_.updates, stats_.full_snapshots, stats_.blocks_sent, stats_.coarse_sent,
+               static_cast<double>(stats_.bytes) / 1e6, stats_.cpu_ms);
 }
 
 int64_t MeshPublisher::newVersion() {
-  last_version_ = std::max(last_version_ + 1, wallMicros());
+  last_version_ = std::max(last_version_ + 2, wallMicros());
+  last_version_ += last_version_ & 1;  // even: version - 1, its coarse mesh's, is newer than any before
   return last_version_;
 }
 
@@ -123,38 +139,69 @@ void MeshPublisher::noteChanges(Mapper& mapper, BlockCause cause) {
     Stamp& stamp = version_[c];
     // A correction not sent yet stays one when new data lands on the block too.
     const bool unsent = pending_.count(c) > 0;
-    stamp = {version, unsent ? std::max(stamp.cause, cause) : cause};
+    stamp = {version, unsent ? std::max(stamp.cause, cause) : cause, stamp.seen};
     pending_[c] = version;
   }
   stats_.pending = static_cast<int64_t>(pending_.size());
 }
 
-// The oldest pending blocks first, as many as the budget is expected to carry.
+void MeshPublisher::choose(const Mapper& mapper, bool unlimited, std::vector<volume::BlockCoord>* coarse,
+                           std::vector<volume::BlockCoord>* full) const {
+  const Eigen::Vector3d eye = cameraPosition(mapper);
+  const double block_metres = codec_.voxel_size * codec_.block_voxels;
+  struct Candidate {
+    bool seen;
+    double distance;  // from the camera to the block's centre, metres
+    volume::BlockCoord coord;
+  };
+  std::vector<Candidate> order;
+  order.reserve(pending_.size());
+  for (const auto& [c, version] : pending_) {
+    const Eigen::Vector3d centre = (Eigen::Vector3d(c.x, c.y, c.z) + Eigen::Vector3d::Constant(0.5)) * block_metres;
+    order.push_back({version_.at(c).seen, (centre - eye).norm(), c});
+  }
+  const bool all_fit = unlimited || static_cast<double>(order.size()) * bytes_per_block_ <= tokens_;
+  const bool coarse_first = settings_.coarse_first && !all_fit;
+  // New blocks first (when they go coarse), then by distance; ties by coordinates.
+  std::sort(order.begin(), order.end(), [coarse_first](const Candidate& a, const Candidate& b) {
+    return std::make_tuple(coarse_first && a.seen, a.distance, a.coord.x, a.coord.y, a.coord.z) <
+           std::make_tuple(coarse_first && b.seen, b.distance, b.coord.x, b.coord.y, b.coord.z);
+  });
+  double bytes = 0.0;
+  for (const Candidate& c : order) {
+    if (!unlimited && bytes >= tokens_ && !(coarse->empty() && full->empty())) break;
+    const bool as_coarse = coarse_first && !c.seen;
+    (as_coarse ? coarse : full)->push_back(c.coord);
+    bytes += as_coarse ? bytes_per_coarse_block_ : bytes_per_block_;
+  }
+}
+
 void MeshPublisher::publishDelta(Mapper& mapper, bool unlimited) {
   const Clock::time_point now = Clock::now();
   const double elapsed = std::chrono::duration<double>(now - last_refill_).count();
   last_refill_ = now;
   tokens_ = std::min(tokens_ + elapsed * settings_.max_bytes_per_s, settings_.max_bytes_per_s);
   if (pending_.empty() || (!unlimited && tokens_ <= 0.0)) return;
-  std::vector<std::pair<int64_t, volume::BlockCoord>> order;
-  order.reserve(pending_.size());
-  for (const auto& [coord, version] : pending_) order.emplace_back(version, coord);
-  size_t n = order.size();
-  if (!unlimited) n = std::min(n, static_cast<size_t>(std::max(1.0, tokens_ / bytes_per_block_)));
-  // Oldest first, and within a version by coordinates: neighbouring blocks
-  // go together, so meshing them computes few vertices of blocks not sent.
-  std::partial_sort(order.begin(), order.begin() + static_cast<std::ptrdiff_t>(n), order.end(), [](const auto& a, const auto& b) {
-    return std::tie(a.first, a.second.x, a.second.y, a.second.z) < std::tie(b.first, b.second.x, b.second.y, b.second.z);
-  });
-  std::vector<volume::BlockCoord> coords;
-  coords.reserve(n);
-  for (size_t i = 0; i < n; ++i) {
-    coords.push_back(order[i].second);
-    pending_.erase(order[i].second);
+  std::vector<volume::BlockCoord> coarse, full;
+  choose(mapper, unlimited, &coarse, &full);
+  auto estimate = [](double& per_block, int64_t bytes, size_t blocks) {
+    if (blocks > 0) per_block = 0.8 * per_block + 0.2 * static_cast<double>(bytes) / static_cast<double>(blocks);
+  };
+  if (!coarse.empty()) {
+    // They stay pending for their full mesh; a block whose coarse mesh shows
+    // nothing (a thin or half-observed surface) goes in full at once.
+    std::vector<volume::BlockCoord> empty;
+    const int64_t bytes = publish(mapper, coarse, false, true, &empty);
+    tokens_ -= static_cast<double>(bytes);
+    estimate(bytes_per_coarse_block_, bytes, coarse.size() - empty.size());
+    full.insert(full.begin(), empty.begin(), empty.end());
   }
-  const int64_t bytes = publish(mapper, coords, false);
-  tokens_ -= static_cast<double>(bytes);
-  if (!coords.empty()) bytes_per_block_ = 0.8 * bytes_per_block_ + 0.2 * static_cast<double>(bytes) / static_cast<double>(coords.size());
+  if (!full.empty()) {
+    for (const volume::BlockCoord& c : full) pending_.erase(c);
+    const int64_t bytes = publish(mapper, full, false);
+    tokens_ -= static_cast<double>(bytes);
+    estimate(bytes_per_block_, bytes, full.size());
+  }
   stats_.pending = static_cast<int64_t>(pending_.size());
 }
 
@@ -169,14 +216,22 @@ void MeshPublisher::publishFull(Mapper& mapper) {
   stats_.pending = 0;
 }
 
-int64_t MeshPublisher::publish(Mapper& mapper, const std::vector<volume::BlockCoord>& coords, bool full) {
-  std::vector<BlockMesh> meshes = mapper.volume().meshBlocks(coords);
-  for (BlockMesh& m : meshes) {
-    const Stamp& stamp = version_.at({m.x, m.y, m.z});
-    m.version = stamp.version;
-    m.cause = stamp.cause;
+int64_t MeshPublisher::publish(Mapper& mapper, const std::vector<volume::BlockCoord>& coords, bool full_snapshot,
+                               bool coarse, std::vector<volume::BlockCoord>* empty_coarse) {
+  std::vector<BlockMesh> meshes = coarse ? coarseMeshes(mapper, coords) : mapper.volume().meshBlocks(coords);
+  if (coarse) {
+    const auto empty = std::stable_partition(meshes.begin(), meshes.end(), [](const BlockMesh& m) { return !m.triangles.empty(); });
+    for (auto it = empty; it != meshes.end(); ++it) empty_coarse->push_back({it->x, it->y, it->z});
+    meshes.erase(empty, meshes.end());
   }
-  const std::vector<rekon_msgs::mesh_blocks_t> msgs = encodeMeshBlocks(meshes, codec_, ++sequence_, full);
+  for (BlockMesh& m : meshes) {
+    Stamp& stamp = version_.at({m.x, m.y, m.z});
+    m.version = coarse ? stamp.version - 1 : stamp.version;
+    m.cause = stamp.cause;
+    stamp.seen = true;
+  }
+  if (coarse && meshes.empty()) return 0;
+  const std::vector<rekon_msgs::mesh_blocks_t> msgs = encodeMeshBlocks(meshes, codec_, ++sequence_, full_snapshot);
   int64_t bytes = 0;
   for (size_t i = 0; i < msgs.size(); ++i) {
     // A pause between parts: one part nearly fills a receiver's default UDP
@@ -188,9 +243,42 @@ int64_t MeshPublisher::publish(Mapper& mapper, const std::vector<volume::BlockCo
   last_update_ = Clock::now();
   ++stats_.updates;
   stats_.messages += static_cast<int64_t>(msgs.size());
-  stats_.blocks_sent += static_cast<int64_t>(meshes.size());
+  (coarse ? stats_.coarse_sent : stats_.blocks_sent) += static_cast<int64_t>(meshes.size());
   stats_.bytes += bytes;
   return bytes;
+}
+
+std::vector<BlockMesh> MeshPublisher::coarseMeshes(const Mapper& mapper, const std::vector<volume::BlockCoord>& wanted) const {
+  // The wanted blocks that exist, then their +x/+y/+z neighbours (the cubes reach into their first layer).
+  const volume::TsdfVolume& volume = mapper.volume();
+  std::vector<volume::BlockCoord> coords;
+  std::vector<std::vector<volume::Voxel>> voxels;
+  std::unordered_map<volume::BlockCoord, bool, CoordHash> exists;  // every block tried
+  auto read = [&](const volume::BlockCoord& c) {
+    const auto [it, fresh] = exists.try_emplace(c, false);
+    if (!fresh) return;
+    std::vector<volume::Voxel> v;
+    if (!volume.readBlock(c, v)) return;
+    it->second = true;
+    coords.push_back(c);
+    voxels.push_back(std::move(v));
+  };
+  for (const volume::BlockCoord& c : wanted) read(c);
+  const size_t present = coords.size();
+  for (size_t i = 0; i < present; ++i) {
+    const volume::BlockCoord c = coords[i];
+    for (int n = 1; n < 8; ++n) read({c.x + (n & 1), c.y + ((n >> 1) & 1), c.z + ((n >> 2) & 1)});
+  }
+  std::vector<const volume::Voxel*> data;
+  data.reserve(voxels.size());
+  for (const auto& v : voxels) data.push_back(v.data());
+  const volume::VolumeParams& p = volume.params();
+  std::vector<BlockMesh> meshes = volume::marchingCubesCoarse(coords, data, static_cast<int>(present),
+                                                              static_cast<float>(p.voxel_size), static_cast<float>(p.truncation));
+  for (const volume::BlockCoord& c : wanted) {  // not allocated (freed): nothing to show
+    if (!exists.at(c)) meshes.push_back(BlockMesh{c.x, c.y, c.z, 0, {}, {}, {}});
+  }
+  return meshes;
 }
 
 }  // namespace rekon::mapper

@@ -6,6 +6,17 @@
 // MESH_REQUEST (a viewer started late) or mapper.mesh_full_every_s brings a
 // full snapshot. Runs on the mapping worker's thread (it meshes the live
 // volume), except the request handler, which only raises a flag.
+//
+// What goes first (issue 27): when every pending block fits the update's
+// budget in full, all go in full. Otherwise, with mapper.mesh_coarse_first,
+//   1. blocks no subscriber has seen, as coarse meshes (half resolution,
+//      about a quarter of the bytes), nearest the camera first;
+//   2. then, with what the budget has left, full meshes of the blocks seen
+//      before (shown coarse, or changed since), nearest the camera first.
+// "The camera" is the newest integrated KF keyframe's current pose. A coarse
+// mesh's version is one below the full mesh of the same change (versions of
+// changes are even, coarse ones odd: messages/mesh.lcm), so the full mesh
+// always replaces it, and finish() sends every block in full.
 #include <atomic>
 #include <chrono>
 #include <cstdint>
@@ -29,6 +40,7 @@ struct MeshPublisherSettings {
   double max_bytes_per_s = kDefaultMaxBytesPerS;
   size_t max_message_bytes = MeshBlocksParams::kDefaultMaxMessageBytes;
   double full_every_s = 0.0;  // 0: full snapshots only on request
+  bool coarse_first = true;   // blocks never sent go first as coarse meshes when the budget is short
 
   // Throws rekon::Error naming a key out of range.
   static MeshPublisherSettings fromConfig(const Config& config);
@@ -38,7 +50,8 @@ struct MeshPublisherStats {
   int64_t updates = 0;  // updates published (each one or more messages)
   int64_t messages = 0;
   int64_t full_snapshots = 0;
-  int64_t blocks_sent = 0;
+  int64_t blocks_sent = 0;  // full meshes and removals
+  int64_t coarse_sent = 0;  // coarse meshes (each followed by its block's full mesh later)
   int64_t bytes = 0;     // encoded LCM bytes
   double cpu_ms = 0.0;   // thread CPU time of change tracking, meshing, encoding, publishing
   int64_t pending = 0;   // blocks waiting for budget when the stats were taken
@@ -73,16 +86,25 @@ class MeshPublisher {
   void update(Mapper& mapper, BlockCause cause);
   void publishDelta(Mapper& mapper, bool unlimited);
   void publishFull(Mapper& mapper);
-  // Meshes coords, stamps their versions, encodes and publishes one update; returns its bytes.
-  int64_t publish(Mapper& mapper, const std::vector<volume::BlockCoord>& coords, bool full);
+  // Pending blocks in the order they go (the rule above), as many as `tokens` bytes are expected to carry
+  // (all when unlimited); those that go coarse in *coarse, the others in *full.
+  void choose(const Mapper& mapper, bool unlimited, std::vector<volume::BlockCoord>* coarse,
+              std::vector<volume::BlockCoord>* full) const;
+  // Meshes coords (full, or coarse: those whose coarse mesh is empty are left
+  // out, into *empty_coarse), stamps their versions, encodes and publishes one
+  // update; returns its bytes.
+  int64_t publish(Mapper& mapper, const std::vector<volume::BlockCoord>& coords, bool full_snapshot, bool coarse = false,
+                  std::vector<volume::BlockCoord>* empty_coarse = nullptr);
+  std::vector<BlockMesh> coarseMeshes(const Mapper& mapper, const std::vector<volume::BlockCoord>& coords) const;
 
   ServiceContext& ctx_;
   MeshPublisherSettings settings_;
   MeshBlocksParams codec_;
   std::atomic<bool> full_requested_{false};
   struct Stamp {
-    int64_t version = 0;
+    int64_t version = 0;  // even (newVersion); its coarse mesh goes as version - 1
     BlockCause cause = BlockCause::kNewData;
+    bool seen = false;  // a version of it went out (or its coarse mesh was empty): no coarse mesh again
   };
   std::unordered_map<volume::BlockCoord, Stamp, CoordHash> version_;  // every block ever meshed or changed
   std::unordered_map<volume::BlockCoord, int64_t, CoordHash> pending_;  // changed, not yet sent: its version
@@ -93,7 +115,8 @@ class MeshPublisher {
   int64_t last_version_ = 0;
   int64_t sequence_ = 0;
   double tokens_ = 0.0;  // bytes the budget allows now (negative after a large update)
-  double bytes_per_block_ = 300.0;  // running estimate, to mesh only what the budget can send
+  double bytes_per_block_ = 300.0;  // running estimates, to mesh only what the budget can send
+  double bytes_per_coarse_block_ = 100.0;
   Clock::time_point last_refill_ = Clock::now();
   Clock::time_point last_update_ = Clock::time_point{};
   Clock::time_point last_full_ = Clock::time_point{};

@@ -130,6 +130,15 @@ struct BlockVertices {
   int64_t offset = 0;
 };
 
+// The color at fraction t of the way from voxel a to voxel b, RGB.
+std::array<uint8_t, 3> mixColor(const Voxel& a, const Voxel& b, float t) {
+  auto mix = [&](int channel) {
+    const float u = static_cast<float>(voxelColorFixed(a, channel)), v = static_cast<float>(voxelColorFixed(b, channel));
+    return static_cast<uint8_t>(std::lround((u + t * (v - u)) / kColorScale));
+  };
+  return {mix(0), mix(1), mix(2)};
+}
+
 void makeVertices(const Grid& g, BlockCoord c, float voxel_size, BlockVertices& out) {
   for (int z = 0; z < kBlockSide; ++z) {
     for (int y = 0; y < kBlockSide; ++y) {
@@ -147,13 +156,9 @@ void makeVertices(const Grid& g, BlockCoord c, float voxel_size, BlockVertices& 
           p[axis] += t;
           const Voxel& a = *g.voxel[i0];
           const Voxel& b = *g.voxel[i1];
-          auto mix = [&](int channel) {
-            const float u = static_cast<float>(voxelColorFixed(a, channel)), v = static_cast<float>(voxelColorFixed(b, channel));
-            return static_cast<uint8_t>(std::lround((u + t * (v - u)) / kColorScale));
-          };
           out.edge.push_back(static_cast<uint16_t>(localIndex(x, y, z) * 3 + axis));
           out.position.push_back(p * voxel_size);
-          out.color.push_back({mix(0), mix(1), mix(2)});
+          out.color.push_back(mixColor(a, b, t));
         }
       }
     }
@@ -172,17 +177,24 @@ struct Lattice {
   std::vector<BlockVertices> vertices;  // per block of coords: the vertices it owns
 };
 
+// coords -> their index, as the kernels' open-addressing table.
+Lookup makeLookup(const std::vector<BlockCoord>& coords) {
+  Lookup lookup;
+  uint32_t size = 1;
+  while (size < 2 * coords.size() + 2) size <<= 1;
+  lookup.entries.assign(size, HashEntry{{0, 0, 0}, kEmptySlot});
+  for (size_t i = 0; i < coords.size(); ++i) {
+    uint32_t h = hashBlock(coords[i]) & (size - 1);
+    while (lookup.entries[h].slot != kEmptySlot) h = (h + 1) & (size - 1);
+    lookup.entries[h] = {coords[i], static_cast<int32_t>(i)};
+  }
+  return lookup;
+}
+
 Lattice buildLattice(const std::vector<BlockCoord>& coords, const std::vector<const Voxel*>& blocks, float voxel_size,
                      float truncation, int max_workers) {
   Lattice lattice;
-  uint32_t size = 1;
-  while (size < 2 * coords.size() + 2) size <<= 1;
-  lattice.lookup.entries.assign(size, HashEntry{{0, 0, 0}, kEmptySlot});
-  for (size_t i = 0; i < coords.size(); ++i) {
-    uint32_t h = hashBlock(coords[i]) & (size - 1);
-    while (lattice.lookup.entries[h].slot != kEmptySlot) h = (h + 1) & (size - 1);
-    lattice.lookup.entries[h] = {coords[i], static_cast<int32_t>(i)};
-  }
+  lattice.lookup = makeLookup(coords);
   const int n = static_cast<int>(coords.size());
   lattice.vertices.resize(n);
   parallelFor(n, kGrain, max_workers, [&](int begin, int end, int) {
@@ -289,7 +301,73 @@ BlockMesh blockMesh(const Lattice& lattice, const std::vector<BlockCoord>& coord
   return out;
 }
 
+// Block c's mesh at half resolution: marching cubes over every 2nd voxel
+// (4^3 cubes of 2 voxels' edge, corners from the grid's 9^3 samples), each
+// block on its own (its vertices on its +x/+y/+z faces are its own copies).
+BlockMesh coarseBlockMesh(const Grid& g, BlockCoord c, float voxel_size) {
+  constexpr int kStep = 2, kCells = kBlockSide / kStep, kPoints = kCells + 1;
+  const TriangleTable& table = triangleTable();
+  BlockMesh out;
+  out.x = c.x;
+  out.y = c.y;
+  out.z = c.z;
+  std::array<int32_t, kPoints * kPoints * kPoints * 3> made;  // coarse point * 3 + axis -> vertex, -1: none yet
+  made.fill(-1);
+  auto vertexOn = [&](int px, int py, int pz, int axis) {
+    int32_t& slot = made[((pz * kPoints + py) * kPoints + px) * 3 + axis];
+    if (slot >= 0) return slot;
+    const int i0 = Grid::index(kStep * px, kStep * py, kStep * pz);
+    const int i1 = Grid::index(kStep * (px + (axis == 0)), kStep * (py + (axis == 1)), kStep * (pz + (axis == 2)));
+    const float t = g.sdf[i0] / (g.sdf[i0] - g.sdf[i1]);
+    Eigen::Vector3f p(static_cast<float>(c.x * kBlockSide + kStep * px), static_cast<float>(c.y * kBlockSide + kStep * py),
+                      static_cast<float>(c.z * kBlockSide + kStep * pz));
+    p[axis] += kStep * t;
+    slot = static_cast<int32_t>(out.vertices.size());
+    out.vertices.push_back(p * voxel_size);
+    out.colors.push_back(mixColor(*g.voxel[i0], *g.voxel[i1], t));
+    return slot;
+  };
+  for (int z = 0; z < kCells; ++z) {
+    for (int y = 0; y < kCells; ++y) {
+      for (int x = 0; x < kCells; ++x) {
+        int config = 0;
+        bool observed = true;
+        for (int k = 0; k < 8 && observed; ++k) {
+          const float s = g.sdf[Grid::index(kStep * (x + kCorner[k][0]), kStep * (y + kCorner[k][1]), kStep * (z + kCorner[k][2]))];
+          observed = !std::isnan(s);
+          config |= (s < 0.f) << k;
+        }
+        if (!observed || config == 0 || config == 255) continue;
+        const auto& row = table[config];
+        for (int i = 0; row[i] >= 0; i += 3) {
+          Eigen::Vector3i tri;
+          for (int j = 0; j < 3; ++j) {
+            const int e = row[i + j];
+            const int* o = kCorner[kEdgeCorners[e][0]];
+            tri[j] = vertexOn(x + o[0], y + o[1], z + o[2], edgeAxis(e));
+          }
+          out.triangles.push_back(tri);
+        }
+      }
+    }
+  }
+  return out;
+}
+
 }  // namespace
+
+std::vector<BlockMesh> marchingCubesCoarse(const std::vector<BlockCoord>& coords, const std::vector<const Voxel*>& blocks,
+                                           int wanted, float voxel_size, float truncation) {
+  const Lookup lookup = makeLookup(coords);
+  std::vector<BlockMesh> out;
+  out.reserve(wanted);
+  Grid grid;
+  for (int b = 0; b < wanted; ++b) {
+    gatherGrid(lookup, blocks, coords[b], truncation, grid);
+    out.push_back(coarseBlockMesh(grid, coords[b], voxel_size));
+  }
+  return out;
+}
 
 const TriangleTable& triangleTable() {
   static const TriangleTable table = buildTable();

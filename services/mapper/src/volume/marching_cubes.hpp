@@ -29,4 +29,13 @@ Mesh marchingCubes(const std::vector<BlockCoord>& coords, const std::vector<cons
 std::vector<BlockMesh> marchingCubesPerBlock(const std::vector<BlockCoord>& coords, const std::vector<const Voxel*>& blocks,
                                              int wanted, float voxel_size, float truncation);
 
+// The meshes of the first `wanted` blocks of coords at half resolution:
+// marching cubes over every 2nd voxel, about a quarter of the triangles, the
+// same surface within a voxel or so; a preview that the full mesh replaces.
+// Each block on its own: the vertices on its +x/+y/+z faces are its own
+// copies (equal to its neighbours' coarse ones). coords as for
+// marchingCubesPerBlock; versions are 0. On the calling thread.
+std::vector<BlockMesh> marchingCubesCoarse(const std::vector<BlockCoord>& coords, const std::vector<const Voxel*>& blocks,
+                                           int wanted, float voxel_size, float truncation);
+
 }  // namespace rekon::volume
