@@ -131,6 +131,34 @@ TEST(ViewerState, OnlyCorrectedVersionsCountAsCorrections) {
   EXPECT_NE(state.stateJson().find(R"("block_corrections":1,"final_pass_blocks":1)"), std::string::npos);
 }
 
+// Issue 27: a block the mapper sends first as a coarse mesh (an odd time
+// version, one below its change's full mesh) is held until the full mesh
+// replaces it; an older coarse one never replaces a full one, and a corrected
+// block counts as one correction, not two.
+TEST(ViewerState, TheFullMeshReplacesTheCoarseOneAndCountsOnce) {
+  ViewerState state;
+  const int64_t change = 1'764'000'000'000'000;  // even: a full mesh's time version
+  BlockMesh coarse = syntheticBlock({0, 0, 0}, change - 1, 2);
+  coarse.cause = BlockCause::kCorrection;
+  BlockMesh full = syntheticBlock({0, 0, 0}, change, 8);
+  full.cause = BlockCause::kCorrection;
+  ASSERT_TRUE(ViewerState::isCoarse(coarse.version));
+  ASSERT_FALSE(ViewerState::isCoarse(full.version));
+  ASSERT_FALSE(ViewerState::isCoarse(3));  // a test's small versions carry no time: never coarse
+  state.applyBlock(coarse);
+  EXPECT_EQ(state.counts().coarse_blocks, 1u);
+  EXPECT_EQ(state.counts().triangles, 2u);
+  EXPECT_EQ(state.counts().block_corrections, 0u);
+  state.applyBlock(full);
+  state.applyBlock(coarse);  // late: older than the full mesh, ignored
+  const ViewerState::Counts c = state.counts();
+  EXPECT_EQ(c.coarse_blocks, 0u);
+  EXPECT_EQ(c.triangles, 8u);
+  EXPECT_EQ(c.block_corrections, 1u);
+  EXPECT_EQ(c.block_updates, 2u);
+  EXPECT_NE(state.stateJson().find(R"("coarse_blocks":0)"), std::string::npos);
+}
+
 TEST(ViewerState, FullSnapshotRemovesBlocksItDoesNotName) {
   ViewerState state;
   for (int i = 0; i < 5; ++i) state.applyBlock(syntheticBlock({i, 0, 0}, 1));

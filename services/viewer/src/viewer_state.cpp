@@ -49,6 +49,9 @@ void ViewerState::applyLocked(const BlockMesh& block) {
   auto& entry = blocks_[key];
   const bool known = entry.second || entry.first != 0;  // held, or removed at entry.first
   if (known && entry.first >= block.version) return;
+  const bool coarse = isCoarse(block.version);
+  coarse_blocks_ -= (entry.second && isCoarse(entry.first)) ? 1 : 0;
+  coarse_blocks_ += (coarse && !block.vertices.empty()) ? 1 : 0;
   BlockSize& size = block_sizes_[key];
   vertices_ -= size.vertices;
   triangles_ -= size.triangles;
@@ -58,8 +61,9 @@ void ViewerState::applyLocked(const BlockMesh& block) {
   triangles_ += size.triangles;
   position_sum_ += size.position_sum;
   ++block_updates_;
-  if (block.cause == BlockCause::kCorrection) ++block_corrections_;
-  if (block.cause == BlockCause::kFinalPass) ++final_pass_blocks_;
+  // A coarse mesh's full one follows with the same cause: counted once, then.
+  if (!coarse && block.cause == BlockCause::kCorrection) ++block_corrections_;
+  if (!coarse && block.cause == BlockCause::kFinalPass) ++final_pass_blocks_;
   if (!unconfirmed_ && block.version >= kMinTimeVersion) {
     const auto now_us = std::chrono::duration_cast<std::chrono::microseconds>(
         std::chrono::system_clock::now().time_since_epoch()).count();
@@ -260,6 +264,7 @@ ViewerState::Counts ViewerState::counts() const {
   c.block_updates = block_updates_;
   c.block_corrections = block_corrections_;
   c.final_pass_blocks = final_pass_blocks_;
+  c.coarse_blocks = coarse_blocks_;
   c.receive_latency_samples = receive_latency_.count();
   if (c.receive_latency_samples > 0) {
     c.receive_latency_ms_p50 = receive_latency_.quantile(0.5);
@@ -277,10 +282,10 @@ std::string ViewerState::stateJson() const {
     status = *statusUpdate().payload;
   }
   return fmt::format(R"({{"blocks":{},"vertices":{},"triangles":{},"block_updates":{},"block_corrections":{},)"
-                     R"("final_pass_blocks":{},"keyframes":{},)"
+                     R"("final_pass_blocks":{},"coarse_blocks":{},"keyframes":{},)"
                      R"("loop_edges":{},"trajectory":{},"camera_frame":{},"receive_latency_samples":{},)"
                      R"("receive_latency_ms_p50":{},"receive_latency_ms_p95":{},"position_sum":{:.6f},"status":{}}})",
-                     c.blocks, c.vertices, c.triangles, c.block_updates, c.block_corrections, c.final_pass_blocks,
+                     c.blocks, c.vertices, c.triangles, c.block_updates, c.block_corrections, c.final_pass_blocks, c.coarse_blocks,
                      c.keyframes, c.loop_edges, c.trajectory,
                      c.camera_frame, c.receive_latency_samples, c.receive_latency_ms_p50, c.receive_latency_ms_p95,
                      c.position_sum, status);

@@ -3,19 +3,28 @@
 // are binary messages, everything else JSON text. Counters for tests live on
 // <body data-*>: blocks, vertices, triangles, updates (blocks replaced),
 // corrections and final_pass (block versions a graph update's re-integration
-// or the final pass made: those are highlighted), messages, webgl (0: none),
-// and the update latency (latency_samples, latency_ms_p50, latency_ms_p95), which
-// the page also reports to the server once a second (/state.json's "clients").
+// or the final pass made: those are highlighted), coarse (blocks shown as a
+// coarse mesh until their full one comes), messages, webgl (0: none), and the
+// update latency (latency_samples, latency_ms_p50, latency_ms_p95: every block
+// version; latency_full_*: full meshes only; latency_new_*: a block's first
+// appearance), which the page also reports to the server once a second
+// (/state.json's "clients").
 'use strict';
 
 const HIGHLIGHT_MS = 1500;  // a corrected block glows this long, so a person sees the correction land
 const BLOCK_MAGIC = 0x32424B52;  // "RKB2"
 const BLOCK_HEADER_BYTES = 36;
 const CAUSE_CORRECTION = 1, CAUSE_FINAL_PASS = 2;  // rekon::BlockCause; 0 is new data
-const MAX_LATENCY_SAMPLES = 20000;  // the newest are kept
+// Latencies are counted in 10 ms bins up to 2 minutes (longer ones in the
+// last): a whole run's quantiles at a constant cost (they were the newest
+// 20000 samples, which a 1000-frame run outgrew: its first half went uncounted).
+const LATENCY_BIN_MS = 10, LATENCY_BINS = 12000;
 // A mapper's block versions are wall-clock microseconds of the change; smaller
 // ones (a test's 1, 2, 3) carry no time.
 const MIN_TIME_VERSION = 1e15;
+// A coarse mesh (half resolution, sent first for a block the page never had)
+// has an odd time version, one below its change's full mesh (messages/mesh.lcm).
+function isCoarse(version) { return version >= MIN_TIME_VERSION && version % 2 === 1; }
 
 const body = document.body;
 // The status and the counts need no WebGL: without it they still work, and one line says what is missing.
@@ -66,8 +75,8 @@ const highlightMaterial = new THREE.MeshLambertMaterial({ vertexColors: THREE.Ve
 const blocks = new Map();  // "x y z" -> THREE.Mesh
 // position_sum: every vertex coordinate added up, as the server does (/state.json):
 // equal sums mean the page holds the same versions of the blocks.
-const counts = { blocks: 0, vertices: 0, triangles: 0, updates: 0, corrections: 0, final_pass: 0, messages: 0,
-  position_sum: 0 };
+const counts = { blocks: 0, vertices: 0, triangles: 0, updates: 0, corrections: 0, final_pass: 0, coarse: 0,
+  messages: 0, position_sum: 0 };
 
 // Update latency: from a block's change in the mapper (its version) to the
 // first frame drawn with it, for blocks that arrive after the state sent on
@@ -75,8 +84,15 @@ const counts = { blocks: 0, vertices: 0, triangles: 0, updates: 0, corrections: 
 // Where the page's own time goes (ms, since it loaded): handling messages, and drawing.
 const cost = { handle_ms: 0, draw_ms: 0 };
 let live = false;
-const drawnPending = [];  // change times (ms) of blocks applied since the last frame drawn
-const latencies = [];
+// Change times (ms) of blocks applied since the last frame drawn, and the
+// latencies once drawn: of every version, of full meshes, of first appearances.
+const drawnPending = [];
+function histogram() { return { bins: new Uint32Array(LATENCY_BINS), count: 0 }; }
+const latencies = { all: histogram(), full: histogram(), new: histogram() };
+function addLatency(h, ms) {
+  h.bins[Math.min(LATENCY_BINS - 1, Math.max(0, Math.floor(ms / LATENCY_BIN_MS)))] += 1;
+  h.count += 1;
+}
 
 // ---- blocks --------------------------------------------------------------
 
@@ -108,6 +124,7 @@ function removeBlock(key) {
   counts.vertices -= old.userData.vertices;
   counts.triangles -= old.userData.triangles;
   counts.position_sum -= old.userData.position_sum;
+  if (old.userData.coarse) counts.coarse -= 1;
   blocks.delete(key);
   return true;
 }
@@ -115,10 +132,14 @@ function removeBlock(key) {
 function applyBlock(buffer) {
   const b = decodeBlock(buffer);
   if (!b) return;
+  const old = blocks.get(b.key);
+  const wasCoarse = old ? old.userData.coarse : false;
   const replaced = removeBlock(b.key);
-  if (live && b.version >= MIN_TIME_VERSION) drawnPending.push(b.version / 1000);
-  if (b.cause === CAUSE_CORRECTION) counts.corrections += 1;
-  if (b.cause === CAUSE_FINAL_PASS) counts.final_pass += 1;
+  const coarse = isCoarse(b.version);
+  if (live && b.version >= MIN_TIME_VERSION) drawnPending.push({ changed: b.version / 1000, full: !coarse, new: !replaced });
+  // A coarse mesh's full one follows with the same cause: counted then.
+  if (!coarse && b.cause === CAUSE_CORRECTION) counts.corrections += 1;
+  if (!coarse && b.cause === CAUSE_FINAL_PASS) counts.final_pass += 1;
   if (b.vertices === 0) return;
   // Highlighted: what a correction changed, not a block that only grew with new data.
   const corrected = b.cause === CAUSE_CORRECTION || b.cause === CAUSE_FINAL_PASS;
@@ -130,7 +151,7 @@ function applyBlock(buffer) {
   const m = new THREE.Mesh(g, corrected ? highlightMaterial : meshMaterial);
   let sum = 0;
   for (const x of b.positions) sum += x;
-  m.userData = { vertices: b.vertices, triangles: b.triangles, position_sum: sum,
+  m.userData = { vertices: b.vertices, triangles: b.triangles, position_sum: sum, coarse,
     until: corrected ? performance.now() + HIGHLIGHT_MS : 0 };
   scene.add(m);
   blocks.set(b.key, m);
@@ -138,7 +159,8 @@ function applyBlock(buffer) {
   counts.vertices += b.vertices;
   counts.triangles += b.triangles;
   counts.position_sum += sum;
-  if (replaced) counts.updates += 1;
+  if (coarse) counts.coarse += 1;
+  if (replaced && !wasCoarse) counts.updates += 1;  // a coarse mesh completed is no update
   needsFit = true;
 }
 
@@ -231,24 +253,37 @@ const onText = {
 function noteDrawn() {
   if (drawnPending.length === 0) return;
   const now = Date.now();
-  for (const changed of drawnPending) latencies.push(now - changed);
+  for (const p of drawnPending) {
+    addLatency(latencies.all, now - p.changed);
+    if (p.full) addLatency(latencies.full, now - p.changed);
+    if (p.new) addLatency(latencies.new, now - p.changed);
+  }
   drawnPending.length = 0;
-  if (latencies.length > MAX_LATENCY_SAMPLES) latencies.splice(0, latencies.length - MAX_LATENCY_SAMPLES);
 }
 
-function latencyQuantile(sorted, q) {
-  return sorted.length ? sorted[Math.min(sorted.length - 1, Math.floor(q * sorted.length))] : 0;
+// The upper edge of the bin that holds the q-quantile (ms).
+function latencyQuantile(h, q) {
+  if (h.count === 0) return 0;
+  const rank = Math.min(h.count - 1, Math.floor(q * h.count));
+  let seen = 0;
+  for (let i = 0; i < LATENCY_BINS; i++) {
+    seen += h.bins[i];
+    if (seen > rank) return (i + 1) * LATENCY_BIN_MS;
+  }
+  return LATENCY_BINS * LATENCY_BIN_MS;
 }
 
 // The page's counts and latency, for the DOM (tests) and the server (/state.json).
 function report() {
-  const sorted = latencies.slice().sort((a, b) => a - b);
-  return Object.assign({ type: 'report' }, counts, {
-    handle_ms: Math.round(cost.handle_ms), draw_ms: Math.round(cost.draw_ms),
-    latency_samples: sorted.length,
-    latency_ms_p50: Math.round(latencyQuantile(sorted, 0.5)),
-    latency_ms_p95: Math.round(latencyQuantile(sorted, 0.95)),
-  });
+  const r = Object.assign({ type: 'report' }, counts, {
+    handle_ms: Math.round(cost.handle_ms), draw_ms: Math.round(cost.draw_ms) });
+  for (const [name, prefix] of [['all', 'latency'], ['full', 'latency_full'], ['new', 'latency_new']]) {
+    const h = latencies[name];
+    r[prefix + '_samples'] = h.count;
+    r[prefix + '_ms_p50'] = latencyQuantile(h, 0.5);
+    r[prefix + '_ms_p95'] = latencyQuantile(h, 0.95);
+  }
+  return r;
 }
 
 // ---- status panel ------------------------------------------------------------
@@ -295,7 +330,8 @@ function drawLatency(r) {
   body.dataset.latencyMsP50 = String(r.latency_ms_p50);
   body.dataset.latencyMsP95 = String(r.latency_ms_p95);
   document.getElementById('latency').textContent = r.latency_samples
-    ? 'update latency ' + r.latency_ms_p50 + ' ms (p50), ' + r.latency_ms_p95 + ' ms (p95)' : '';
+    ? 'update latency ' + r.latency_ms_p50 + ' ms (p50), ' + r.latency_ms_p95 + ' ms (p95)' +
+      (r.latency_full_samples ? '; full mesh ' + r.latency_full_ms_p50 + ' / ' + r.latency_full_ms_p95 + ' ms' : '') : '';
 }
 
 // ---- view ----------------------------------------------------------------------

@@ -6,7 +6,9 @@
 # the same cores) watching its page from the start. Prints one line per run:
 # realtime_factor, the mapper's mesh CPU share and bytes/s on the bus, the
 # viewer's change-to-receipt latency and the page's change-to-drawn latency
-# (p50/p95, ms) and its own time; OUT/browser_N/viewer.png is a screenshot of
+# (p50/p95, ms: of every block version; page_new_*: a block's first
+# appearance, coarse or full; page_full_*: full meshes only) and its own
+# time; OUT/browser_N/viewer.png is a screenshot of
 # the final map. Everything runs in a private network namespace
 # (tests/support/in_netns.sh): loopback only.
 set -euo pipefail

@@ -19,6 +19,10 @@ if len(sys.argv) > 2:
         line += " page_ms_p50=%g page_ms_p95=%g page_samples=%d page_blocks=%d page_handle_s=%.1f page_draw_s=%.1f" % (
             c.get("latency_ms_p50", -1), c.get("latency_ms_p95", -1), c.get("latency_samples", 0), c.get("blocks", -1),
             c.get("handle_ms", 0) / 1e3, c.get("draw_ms", 0) / 1e3)
+        # issue 27: a block's first appearance (coarse or full), and full meshes only (-1: a page without them)
+        line += " page_new_ms_p50=%g page_new_ms_p95=%g page_full_ms_p50=%g page_full_ms_p95=%g page_coarse_left=%d" % (
+            c.get("latency_new_ms_p50", -1), c.get("latency_new_ms_p95", -1), c.get("latency_full_ms_p50", -1),
+            c.get("latency_full_ms_p95", -1), c.get("coarse", -1))
 print(line)
 PY
 }

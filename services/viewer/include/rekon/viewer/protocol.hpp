@@ -19,7 +19,9 @@
 // state sent on connect is complete: later blocks are fresh changes).
 // The page sends one text message, {"type":"report", ...} once a second: its
 // own counts and the latency from a block's change in the mapper to the first
-// frame drawn with it (/state.json lists every client's newest report).
+// frame drawn with it: of every version, of full meshes (latency_full_*), and
+// of a block's first appearance (latency_new_*) (/state.json lists every
+// client's newest report).
 #include <array>
 #include <cstdint>
 #include <optional>
@@ -38,9 +40,11 @@ std::string encodeBlockMessage(const BlockMesh& block);
 std::optional<BlockMesh> decodeBlockMessage(std::string_view bytes);
 
 // The keys a page's report may carry (numbers only; anything else is ignored).
-inline constexpr std::array<const char*, 13> kReportKeys = {
-    "blocks",          "vertices",       "triangles",    "updates",   "corrections", "final_pass",   "messages",
-    "latency_samples", "latency_ms_p50", "latency_ms_p95", "position_sum", "handle_ms",  "draw_ms"};
+inline constexpr std::array<const char*, 20> kReportKeys = {
+    "blocks",          "vertices",       "triangles",      "updates",           "corrections",
+    "final_pass",      "coarse",         "messages",       "latency_samples",   "latency_ms_p50",
+    "latency_ms_p95",  "latency_full_samples", "latency_full_ms_p50", "latency_full_ms_p95", "latency_new_samples",
+    "latency_new_ms_p50", "latency_new_ms_p95", "position_sum", "handle_ms",   "draw_ms"};
 // A page's report as a JSON object of the kReportKeys it has, with finite
 // numbers only; nullopt when `text` is not a report.
 std::optional<std::string> parseClientReport(std::string_view text);

@@ -46,6 +46,9 @@ class ViewerState {
   // A mapper's block versions are wall-clock microseconds of the change;
   // smaller ones (a test's 1, 2, 3) carry no time.
   static constexpr int64_t kMinTimeVersion = 1'000'000'000'000'000;
+  // A coarse mesh (half resolution, sent first for a block no subscriber had):
+  // an odd time version, one below its change's full mesh (messages/mesh.lcm).
+  static bool isCoarse(int64_t version) { return version >= kMinTimeVersion && version % 2 != 0; }
 
   // `f` hears every Update, on the thread that caused it (the bus thread).
   void setListener(std::function<void(const Update&)> f);
@@ -80,10 +83,11 @@ class ViewerState {
 
   struct Counts {
     size_t blocks = 0, vertices = 0, triangles = 0, keyframes = 0, loop_edges = 0, trajectory = 0;
-    uint64_t block_updates = 0;  // block versions applied (removals included)
-    // Of those, the ones a graph update's re-integration made (corrections)
-    // and the ones the final pass made: what the page highlights.
+    uint64_t block_updates = 0;  // block versions applied (removals and coarse meshes included)
+    // Of those, the full meshes a graph update's re-integration made
+    // (corrections) and the ones the final pass made: what the page highlights.
     uint64_t block_corrections = 0, final_pass_blocks = 0;
+    size_t coarse_blocks = 0;  // blocks held as a coarse mesh (their full mesh has not come yet)
     // Every vertex coordinate of every block added up: the page adds up the
     // same, so equal sums mean it holds the same versions of the blocks.
     double position_sum = 0;
@@ -133,7 +137,7 @@ class ViewerState {
     double position_sum = 0;
   };
   std::map<BlockKey, BlockSize> block_sizes_;
-  size_t vertices_ = 0, triangles_ = 0;
+  size_t vertices_ = 0, triangles_ = 0, coarse_blocks_ = 0;
   double position_sum_ = 0;
   MeshMap mesh_map_;  // the same blocks, for the PLY download
   std::optional<std::set<BlockKey>> unconfirmed_;  // during a full snapshot: held blocks it has not named yet
