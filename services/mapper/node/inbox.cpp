@@ -262,6 +262,11 @@ void Inbox::publishLive() {
   ctx_.setLive("queued_frames", static_cast<double>(queuedFrames()));
   ctx_.setLive("frames_dropped", static_cast<double>(counts_.dropped_frames));
   ctx_.setLive("frames_dropped_when_full", static_cast<double>(counts_.dropped_when_full));
+  // The voxel tiers in MiB (volume::kBlockVoxels voxels of 12 bytes a block).
+  constexpr double kBlockMiB = volume::kBlockVoxels * sizeof(volume::Voxel) / 1048576.0;
+  ctx_.setLive("voxels_active_mb", static_cast<double>(progress_.active_blocks) * kBlockMiB);
+  ctx_.setLive("voxels_host_mb", static_cast<double>(progress_.host_blocks_in_memory) * kBlockMiB);
+  ctx_.setLive("voxels_on_disk_mb", static_cast<double>(progress_.host_blocks_on_disk) * kBlockMiB);
 }
 
 void Inbox::drain() {

@@ -14,6 +14,10 @@ MappingWorker::MappingWorker(ServiceContext& ctx, Mapper& mapper, Inbox& inbox, 
 void MappingWorker::run() {
   while (true) {
     try {
+      if (mapper_.correctionPending() && !inbox_.waitForWork(std::chrono::milliseconds(0))) {
+        correct(true);  // idle: one queued keyframe of the last graph update
+        continue;
+      }
       if (mesh_.enabled() && !inbox_.waitForWork(mesh_.idleWait())) {
         mesh_.tick(mapper_);
         continue;
@@ -34,6 +38,10 @@ void MappingWorker::run() {
 BlockCause MappingWorker::process(const Work& w) {
   if (const auto* f = std::get_if<FrameWork>(&w)) {
     fuse(*f);
+    if (mapper_.correctionPending()) {
+      mesh_.noteChanges(mapper_, BlockCause::kNewData);  // the frame's, before the correction's
+      return correct(false);
+    }
   } else if (const auto* kf = std::get_if<KeyframeWork>(&w)) {
     mapper_.setKeyframeEstimate(kf->id, kf->world);
   } else if (std::holds_alternative<BaselineWork>(w)) {
@@ -48,6 +56,14 @@ BlockCause MappingWorker::process(const Work& w) {
     if (round.keyframes > 0) return BlockCause::kCorrection;
   }
   return BlockCause::kNewData;
+}
+
+BlockCause MappingWorker::correct(bool idle) {
+  const ReintegrationRound piece = mapper_.continueCorrection(idle);
+  if (piece.keyframes == 0) return BlockCause::kNewData;
+  rounds_.push_back({secondsSinceFirstFrame(), last_graph_version_, piece, false});
+  if (idle) mesh_.tick(mapper_, BlockCause::kCorrection);
+  return BlockCause::kCorrection;
 }
 
 void MappingWorker::fuse(const FrameWork& f) {

@@ -37,6 +37,8 @@ class MappingWorker {
   // What changed the blocks: a graph update that re-integrated is a correction.
   BlockCause process(const Work& w);
   void fuse(const FrameWork& f);
+  // mapper.round_budget_ms: corrects queued keyframes (Mapper::continueCorrection), records the piece.
+  BlockCause correct(bool idle);
   double secondsSinceFirstFrame() const;
 
   ServiceContext& ctx_;

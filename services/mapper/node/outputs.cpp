@@ -120,6 +120,11 @@ void recordStats(ServiceContext& ctx, const Mapper& mapper, const MapperParams& 
            static_cast<double>(mem.keyframe_bytes) / static_cast<double>(std::max<int64_t>(1, mem.input_frame_bytes)))
       .set("voxel_bytes", static_cast<long long>(mem.voxel_bytes))
       .set("active_voxel_bytes_peak", static_cast<long long>(mem.active_voxel_bytes_peak))
+      .set("active_voxel_bytes", static_cast<long long>(mem.active_voxel_bytes))
+      .set("host_voxel_bytes_in_memory", static_cast<long long>(mem.host_voxel_bytes_in_memory))
+      .set("voxel_bytes_on_disk", static_cast<long long>(mem.voxel_bytes_on_disk))
+      .set("voxel_blocks_spilled_to_disk", static_cast<long long>(vs.spilled_to_disk))
+      .set("voxel_blocks_read_back_from_disk", static_cast<long long>(vs.read_back_from_disk))
       .set("reintegration", toString(params.mode))
       .set("m", params.m)
       .set("kappa", params.fusion.kappa);

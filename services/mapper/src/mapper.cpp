@@ -57,6 +57,10 @@ MapperParams MapperParams::fromConfig(const Config& c) {
   p.near_window_slack = c.getDouble("mapper.near_window_slack");
   if (!(p.near_window_slack >= 0.0 && p.near_window_slack < 1.0))
     throw Error("mapper.near_window_slack = " + std::to_string(p.near_window_slack) + " is invalid; it must be in [0, 1)");
+  p.round_budget_ms = c.getDouble("mapper.round_budget_ms");
+  if (!(p.round_budget_ms >= 0.0 && p.round_budget_ms <= 1.0e6))
+    throw Error("mapper.round_budget_ms = " + std::to_string(p.round_budget_ms) +
+                " is invalid; it must be >= 0 ms per frame (0 = each graph update's round at once)");
   p.use_store = c.getBool("mapper.use_store");
   p.resume = c.getBool("mapper.resume");
   p.store = store::StoreOptions::fromConfig(c);  // segment, size and spill folder (mapper.store_*)
@@ -279,7 +283,10 @@ bool Mapper::addFrame(const RgbdFrame& frame, const Intrinsics& k, int64_t keyfr
   fuser_->add(frame, world);
   counters_.fuse_ms_total += clockMs() - t0;
   camera_position_ = world.translation();
+  // Credit for corrections: a frame's share, at most one round's worth saved up.
+  credit_ms_ = std::min(credit_ms_ + params_.round_budget_ms, params_.round_budget_ms * params_.m);
   ++counters_.frames;
+  updateTierCounters();
   return true;
 }
 
@@ -337,7 +344,7 @@ void Mapper::integrateKeyframe(KeyframeRecord& rec, const fusion::FusedKeyframe&
   if (store_ && rec.kf.id >= run_first_kf_id_) store_->setIntegratedPose(rec.kf.id, pose);  // an earlier run's are not in it
 }
 
-ReintegrationRound Mapper::reintegrate(const std::vector<size_t>& chosen) {
+ReintegrationRound Mapper::reintegrate(const std::vector<size_t>& chosen, bool back_to_camera) {
   ReintegrationRound round;
   if (chosen.empty()) return round;
   const double t0 = clockMs();
@@ -363,7 +370,7 @@ ReintegrationRound Mapper::reintegrate(const std::vector<size_t>& chosen) {
     integrateKeyframe(keyframes_[chosen[n]], loaded[n], updated[n]);
     ++counters_.reintegrations;
   }
-  volume_->streamAround(camera_position_);
+  if (back_to_camera) volume_->streamAround(camera_position_);
   round.keyframes = static_cast<int>(chosen.size());
   round.ms = clockMs() - t0;
   round.blocks_streamed = streamedBlocks(*volume_) - streamed_before;
@@ -385,19 +392,55 @@ ReintegrationRound Mapper::applyGraphUpdate(const std::vector<std::pair<int64_t,
   for (const KeyframeRecord& r : keyframes_) distance.push_back((r.integrated_pose.translation() - camera_position_).norm());
   const auto chosen =
       selectForReintegration(params_.mode, moved, params_.m, params_.min_movement, distance, params_.near_window_slack);
+  if (params_.round_budget_ms > 0.0) {
+    // The newest selection replaces what the last one left: keyframes it
+    // did not correct still count their movement in this one.
+    pending_.assign(chosen.begin(), chosen.end());
+    return {};
+  }
   const ReintegrationRound round = reintegrate(chosen);
-  counters_.reintegration_ms_total += round.ms;
-  counters_.reintegration_blocks_streamed += round.blocks_streamed;
+  countRound(round);
   if (round.keyframes > 0)
     spdlog::debug("graph update {}: re-integrated {} KF keyframes from {} in {:.1f} ms", counters_.graph_updates,
                   round.keyframes, keyframes_[chosen.front()].kf.id, round.ms);
   return round;
 }
 
+void Mapper::countRound(const ReintegrationRound& round) {
+  counters_.reintegration_ms_total += round.ms;
+  counters_.reintegration_blocks_streamed += round.blocks_streamed;
+  updateTierCounters();
+}
+
+void Mapper::updateTierCounters() {
+  const volume::VolumeStats vs = volume_->stats();
+  counters_.active_blocks = vs.active_blocks;
+  counters_.host_blocks_on_disk = vs.host_blocks_on_disk;
+  counters_.host_blocks_in_memory = vs.host_blocks - vs.host_blocks_on_disk;
+}
+
+ReintegrationRound Mapper::continueCorrection(bool idle) {
+  ReintegrationRound done;
+  while (!pending_.empty() && (idle ? done.keyframes == 0 : credit_ms_ > 0.0)) {
+    const size_t i = pending_.front();
+    pending_.pop_front();
+    // One keyframe is exact on its own (de-integrated at its old pose,
+    // re-integrated at its new one); its blocks stay for the next one.
+    const ReintegrationRound r = reintegrate({i}, false);
+    if (!idle) credit_ms_ -= r.ms;
+    done.keyframes += r.keyframes;
+    done.ms += r.ms;
+    done.blocks_streamed += r.blocks_streamed;
+  }
+  countRound(done);
+  return done;
+}
+
 void Mapper::flush() { closeKeyframe(); }
 
 std::vector<ReintegrationRound> Mapper::finish() {
   closeKeyframe();
+  pending_.clear();  // the final pass corrects every keyframe that still moved
   integratePendingRestored();
   std::vector<ReintegrationRound> rounds;
   if (params_.mode == ReintegrationMode::kNone) {
@@ -446,6 +489,9 @@ MemoryUse Mapper::memoryUse() const {
   const int64_t block_bytes = static_cast<int64_t>(volume::kBlockVoxels) * vs.bytes_per_voxel;
   m.voxel_bytes = vs.blocks * block_bytes;
   m.active_voxel_bytes_peak = vs.peak_active_blocks * block_bytes;
+  m.active_voxel_bytes = vs.active_blocks * block_bytes;
+  m.host_voxel_bytes_in_memory = (vs.host_blocks - vs.host_blocks_on_disk) * block_bytes;
+  m.voxel_bytes_on_disk = vs.host_blocks_on_disk * block_bytes;
   return m;
 }
 

@@ -191,8 +191,9 @@ void TsdfVolume::ensureCapacity(int64_t active_needed) {
                 std::to_string(capacity) + "; raise block_capacity to at least " + std::to_string(active_needed) +
                 " (or set grow_capacity, or lower streaming_radius)");
   }
-  // Doubling, but not past the active budget when that is enough.
-  const int64_t doubled = params_.active_max_blocks > 0 ? std::min(2 * capacity, params_.active_max_blocks) : 2 * capacity;
+  // Doubling, but not past the active budget when the pool is below it.
+  const int64_t budget = params_.active_max_blocks;
+  const int64_t doubled = budget > capacity ? std::min(2 * capacity, budget) : 2 * capacity;
   const int64_t grown = std::max<int64_t>(active_needed, doubled);
   if (grown > (1 << 28)) {
     throw Error("volume: " + std::to_string(active_needed) + " active blocks exceed the limit of 2^28; lower streaming_radius");
@@ -290,7 +291,9 @@ void TsdfVolume::streamAround(const Eigen::Vector3d& centre) {
   if (params_.streaming_radius <= 0.0) return;
   const double r = params_.streaming_radius;
   const std::vector<BlockCoord> in_coords = host_->within(centre, r);
-  streamOutBeyond(centre, active_blocks_ + static_cast<int64_t>(in_coords.size()) - params_.active_max_blocks);
+  // A sixteenth of the budget is left free for the blocks the next integrations allocate.
+  const int64_t target = params_.active_max_blocks - params_.active_max_blocks / 16;
+  streamOutBeyond(centre, active_blocks_ + static_cast<int64_t>(in_coords.size()) - target);
   std::vector<int32_t> slots;
   streamIn(in_coords, slots);
   host_->spillBeyondBudget(centre);

@@ -136,6 +136,7 @@ int benchScalingCommand(int argc, char** argv) {
     const replay::ReplayTracked t = script.onFrame(f.id, f.timestamp);
     if (t.new_keyframe_world) mapper.setKeyframeEstimate(t.keyframe_id, *t.new_keyframe_world);
     mapper.addFrame(f, k, t.keyframe_id, t.pose_in_keyframe, t.lost);
+    if (mapper.correctionPending()) mapper.continueCorrection(false);  // mapper.round_budget_ms, as the worker does
     if (auto u = script.dueUpdate()) mapper.applyGraphUpdate(u->poses);
     if ((i + 1) % every == 0 || i + 1 == frames) {
       points.push_back(pointSince(before, mapper));

@@ -5,6 +5,7 @@
 // chosen by the re-integration mode (paper sections 3-4). The node
 // (node/mapper_service.cpp) feeds it from the bus on a worker thread; tests
 // drive it directly.
+#include <deque>
 #include <map>
 #include <memory>
 #include <optional>
@@ -34,6 +35,11 @@ struct MapperParams {
   // mapper.near_window_slack: a consecutive window nearer the camera wins when
   // its movement is within this fraction of the largest (0: eq. 3 as is).
   double near_window_slack = 0.0;
+  // mapper.round_budget_ms: 0 = a graph update's keyframes are corrected at
+  // once (the paper's round); else they queue and are corrected one at a time
+  // in the frames' spare time: on average at most this many ms per fused
+  // frame, plus whatever time the mapper is idle (continueCorrection).
+  double round_budget_ms = 0.0;
   // The *_ms counters in CPU time of the whole process instead of wall time:
   // benchmarks on a shared machine, where other processes inflate wall time.
   bool cpu_time_counters = false;
@@ -69,6 +75,8 @@ struct MapperCounters {
   double reintegration_ms_total = 0.0;        // graph-update rounds: de-integration, re-integration, streaming
   double final_pass_ms_total = 0.0;
   int64_t reintegration_blocks_streamed = 0;  // blocks streamed in or out during graph-update rounds
+  // The voxel tiers after the last piece of work (blocks now, not totals).
+  int64_t active_blocks = 0, host_blocks_in_memory = 0, host_blocks_on_disk = 0;
 };
 
 // What one graph update (or one run of the final pass) cost.
@@ -86,6 +94,7 @@ struct MemoryUse {
   int64_t keyframe_store_bytes = -1;  // used bytes of the shared-memory store; -1 without one
   int64_t voxel_bytes = 0;            // every allocated block, active and host
   int64_t active_voxel_bytes_peak = 0;
+  int64_t active_voxel_bytes = 0, host_voxel_bytes_in_memory = 0, voxel_bytes_on_disk = 0;  // the tiers now
 };
 
 // Where a KF keyframe's images (depth, weight, color) are kept while the
@@ -126,6 +135,11 @@ class Mapper {
   // DVO keyframe has no pose yet.
   bool addFrame(const RgbdFrame& frame, const Intrinsics& k, int64_t keyframe_id, const Pose& pose_in_keyframe,
                 bool lost);
+  // With mapper.round_budget_ms: keyframes of the last graph update not yet corrected.
+  bool correctionPending() const { return !pending_.empty(); }
+  // Corrects pending keyframes: one when `idle`, else as many as the credit
+  // of round_budget_ms per fused frame pays for (a keyframe is never split).
+  ReintegrationRound continueCorrection(bool idle);
   // Integrates the open KF keyframe, then re-integrates every keyframe whose
   // pose still differs from the one it was integrated with (the final pass,
   // in runs of m keyframes; one round each).
@@ -168,8 +182,11 @@ class Mapper {
   // with them, for the integration under way.
   static fusion::FusedKeyframe leaveImagesAt(KeyframeRecord& rec, ImagesHome home);
   // De-integrates the chosen keyframes at their old poses, re-integrates them
-  // at their current ones (paper 4.3's streaming order); returns how many.
-  ReintegrationRound reintegrate(const std::vector<size_t>& chosen);
+  // at their current ones (paper 4.3's streaming order), then streams back
+  // around the camera unless told not to; returns how many.
+  ReintegrationRound reintegrate(const std::vector<size_t>& chosen, bool back_to_camera = true);
+  void countRound(const ReintegrationRound& round);
+  void updateTierCounters();  // counters_.active_blocks and the host tier's
   void ensureCamera(const Intrinsics& k);
   void restoreFromStore();
   void continueSession();
@@ -192,6 +209,8 @@ class Mapper {
   std::map<int64_t, Pose> estimates_;    // keyframe_t
   std::map<int64_t, Pose> graph_poses_;  // latest graph update
   std::vector<KeyframeRecord> keyframes_;
+  std::deque<size_t> pending_;  // round_budget_ms: keyframes (indices) still to correct, in round order
+  double credit_ms_ = 0.0;      // round_budget_ms per fused frame, less what corrections spent
   int64_t next_kf_id_ = 0;
   int64_t run_first_kf_id_ = 0;  // KF keyframes before it are an earlier run's (a continued session)
   Eigen::Vector3d camera_position_ = Eigen::Vector3d::Zero();
