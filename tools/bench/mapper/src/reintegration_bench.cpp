@@ -244,6 +244,9 @@ int benchReintegrationCommand(int argc, char** argv) {
   rp.validate();
   mapper::MapperParams base = mapper::MapperParams::fromConfig(config);
   base.cpu_time_counters = !args.flagSet("wall");
+  // The paper's memory model (Figure 7's streaming): only the sphere stays
+  // active, whatever mapper.active_mb says; the host tier as configured.
+  base.volume.active_max_blocks = 0;
   const BenchFrames data = loadFrames(dataset.string(), target_file, args.getInt("frames"), args.getInt("step"));
   const Trajectory source = readTumTrajectory(source_file), target = readTumTrajectory(target_file);
   const double tracking_ms =
