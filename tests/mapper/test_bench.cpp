@@ -177,6 +177,11 @@ TEST(BenchScaling, PrintsTheCurveOfTheGrowingMapAndWritesItsCsvAndPlot) {
   EXPECT_GT(std::stod(rows[2].at("blocks")), std::stod(rows[1].at("blocks")));
   EXPECT_GT(std::stod(rows[2].at("integration_ms")), 0.0);
   EXPECT_TRUE(fs::exists(dir / "out/scaling_plot.svg"));
+  // Memory at each point: the process and the voxel tiers (all active here: the tabletop fits the sphere).
+  EXPECT_GT(std::stod(rows[2].at("rss_mb")), 0.0);
+  EXPECT_GT(std::stod(rows[2].at("voxels_active_mb")), 0.0);
+  EXPECT_EQ(std::stod(rows[2].at("voxels_disk_mb")), 0.0);
+  EXPECT_TRUE(fs::exists(dir / "out/memory_plot.svg"));
   EXPECT_NE(lastLine(out).find("first_integration_ms="), std::string::npos) << out;
   EXPECT_NE(lastLine(out).find(" kf_keyframes=2 "), std::string::npos) << out;
 }

@@ -202,5 +202,7 @@ std::string hostName();
 
 // Peak resident set size of this process in MiB.
 double peakRssMb();
+// Resident set size of this process now, in MiB (/proc/self/statm; 0 where unreadable).
+double currentRssMb();
 
 }  // namespace rekon

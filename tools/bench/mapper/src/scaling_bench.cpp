@@ -20,6 +20,7 @@
 #include "rekon/common/error.hpp"
 #include "rekon/common/json.hpp"
 #include "rekon/common/logging.hpp"
+#include "rekon/common/service.hpp"
 #include "rekon/mapper/mapper.hpp"
 #include "rekon/mapper_bench/bench_command.hpp"
 #include "rekon/replay/replay.hpp"
@@ -34,6 +35,8 @@ struct ScalingPoint {
   int64_t frames = 0, kf_keyframes = 0, blocks = 0, integrations = 0, rounds = 0;
   double integration_ms = 0.0;  // per first integration of a KF keyframe
   double round_ms = 0.0;        // per graph-update round (de-integration, re-integration, streaming)
+  // Memory now: the process, and the voxel tiers (mapper.active_mb, mapper.host_mb, disk).
+  double rss_mb = 0.0, active_mb = 0.0, host_mb = 0.0, disk_mb = 0.0;
 };
 
 // Counters of the mapper at one moment, to take differences of.
@@ -56,12 +59,44 @@ ScalingPoint pointSince(const Totals& before, const mapper::Mapper& m) {
   p.rounds = now.rounds - before.rounds;
   p.integration_ms = p.integrations > 0 ? (now.integration_ms - before.integration_ms) / static_cast<double>(p.integrations) : 0.0;
   p.round_ms = p.rounds > 0 ? (now.round_ms - before.round_ms) / static_cast<double>(p.rounds) : 0.0;
+  const mapper::MemoryUse mem = m.memoryUse();
+  p.rss_mb = currentRssMb();
+  p.active_mb = static_cast<double>(mem.active_voxel_bytes) / 1048576.0;
+  p.host_mb = static_cast<double>(mem.host_voxel_bytes_in_memory) / 1048576.0;
+  p.disk_mb = static_cast<double>(mem.voxel_bytes_on_disk) / 1048576.0;
   return p;
+}
+
+// RSS and the voxel tiers against frames: memory_plot.svg (its data in memory_plot.csv).
+void writeMemoryPlot(const std::vector<ScalingPoint>& points, const std::string& dir) {
+  report::PlotOptions o;
+  o.title = "memory as the scan goes on";
+  o.x_label = "frames";
+  o.y_label = "MiB";
+  o.y_includes_zero = true;
+  report::LinePlot plot(o);
+  const std::pair<const char*, double ScalingPoint::*> series[] = {{"process RSS", &ScalingPoint::rss_mb},
+                                                                  {"voxels active", &ScalingPoint::active_mb},
+                                                                  {"voxels in host memory", &ScalingPoint::host_mb},
+                                                                  {"voxels on disk", &ScalingPoint::disk_mb}};
+  const char* colors[] = {"#000000", "#0072B2", "#009E73", "#D55E00"};
+  for (size_t i = 0; i < 4; ++i) {
+    report::Series line;
+    line.name = series[i].first;
+    line.color = colors[i];
+    for (const ScalingPoint& p : points) {
+      line.x.push_back(static_cast<double>(p.frames));
+      line.y.push_back(p.*(series[i].second));
+    }
+    plot.add(std::move(line));
+  }
+  plot.save(dir + "/memory_plot.svg");
 }
 
 void writeCurve(const std::vector<ScalingPoint>& points, const std::string& dir, bool cpu_time) {
   std::ofstream csv(dir + "/scaling.csv", std::ios::trunc);
-  csv << "frames,kf_keyframes,blocks,integrations,integration_ms,rounds,round_ms\n";
+  csv << "frames,kf_keyframes,blocks,integrations,integration_ms,rounds,round_ms,rss_mb,voxels_active_mb,voxels_host_mb,"
+         "voxels_disk_mb\n";
   report::Series integration, round;
   integration.name = "first integration of a KF keyframe";
   round.name = "graph-update round (m KF keyframes)";
@@ -70,7 +105,8 @@ void writeCurve(const std::vector<ScalingPoint>& points, const std::string& dir,
   integration.markers = round.markers = true;
   for (const ScalingPoint& p : points) {
     csv << p.frames << ',' << p.kf_keyframes << ',' << p.blocks << ',' << p.integrations << ',' << p.integration_ms
-        << ',' << p.rounds << ',' << p.round_ms << '\n';
+        << ',' << p.rounds << ',' << p.round_ms << ',' << p.rss_mb << ',' << p.active_mb << ',' << p.host_mb << ','
+        << p.disk_mb << '\n';
     if (p.integrations > 0) integration.x.push_back(static_cast<double>(p.kf_keyframes)), integration.y.push_back(p.integration_ms);
     if (p.rounds > 0) round.x.push_back(static_cast<double>(p.kf_keyframes)), round.y.push_back(p.round_ms);
   }
@@ -83,6 +119,7 @@ void writeCurve(const std::vector<ScalingPoint>& points, const std::string& dir,
   report::LinePlot plot(o);
   plot.add(std::move(integration)).add(std::move(round));
   plot.save(dir + "/scaling_plot.svg");  // its data in scaling_plot.csv
+  writeMemoryPlot(points, dir);
 }
 
 }  // namespace
@@ -128,7 +165,8 @@ int benchScalingCommand(int argc, char** argv) {
   replay::ReplayScript script(drifted, truth, rp, frames);
   std::vector<ScalingPoint> points;
   Totals before;
-  std::printf("frames kf_keyframes blocks integration_ms round_ms (means since the previous line)\n");
+  std::printf("frames kf_keyframes blocks integration_ms round_ms (means since the previous line) rss_mb voxels_active_mb "
+              "voxels_host_mb voxels_disk_mb\n");
   for (int i = 0; i < frames; ++i) {
     RgbdFrame f = scene->render(k, truth[static_cast<size_t>(i)].pose, synth::Noise::Kinect, static_cast<uint64_t>(i));
     f.id = i;
@@ -142,8 +180,9 @@ int benchScalingCommand(int argc, char** argv) {
       points.push_back(pointSince(before, mapper));
       before = Totals::of(mapper.counters());
       const ScalingPoint& p = points.back();
-      std::printf("%lld %lld %lld %.2f %.2f\n", static_cast<long long>(p.frames), static_cast<long long>(p.kf_keyframes),
-                  static_cast<long long>(p.blocks), p.integration_ms, p.round_ms);
+      std::printf("%lld %lld %lld %.2f %.2f %.0f %.0f %.0f %.0f\n", static_cast<long long>(p.frames),
+                  static_cast<long long>(p.kf_keyframes), static_cast<long long>(p.blocks), p.integration_ms, p.round_ms,
+                  p.rss_mb, p.active_mb, p.host_mb, p.disk_mb);
       std::fflush(stdout);
       writeCurve(points, out, params.cpu_time_counters);  // as it goes: a stopped run keeps its points
     }
