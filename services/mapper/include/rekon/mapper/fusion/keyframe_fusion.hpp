@@ -4,6 +4,13 @@
 // eq. (1) with weights w_z = cos(theta) / Z^2, color by the weighted median of
 // the unsharp-masked input colors seen from the fused depth, weighted by
 // w_b * w_z (w_b: one minus the Crete-Roffet 2007 blur of the frame).
+// The color median is by luma (0.114 B + 0.587 G + 0.299 R of the bilinear
+// sample): of a pixel's observations in luma order (ties: the earlier input),
+// the first whose cumulative weight reaches half the total gives its whole
+// color (the sample rounded to 8 bits; no mixed hues). Float sums: the same
+// result as sorting up to rounding (measured on 7-Scenes, TUM teddy and the
+// synthetic room against the sorting version: 15-54 of 3.07 M pixels differ,
+// by at most 10 levels; tests/mapper/test_fusion.cpp).
 #include <opencv2/core/mat.hpp>
 
 #include <cstdint>
