@@ -174,6 +174,11 @@ TEST(ViewerBrowser, PageWithoutWebGLShowsTheStatusAndSaysWhatIsMissing) {
                            url + " 2>/dev/null", &dom), 0) << dom;
   EXPECT_NE(dom.find("data-webgl=\"0\""), std::string::npos) << dom.substr(0, 800);
   EXPECT_NE(dom.find("The 3D view needs WebGL"), std::string::npos) << dom.substr(0, 1500);
+  // The 3D view's controls are hidden; the PLY download stays.
+  EXPECT_TRUE(std::regex_search(dom, std::regex("<button id=\"fit\"[^>]*hidden"))) << dom.substr(0, 1500);
+  EXPECT_TRUE(std::regex_search(dom, std::regex("<label class=\"needs3d\"[^>]*hidden[^>]*><input[^>]*id=\"follow\"")))
+      << dom.substr(0, 1500);
+  EXPECT_TRUE(std::regex_search(dom, std::regex("<a id=\"download\" href=\"/mesh.ply\" download=\"mesh.ply\">")));
   EXPECT_NE(dom.find(">live<"), std::string::npos);  // connected, not "connecting..."
   EXPECT_TRUE(std::regex_search(dom, std::regex("<td>mapper</td><td>[a-z]+</td><td>17</td>"))) << dom;
   EXPECT_EQ(dataCounter(dom, "blocks"), 400);

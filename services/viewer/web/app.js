@@ -41,6 +41,7 @@ function makeRenderer() {
     note.textContent = 'The 3D view needs WebGL, which this browser does not offer (enable hardware acceleration ' +
       'or WebGL in its settings); the status and the counts below work without it.';
     note.hidden = false;
+    for (const control of document.querySelectorAll('.needs3d')) control.hidden = true;  // nothing to follow or fit
     body.dataset.webgl = '0';
     return null;
   }
