@@ -15,16 +15,19 @@ using namespace rekon::fusion;
 
 namespace {
 
-Intrinsics smallCamera() {
+// A pinhole camera with its principal point at the image centre, depth scale 5000.
+Intrinsics cameraOf(int width, int height, double f) {
   Intrinsics k;
-  k.width = 80;
-  k.height = 60;
-  k.fx = k.fy = 70.0;
-  k.cx = 39.5;
-  k.cy = 29.5;
+  k.width = width;
+  k.height = height;
+  k.fx = k.fy = f;
+  k.cx = 0.5 * (width - 1);
+  k.cy = 0.5 * (height - 1);
   k.depth_scale = 5000.0;
   return k;
 }
+
+Intrinsics smallCamera() { return cameraOf(80, 60, 70.0); }
 
 // Depth (metres) of the plane n . p = d seen by the camera at the origin.
 cv::Mat planeDepth(const Intrinsics& k, const Eigen::Vector3d& n, double d) {
@@ -248,13 +251,7 @@ TEST(KeyframeFusion, ColorMatchesAPixelByPixelWeightedMedianOfTheDocumentedObser
   // crossing sit on their threshold). Bounds: 0.1 % differing (10x), 0.05 %
   // by more than 2 levels (9 pixels), mean 0.005. A median taken at 60 % of
   // the weight instead of half makes 96 % of the pixels differ, mean 7.7.
-  Intrinsics k;
-  k.width = 160;
-  k.height = 120;
-  k.fx = k.fy = 140.0;
-  k.cx = 79.5;
-  k.cy = 59.5;
-  k.depth_scale = 5000.0;
+  const Intrinsics k = cameraOf(160, 120, 140.0);
   const FusionParams p;
   const TexturedScene scene(k);
   std::mt19937 rng(7);
