@@ -287,5 +287,52 @@ TEST(TrackerGaps, FramesAfterAGapStartOnACoarserLevelAndStayOnTrack) {
   }
 }
 
+// A gap in the data of over tracker.lost_max_gap_s (1 s): frames missing, the
+// camera moved on 0.3-0.5 m and 18-30 degrees, tracking did not fail. Every
+// 2nd frame of the room with Kinect-like noise, the frames after `start`
+// for `gap_s` left out; the frame after the gap is aligned to the last good
+// frame across the gap and becomes a keyframe (an odometry constraint, no
+// loss, no restart). The first case is the live run of issue 29 whose one
+// 0.54 s decode left the tracker frames 0, 6, then 46.
+TEST(TrackerGaps, AGapOfOverASecondIsBridgedFromTheLastGoodFrame) {
+  test::RoomViews room;
+  const Trajectory truth = room.trajectory(200);
+  std::vector<RgbdFrame> frames;
+  for (int i = 0; i < 200; i += 2) frames.push_back(room.render(truth[i].pose, synth::Noise::Kinect, i));
+  for (const auto& [start, gap_s] : {std::pair{6, 1.3}, std::pair{30, 1.5}, std::pair{120, 1.1}}) {
+    SCOPED_TRACE("gap after frame " + std::to_string(start) + " of " + std::to_string(gap_s) + " s");
+    Tracker tracker;
+    Trajectory estimate, seen;
+    int lost = 0, bridged = 0;
+    const double t0 = truth[start].timestamp;
+    for (const RgbdFrame& f : frames) {
+      if (f.timestamp > t0 && f.timestamp < t0 + gap_s) continue;
+      const TrackResult r = tracker.track(f, room.intrinsics());
+      EXPECT_FALSE(r.keyframe_reset) << "frame " << f.id;
+      if (r.state != TrackingState::Ok) {
+        ++lost;
+        continue;
+      }
+      if (f.timestamp > t0 && bridged++ == 0) {
+        EXPECT_TRUE(r.new_keyframe);
+        EXPECT_TRUE(r.odometry.has_value()) << "the gap is spanned by odometry";
+        EXPECT_FALSE(r.relocalised_from.has_value());
+      }
+      estimate.push_back({f.timestamp, r.pose_world});
+      seen.push_back(truth[f.id]);
+    }
+    const double ate = slam_bench::compareTrajectories(estimate, seen).ate_rmse_m;
+    std::printf("gap after frame %d of %.1f s: lost=%d ate_mm=%.3f\n", start, gap_s, lost, 1e3 * ate);
+    EXPECT_EQ(lost, 0);
+    // Measured: 0.139 / 0.186 / 0.130 mm, no frame lost. Before the frame
+    // after the gap was aligned across it: 30 / 30 / 23 frames lost (the
+    // keyframes overlap the far view too little for relocalisation to
+    // validate), the first two restarted at the last good pose, 276 / 464 mm
+    // (the third relocalised 23 frames on, 0.112 mm). 2 mm is over ten times
+    // the measured.
+    EXPECT_LT(ate, 0.002);
+  }
+}
+
 }  // namespace
 }  // namespace rekon::tracker

@@ -28,6 +28,10 @@ double viewAngle(const Pose& a, const Pose& b) {
 
 double logDetOfEntropy(double entropy) { return 2.0 * (kEntropyConstant - entropy); }
 
+bool informationPasses(double log_det, double reference, double threshold) {
+  return log_det - reference >= -(1.0 - threshold) * std::abs(reference);
+}
+
 Pose bothDirections(const AlignResult& forward, const AlignResult& backward) {
   // The midpoint on SE(3) of the two estimates of the new keyframe in the
   // candidate. Equal weights, not the information-weighted mean: on the
@@ -168,12 +172,6 @@ std::optional<double> LoopClosureDetector::odometryLogDet(int64_t a, int64_t b, 
   return total / static_cast<double>(count);
 }
 
-bool LoopClosureDetector::passes(double log_det, double reference, double threshold) const {
-  // log_det / reference >= threshold, written so that it stays meaningful for
-  // a non-positive reference: the loop may lose at most (1 - threshold) of
-  // the reference's magnitude.
-  return log_det - reference >= -(1.0 - threshold) * std::abs(reference);
-}
 
 std::vector<int64_t> LoopClosureDetector::ids() const {
   std::vector<int64_t> out;
@@ -233,7 +231,7 @@ CandidateCheck LoopClosureDetector::check(int64_t candidate_id, const Keyframe& 
     const double coarse_log_det = logDetOfEntropy(coarse.entropy);
     const double coarse_ratio = coarse_log_det / *coarse_ref;
     out.best_coarse_ratio = std::max(out.best_coarse_ratio, coarse_ratio);
-    if (!passes(coarse_log_det, *coarse_ref, lp.coarse_entropy_ratio) ||
+    if (!informationPasses(coarse_log_det, *coarse_ref, lp.coarse_entropy_ratio) ||
         coarse.valid_pixels < lp.min_pixel_ratio * coarse.selected_pixels)
       continue;
     const AlignResult fine = aligner_.align(reference.reference, current.pyramid, coarse.pose);
@@ -244,7 +242,7 @@ CandidateCheck LoopClosureDetector::check(int64_t candidate_id, const Keyframe& 
     const double fine_log_det = logDetOfEntropy(fine.entropy);
     const double fine_ratio = fine_log_det / *fine_ref;
     out.best_fine_ratio = std::max(out.best_fine_ratio, fine_ratio);
-    if (!passes(fine_log_det, *fine_ref, lp.fine_entropy_ratio)) {
+    if (!informationPasses(fine_log_det, *fine_ref, lp.fine_entropy_ratio)) {
       out.reason = "fine entropy ratio";
       continue;
     }

@@ -1,11 +1,13 @@
 #include "rekon/tracker/tracker.hpp"
 
+#include "rekon/tracker/loop_closure.hpp"
 #include "rekon/tracker/relocaliser.hpp"
 
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <numbers>
 
 namespace rekon::tracker {
@@ -66,12 +68,20 @@ std::shared_ptr<Keyframe> Tracker::keyframeOf(const RgbdFrame& frame, int64_t id
   return kf;
 }
 
-std::shared_ptr<const Keyframe> Tracker::makeKeyframe(const RgbdFrame& frame, const Pose& pose_world) {
+std::shared_ptr<const Keyframe> Tracker::makeKeyframe(const RgbdFrame& frame, const Pose& pose_world,
+                                                      std::optional<double> incoming_entropy) {
   auto kf = keyframeOf(frame, next_keyframe_id_++);
   kf->pose_world = orthonormalised(pose_world);  // products of many poses drift off SO(3)
   last_in_keyframe_ = Pose::Identity();
   reference_entropy_.reset();
+  lastGoodIsKeyframe(incoming_entropy);
   return kf;
+}
+
+void Tracker::lastGoodIsKeyframe(std::optional<double> incoming_entropy) {
+  last_good_in_pyramid_ = false;
+  last_covariance_ = Matrix6d::Zero();
+  last_entropy_ = incoming_entropy;
 }
 
 void Tracker::startFrom(std::shared_ptr<const Keyframe> keyframe, double timestamp) {
@@ -82,6 +92,7 @@ void Tracker::startFrom(std::shared_ptr<const Keyframe> keyframe, double timesta
   velocity_dt_ = 0.0;
   last_good_timestamp_ = timestamp;
   lost_in_a_row_ = 0;
+  lastGoodIsKeyframe(std::nullopt);
 }
 
 bool Tracker::relocalise(const RgbdFrame& frame, const std::optional<Pose>& guess_world, TrackResult& r,
@@ -103,15 +114,19 @@ bool Tracker::relocalise(const RgbdFrame& frame, const std::optional<Pose>& gues
   r = TrackResult{};
   r.frame_id = frame.id;
   r.timestamp = frame.timestamp;
-  r.state = TrackingState::Ok;
-  r.new_keyframe = true;
   r.relocalised_from = edge;
-  r.keyframe_id = kf->id;
-  r.keyframe_pose_world = kf->pose_world;
-  r.pose_world = kf->pose_world;
+  reportStartedKeyframe(r);
   spdlog::log(log_level, "frame {}: relocalised against keyframe {} ({} candidates tried; ln det ratios coarse {:.2f}, fine {:.2f})",
               frame.id, edge.from_id, found->candidates_tried, found->edge.coarse_ratio, found->edge.fine_ratio);
   return true;
+}
+
+void Tracker::reportStartedKeyframe(TrackResult& r) const {
+  r.state = TrackingState::Ok;
+  r.new_keyframe = true;
+  r.keyframe_id = keyframe_->id;
+  r.keyframe_pose_world = keyframe_->pose_world;
+  r.pose_world = keyframe_->pose_world;
 }
 
 bool Tracker::reanchor(const RgbdFrame& frame, const Pose& pose_world, TrackResult& r) {
@@ -170,9 +185,68 @@ TrackResult Tracker::trackFrame(const RgbdFrame& frame, const Intrinsics& k) {
   }
   if (reason == LostReason::None)
     followAlignment(frame, aligned, r);
-  else if (!trackable || !relocalise(frame, keyframe_->pose_world * last_in_keyframe_, r))
+  else if (!(reason == LostReason::GapInTheData && bridgeGap(frame, r)) &&
+           (!trackable || !relocalise(frame, keyframe_->pose_world * last_in_keyframe_, r)))
     markLost(frame, reason, trackable, r);
   return r;
+}
+
+bool Tracker::bridgeGap(const RgbdFrame& frame, TrackResult& r) {
+  if (localise_only_ || !last_entropy_) return false;
+  const KeyframeReference built = last_good_in_pyramid_ ? KeyframeReference(last_good_, params_.aligner) : KeyframeReference();
+  const KeyframeReference& reference = last_good_in_pyramid_ ? built : keyframe_->reference;
+  const RgbdPyramid& reference_pyramid = last_good_in_pyramid_ ? last_good_ : keyframe_->pyramid;
+  std::shared_ptr<Keyframe> kf = keyframeOf(frame, next_keyframe_id_);  // its reference aligns the pair back
+  const LoopClosureParams& lp = params_.loop;
+  const double reference_log_det = logDetOfEntropy(*last_entropy_);
+  const int level = std::min({params_.aligner.gap_coarsest_level, reference.coarsestLevel(), current_.coarsestLevel()});
+  const double gap_s = frame.timestamp - last_good_timestamp_;
+  std::optional<AlignResult> best;
+  // The whole gap extrapolated (on a smooth path it lands in the basin, where
+  // the camera standing still would be 0.3 m and 20 degrees off after 1.1 s
+  // of the room's loop), and the camera standing still; each from the gap's
+  // level and from the usual one (whose basin is narrower, but which lands
+  // where level 4 strays, on the room once in six gaps).
+  const Pose extrapolated = predictedMotion(frame.timestamp, std::numeric_limits<double>::infinity());
+  for (const auto& [start, from] : {std::pair{extrapolated, level}, std::pair{extrapolated, params_.aligner.coarsest_level},
+                                    std::pair{Pose::Identity(), level}}) {
+    const AlignResult a = aligner_.align(reference, current_, start, from);
+    if (!a.valid || a.valid_pixels < lp.min_pixel_ratio * a.selected_pixels ||
+        !informationPasses(logDetOfEntropy(a.entropy), reference_log_det, lp.fine_entropy_ratio) ||
+        (best && a.entropy >= best->entropy))  // the better-determined one (DVO-SLAM's keepBest)
+      continue;
+    const AlignResult back = aligner_.align(kf->reference, reference_pyramid, a.pose.inverse());
+    if (back.valid && (back.pose * a.pose).translation().norm() <= lp.max_cross_check_m) best = a;
+  }
+  if (!best) {
+    spdlog::debug("frame {}: {:.2f} s after the last good frame, no start validated across the gap", frame.id, gap_s);
+    return false;
+  }
+  // last_in_keyframe_ * best->pose, right perturbations: the first factor's
+  // error carried through the second, plus the second's.
+  const Matrix6d carry = adjoint(best->pose.inverse());
+  OdometryConstraint c;
+  c.from_id = keyframe_->id;
+  c.to_id = kf->id;
+  c.relative = orthonormalised(last_in_keyframe_ * best->pose);
+  c.information = (carry * last_covariance_ * carry.transpose() + best->covariance()).inverse();
+  c.entropy = entropyOfInformation(c.information);
+  c.valid_pixels = best->valid_pixels;
+  kf->pose_world = orthonormalised(keyframe_->pose_world * c.relative);
+  ++next_keyframe_id_;
+  keyframe_ = kf;
+  last_in_keyframe_ = Pose::Identity();
+  reference_entropy_.reset();
+  lastGoodIsKeyframe(c.entropy);
+  velocity_ = best->pose;  // the motion over the gap, scaled down to the next frame's interval
+  velocity_dt_ = gap_s;
+  last_good_timestamp_ = frame.timestamp;
+  lost_in_a_row_ = 0;
+  r.odometry = c;
+  reportStartedKeyframe(r);
+  spdlog::info("frame {}: aligned across a gap of {:.2f} s in the data ({:.2f} m, {:.1f} degrees from the last good frame)",
+               frame.id, gap_s, best->pose.translation().norm(), rotationAngleOf(best->pose) * 180.0 / std::numbers::pi);
+  return true;
 }
 
 void Tracker::startTracking(const RgbdFrame& frame, LostReason reason, TrackResult& r) {
@@ -200,17 +274,16 @@ int Tracker::coarsestLevelFor(double timestamp) const {
   return std::min(keyframe_->reference.coarsestLevel(), current_.coarsestLevel());
 }
 
-Pose Tracker::predictedMotion(double timestamp) const {
+Pose Tracker::predictedMotion(double timestamp, double max_periods) const {
   // `periods`: this gap in units of the one velocity_ was measured over.
   // Within a factor of 1.5 of it is timestamp jitter: velocity_ as it is, as
-  // for every frame of a recording without drops. Beyond 8 the extrapolation
-  // is no better than a guess.
-  constexpr double kJitter = 1.5, kMaxPeriods = 8.0;
+  // for every frame of a recording without drops.
+  constexpr double kJitter = 1.5;
   if (!(velocity_dt_ > 0)) return velocity_;
   const double periods = (timestamp - last_good_timestamp_) / velocity_dt_;
   if (!(periods > 0)) return Pose::Identity();
   if (periods < kJitter && periods > 1.0 / kJitter) return velocity_;
-  return expSe3(std::min(periods, kMaxPeriods) * logSe3(velocity_));
+  return expSe3(std::min(periods, max_periods) * logSe3(velocity_));
 }
 
 LostReason Tracker::untrackableReason() const {
@@ -245,8 +318,11 @@ LostReason Tracker::alignmentLostReason(const AlignResult& aligned, const Pose& 
 
 void Tracker::markLost(const RgbdFrame& frame, LostReason reason, bool trackable, TrackResult& r) {
   ++lost_in_a_row_;
-  velocity_ = Pose::Identity();
-  velocity_dt_ = 0.0;
+  if (reason != LostReason::GapInTheData) {
+    // The motion before a gap is the last known one, for the next frame's bridgeGap().
+    velocity_ = Pose::Identity();
+    velocity_dt_ = 0.0;
+  }
   r.state = TrackingState::Lost;
   r.lost_reason = reason;
   spdlog::debug("frame {}: lost ({})", frame.id, toString(reason));
@@ -255,6 +331,8 @@ void Tracker::markLost(const RgbdFrame& frame, LostReason reason, bool trackable
     // long: restart from this frame at the last good pose.
     spdlog::warn("frame {}: lost for {} frames, new keyframe at the last good pose", frame.id, lost_in_a_row_);
     keyframe_ = makeKeyframe(frame, keyframe_->pose_world * last_in_keyframe_);
+    velocity_ = Pose::Identity();
+    velocity_dt_ = 0.0;
     last_good_timestamp_ = frame.timestamp;
     lost_in_a_row_ = 0;
     r.new_keyframe = true;
@@ -284,7 +362,7 @@ void Tracker::followAlignment(const RgbdFrame& frame, const AlignResult& aligned
     c.information = aligned.information;
     c.entropy = aligned.entropy;
     c.valid_pixels = aligned.valid_pixels;
-    keyframe_ = makeKeyframe(frame, keyframe_->pose_world * aligned.pose);
+    keyframe_ = makeKeyframe(frame, keyframe_->pose_world * aligned.pose, aligned.entropy);
     c.to_id = keyframe_->id;
     r.odometry = c;
     r.new_keyframe = true;
@@ -292,6 +370,10 @@ void Tracker::followAlignment(const RgbdFrame& frame, const AlignResult& aligned
     last_in_keyframe_ = aligned.pose;
     r.pose_in_keyframe = aligned.pose;
     r.covariance = aligned.covariance();
+    std::swap(last_good_, current_);  // current_ is built anew for the next frame
+    last_good_in_pyramid_ = true;
+    last_covariance_ = r.covariance;
+    last_entropy_ = aligned.entropy;
   }
   r.keyframe_id = keyframe_->id;
   r.keyframe_pose_world = keyframe_->pose_world;

@@ -32,6 +32,12 @@ namespace rekon::tracker {
 // (entropyOfInformation): the quantity DVO-SLAM's entropy ratio divides.
 double logDetOfEntropy(double entropy);
 
+// log_det / reference >= threshold, written so that it stays meaningful for a
+// non-positive reference: an alignment may carry at most (1 - threshold) of
+// the reference's magnitude less information (ln det) than the odometry it is
+// compared with.
+bool informationPasses(double log_det, double reference, double threshold);
+
 // The mean (SE(3) midpoint) of a loop pose aligned both ways: `forward` is
 // the new keyframe aligned to the candidate, `backward` the candidate aligned
 // to the new keyframe (both valid).
@@ -133,7 +139,6 @@ class LoopClosureDetector {
   std::optional<double> incomingLogDet(int64_t id, Entry& e, bool coarse);
   // An added keyframe with its images (rekon::Error when the cache lost it).
   std::shared_ptr<const Keyframe> keyframe(int64_t id) const;
-  bool passes(double log_det, double reference, double threshold) const;
 
   // The accepted pair's forward (`fine`) and backward alignments refined by
   // refiner_ (LoopClosureParams::refine_photometric_weight); each falls back

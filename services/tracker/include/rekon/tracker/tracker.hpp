@@ -133,7 +133,11 @@ class Tracker {
   const TrackerParams& params() const { return params_; }
 
  private:
-  std::shared_ptr<const Keyframe> makeKeyframe(const RgbdFrame& frame, const Pose& pose_world);
+  // `incoming_entropy`: of the odometry constraint that made it, when one did.
+  std::shared_ptr<const Keyframe> makeKeyframe(const RgbdFrame& frame, const Pose& pose_world,
+                                               std::optional<double> incoming_entropy = std::nullopt);
+  // keyframe_ (just made or adopted) is the last good frame.
+  void lastGoodIsKeyframe(std::optional<double> incoming_entropy);
   // Tracking goes on from `keyframe` (a relocalised one), no motion known.
   void startFrom(std::shared_ptr<const Keyframe> keyframe, double timestamp);
   // current_ as a keyframe with id `id`, not yet adopted.
@@ -149,6 +153,8 @@ class Tracker {
   // map instead when one of the stored keyframes nearest it validates; the
   // motion model goes on.
   bool reanchor(const RgbdFrame& frame, const Pose& pose_world, TrackResult& r);
+  // `r` is a good frame that is itself the new keyframe_ (relocalised or across a gap).
+  void reportStartedKeyframe(TrackResult& r) const;
   bool keyframeDue(const AlignResult& aligned) const;
   bool entropyRatioBelow(double entropy, double threshold) const;
 
@@ -163,11 +169,22 @@ class Tracker {
   void markLost(const RgbdFrame& frame, LostReason reason, bool trackable, TrackResult& r);
   // A good frame: its pose, or a new keyframe with its odometry constraint when one is due.
   void followAlignment(const RgbdFrame& frame, const AlignResult& aligned, TrackResult& r);
+  // A frame more than lost.max_gap_s after the last good one (frames
+  // missing: the camera moved on, tracking did not fail) aligned to the last
+  // good frame, the nearest view there is, from the gap's coarse level,
+  // starting where the camera's motion would have taken it and where it was.
+  // Validated as a loop closure is (LoopClosureParams: information against
+  // the last good frame's own alignment, constraining pixels, the pair
+  // aligned back), it becomes a keyframe whose odometry constraint spans the
+  // gap; false when no start validates (then it is relocalised).
+  bool bridgeGap(const RgbdFrame& frame, TrackResult& r);
   // The motion expected from the last good frame to a frame taken at
   // `timestamp`: velocity_, scaled to the time between them when frames were
   // dropped in between (a live source drops frames; the motion grows with
-  // the gap). Regular frames get velocity_ itself.
-  Pose predictedMotion(double timestamp) const;
+  // the gap). Regular frames get velocity_ itself. Beyond 8 periods the
+  // extrapolation is no better than a guess for the basin of one alignment.
+  // `max_periods`: the extrapolation's limit in units of velocity_dt_.
+  Pose predictedMotion(double timestamp, double max_periods = 8.0) const;
   // The level a frame at `timestamp` starts aligning on: coarser after a gap
   // (AlignerParams::gap_coarsest_level, as far as both pyramids reach).
   int coarsestLevelFor(double timestamp) const;
@@ -182,6 +199,15 @@ class Tracker {
   double velocity_dt_ = 0.0;                  // seconds between them (0: no velocity)
   double last_good_timestamp_ = 0.0;
   std::optional<double> reference_entropy_;   // H(kf, kf+1)
+  // The last good frame for bridgeGap(): its pyramid when it is not keyframe_
+  // itself (swapped with current_, no copy), the covariance of
+  // last_in_keyframe_ and the entropy of its alignment (of keyframe_'s
+  // incoming constraint when it is keyframe_; none after a restart or a
+  // relocalisation).
+  RgbdPyramid last_good_;
+  bool last_good_in_pyramid_ = false;
+  Matrix6d last_covariance_ = Matrix6d::Zero();
+  std::optional<double> last_entropy_;
   int lost_in_a_row_ = 0;
   std::unique_ptr<Relocaliser> relocaliser_;  // every keyframe, stored and new
   int relocalise_first_within_ = 0;           // > 0: the first keyframe must be relocalised within this many frames
