@@ -465,8 +465,13 @@ std::vector<ReintegrationRound> Mapper::finish() {
 
 Mesh Mapper::extractUncorrectedMesh() const {
   if (!camera_) return Mesh{};
-  // Same settings and order as the first integrations, so that an unmoved run gives the same voxels.
-  volume::TsdfVolume baseline(params_.volume);
+  // Same settings and order as the first integrations, so that an unmoved run
+  // gives the same voxels; in less memory beside the map: only the streaming
+  // sphere active and a quarter of the host budget, the rest on disk.
+  volume::VolumeParams p = params_.volume;
+  p.active_max_blocks = 0;
+  if (p.host_max_blocks > 0) p.host_max_blocks = std::max<int64_t>(1, p.host_max_blocks / 4);
+  volume::TsdfVolume baseline(p);
   for (const KeyframeRecord& r : keyframes_) {
     if (!r.integrated) continue;
     const fusion::FusedKeyframe kf = images(r);
