@@ -388,8 +388,9 @@ ReintegrationRound Mapper::applyGraphUpdate(const std::vector<std::pair<int64_t,
   // (a continued run that stops early leaves its session untouched).
   if (firstMissingFrame() >= 0) writeAnchorPoses();
   const std::vector<double> moved = movements();
-  std::vector<double> distance;
-  for (const KeyframeRecord& r : keyframes_) distance.push_back((r.integrated_pose.translation() - camera_position_).norm());
+  std::vector<double> distance;  // from the camera, only where the nearer-window rule uses it
+  if (params_.near_window_slack > 0.0)
+    for (const KeyframeRecord& r : keyframes_) distance.push_back((r.integrated_pose.translation() - camera_position_).norm());
   const auto chosen =
       selectForReintegration(params_.mode, moved, params_.m, params_.min_movement, distance, params_.near_window_slack);
   if (params_.round_budget_ms > 0.0) {
