@@ -9,29 +9,100 @@
 
 namespace rekon {
 
-// Written beside and renamed (writeFileAtomically): a process killed while
-// it writes leaves the previous mesh, never half of one.
+namespace {
+
+std::string vertexPart(const std::string& path) { return path + ".vertices.tmp"; }
+std::string facePart(const std::string& path) { return path + ".faces.tmp"; }
+
+[[noreturn]] void cannotWrite(const std::string& path, const char* what) {
+  throw Error("cannot write " + path + " (" + what + "); check the folder's permissions and free space");
+}
+
+}  // namespace
+
+void appendMesh(Mesh& to, const Mesh& piece) {
+  to.vertices.insert(to.vertices.end(), piece.vertices.begin(), piece.vertices.end());
+  to.colors.insert(to.colors.end(), piece.colors.begin(), piece.colors.end());
+  to.triangles.insert(to.triangles.end(), piece.triangles.begin(), piece.triangles.end());
+}
+
 void writePly(const Mesh& mesh, const std::string& path) {
-  const bool colored = mesh.colors.size() == mesh.vertices.size() && !mesh.vertices.empty();
-  std::ostringstream header;
-  header << "ply\nformat binary_little_endian 1.0\ncomment rekon\nelement vertex " << mesh.vertices.size()
-         << "\nproperty float x\nproperty float y\nproperty float z\n";
-  if (colored) header << "property uchar red\nproperty uchar green\nproperty uchar blue\n";
-  header << "element face " << mesh.triangles.size() << "\nproperty list uchar int vertex_indices\nend_header\n";
-  const std::string head = header.str();
-  std::vector<char> buf(head.begin(), head.end());
-  buf.reserve(head.size() + mesh.vertices.size() * 15 + mesh.triangles.size() * 13);
-  auto put = [&buf](const void* p, size_t n) { buf.insert(buf.end(), static_cast<const char*>(p), static_cast<const char*>(p) + n); };
-  for (size_t i = 0; i < mesh.vertices.size(); ++i) {
-    put(mesh.vertices[i].data(), 12);
-    if (colored) put(mesh.colors[i].data(), 3);
+  PlyWriter ply(path, mesh.colors.size() == mesh.vertices.size() && !mesh.vertices.empty());
+  ply.add(mesh);
+  ply.finish();
+}
+
+PlyWriter::PlyWriter(std::string path, bool colored)
+    : path_(std::move(path)), colored_(colored), vertex_out_(std::fopen(vertexPart(path_).c_str(), "w+b")),
+      face_out_(std::fopen(facePart(path_).c_str(), "w+b")) {
+  if (!vertex_out_ || !face_out_) {
+    closeParts();
+    cannotWrite(path_, "open");
   }
-  for (const auto& t : mesh.triangles) {
+}
+
+PlyWriter::~PlyWriter() { closeParts(); }
+
+void PlyWriter::closeParts() {
+  for (std::FILE** f : {&vertex_out_, &face_out_}) {
+    if (*f) std::fclose(*f);
+    *f = nullptr;
+  }
+  std::remove(vertexPart(path_).c_str());
+  std::remove(facePart(path_).c_str());
+}
+
+void PlyWriter::add(const Mesh& piece) {
+  if (!vertex_out_) throw Error("cannot write " + path_ + ": a mesh piece came after finish()");
+  if (colored_ && piece.colors.size() != piece.vertices.size())
+    throw Error("cannot write " + path_ + ": a mesh piece has " + std::to_string(piece.colors.size()) + " colors for " +
+                std::to_string(piece.vertices.size()) + " vertices");
+  std::vector<char> buf;
+  buf.reserve(piece.vertices.size() * 15);
+  auto put = [&buf](const void* p, size_t n) { buf.insert(buf.end(), static_cast<const char*>(p), static_cast<const char*>(p) + n); };
+  auto flush = [&](std::FILE* f) {
+    if (std::fwrite(buf.data(), 1, buf.size(), f) != buf.size()) cannotWrite(path_, "write");
+    buf.clear();
+  };
+  for (size_t i = 0; i < piece.vertices.size(); ++i) {
+    put(piece.vertices[i].data(), 12);
+    if (colored_) put(piece.colors[i].data(), 3);
+  }
+  flush(vertex_out_);
+  for (const auto& t : piece.triangles) {
     const uint8_t n = 3;
     put(&n, 1);
     put(t.data(), 12);
   }
-  writeFileAtomically(path, std::string_view(buf.data(), buf.size()));
+  flush(face_out_);
+  vertices_ += static_cast<int64_t>(piece.vertices.size());
+  faces_ += static_cast<int64_t>(piece.triangles.size());
+}
+
+void PlyWriter::finish() {
+  if (!vertex_out_) throw Error("cannot write " + path_ + ": finish() called twice");
+  const bool flushed = std::fflush(vertex_out_) == 0 && std::fflush(face_out_) == 0;
+  if (!flushed) cannotWrite(path_, "write");
+  std::ostringstream header;
+  header << "ply\nformat binary_little_endian 1.0\ncomment rekon\nelement vertex " << vertices_
+         << "\nproperty float x\nproperty float y\nproperty float z\n";
+  if (colored_) header << "property uchar red\nproperty uchar green\nproperty uchar blue\n";
+  header << "element face " << faces_ << "\nproperty list uchar int vertex_indices\nend_header\n";
+  const std::string tmp = path_ + ".tmp";
+  std::FILE* out = std::fopen(tmp.c_str(), "wb");
+  bool ok = out != nullptr && std::fputs(header.str().c_str(), out) >= 0;
+  std::vector<char> buf(1 << 20);
+  for (std::FILE* part : {vertex_out_, face_out_}) {
+    ok = ok && std::fseek(part, 0, SEEK_SET) == 0;
+    for (size_t n; ok && (n = std::fread(buf.data(), 1, buf.size(), part)) > 0;) ok = std::fwrite(buf.data(), 1, n, out) == n;
+    ok = ok && !std::ferror(part);
+  }
+  if (out && std::fclose(out) != 0) ok = false;
+  closeParts();
+  if (!ok || std::rename(tmp.c_str(), path_.c_str()) != 0) {
+    std::remove(tmp.c_str());
+    cannotWrite(path_, "write or rename");
+  }
 }
 
 namespace {

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -383,6 +384,57 @@ TEST_P(VolumeTest, AHostBudgetSpillsTheFarthestBlocksToDiskAndReadsThemBackUncha
   expectSameVoxels(snapshot(unbudgeted), snapshot(budgeted));
   EXPECT_EQ(budgeted.extractMesh().vertices.size(), unbudgeted.extractMesh().vertices.size());
   EXPECT_TRUE(std::filesystem::is_empty(dir.path())) << "the spill file is unlinked once open";
+}
+
+// The mesh's triangles as their corners' positions, each rotated to start at
+// its smallest corner: equal for equal surfaces whatever the vertex order.
+std::multiset<std::array<std::tuple<float, float, float>, 3>> triangleSet(const rekon::Mesh& m) {
+  std::multiset<std::array<std::tuple<float, float, float>, 3>> out;
+  for (const auto& t : m.triangles) {
+    std::array<std::tuple<float, float, float>, 3> c;
+    for (int i = 0; i < 3; ++i) c[i] = {m.vertices[t[i]].x(), m.vertices[t[i]].y(), m.vertices[t[i]].z()};
+    std::rotate(c.begin(), std::min_element(c.begin(), c.end()), c.end());
+    out.insert(c);
+  }
+  return out;
+}
+
+TEST_P(VolumeTest, AMeshInPiecesIsTheWholeMeshAndWritesTheSamePly) {
+  // The corridor with most blocks on disk, meshed 7 blocks at a time (so
+  // nearly every cube has vertices from another piece): the pieces together
+  // are the one-piece mesh, vertex for vertex and triangle for triangle, and
+  // PlyWriter's file reads back as that mesh.
+  rekon::test::TempDir dir;
+  VolumeParams p = params();
+  p.streaming_radius = 2.0;
+  p.host_max_blocks = 40;
+  p.spill_dir = dir.path();
+  TsdfVolume vol(p);
+  walkCorridor(vol);
+  ASSERT_GT(vol.stats().host_blocks_on_disk, 1000);
+  rekon::Mesh whole, pieced;
+  int pieces = 0;
+  vol.extractMeshInPieces([&](const rekon::Mesh& piece) { rekon::appendMesh(whole, piece); }, 1 << 30);
+  const std::string path = dir / "pieces.ply";
+  rekon::PlyWriter ply(path, true);
+  vol.extractMeshInPieces(
+      [&](const rekon::Mesh& piece) {
+        rekon::appendMesh(pieced, piece);
+        ply.add(piece);
+        ++pieces;
+      },
+      7);
+  ply.finish();
+  EXPECT_GT(pieces, vol.stats().blocks / 7);
+  ASSERT_GT(whole.triangles.size(), 1000u);
+  EXPECT_EQ(pieced.vertices.size(), whole.vertices.size()) << "a vertex shared across pieces was written twice";
+  EXPECT_EQ(pieced.triangles.size(), whole.triangles.size());
+  EXPECT_TRUE(triangleSet(pieced) == triangleSet(whole)) << "the pieces' triangles differ from the whole mesh's";
+  const rekon::Mesh read = rekon::readPly(path);
+  EXPECT_EQ(read.vertices, pieced.vertices);
+  EXPECT_EQ(read.colors, pieced.colors);
+  EXPECT_EQ(read.triangles, pieced.triangles);
+  EXPECT_FALSE(std::filesystem::exists(path + ".vertices.tmp") || std::filesystem::exists(path + ".faces.tmp"));
 }
 
 TEST_P(VolumeTest, AHostTierThatCannotSpillNamesTheFileAndTheFix) {

@@ -38,9 +38,10 @@ void writeRounds(const std::vector<RoundRecord>& rows, const std::string& path) 
 void writeUncorrectedMesh(const Mapper& mapper, const std::string& out_dir) {
   const auto t0 = std::chrono::steady_clock::now();
   const std::string path = (std::filesystem::path(out_dir) / "mesh_uncorrected.ply").string();
-  const Mesh uncorrected = mapper.extractUncorrectedMesh();
-  writePly(uncorrected, path);
-  spdlog::info("wrote {} ({} vertices, {:.1f} s: every KF keyframe at its first pose)", path, uncorrected.vertices.size(),
+  PlyWriter ply(path, true);
+  mapper.extractUncorrectedMeshInPieces([&ply](const Mesh& piece) { ply.add(piece); });
+  ply.finish();
+  spdlog::info("wrote {} ({} vertices, {:.1f} s: every KF keyframe at its first pose)", path, ply.vertices(),
                std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
 }
 
@@ -48,9 +49,10 @@ void writeMeshAndTables(const Mapper& mapper, const std::vector<FrameTiming>& fr
                         const std::vector<RoundRecord>& rounds, const std::string& out_dir) {
   const std::filesystem::path out(out_dir);
   const std::string path = (out / "mesh.ply").string();
-  const Mesh mesh = mapper.extractMesh();
-  writePly(mesh, path);
-  spdlog::info("wrote {} ({} vertices)", path, mesh.vertices.size());
+  PlyWriter ply(path, true);  // in pieces: neither the mesh nor the blocks on disk are held at once
+  mapper.extractMeshInPieces([&ply](const Mesh& piece) { ply.add(piece); });
+  ply.finish();
+  spdlog::info("wrote {} ({} vertices)", path, ply.vertices());
   writeFrameTiming(frames, (out / "mapper_timing.csv").string());
   writeRounds(rounds, (out / "mapper_reintegration.csv").string());
 }

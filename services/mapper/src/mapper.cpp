@@ -465,7 +465,13 @@ std::vector<ReintegrationRound> Mapper::finish() {
 }
 
 Mesh Mapper::extractUncorrectedMesh() const {
-  if (!camera_) return Mesh{};
+  Mesh mesh;
+  extractUncorrectedMeshInPieces([&mesh](const Mesh& piece) { appendMesh(mesh, piece); });
+  return mesh;
+}
+
+void Mapper::extractUncorrectedMeshInPieces(const std::function<void(const Mesh&)>& sink) const {
+  if (!camera_) return;
   // Same settings and order as the first integrations, so that an unmoved run
   // gives the same voxels; in less memory beside the map: only the streaming
   // sphere active and a quarter of the host budget, the rest on disk.
@@ -479,7 +485,7 @@ Mesh Mapper::extractUncorrectedMesh() const {
     baseline.streamAround(r.first_pose.translation());
     baseline.integrate(kf.depth, kf.color, kf.weight, *camera_, r.first_pose);
   }
-  return baseline.extractMesh();
+  baseline.extractMeshInPieces(sink);
 }
 
 MemoryUse Mapper::memoryUse() const {

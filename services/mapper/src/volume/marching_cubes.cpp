@@ -7,6 +7,7 @@
 #include <utility>
 
 #include "parallel_for.hpp"
+#include "rekon/common/error.hpp"
 
 namespace rekon::volume {
 namespace {
@@ -127,7 +128,6 @@ struct BlockVertices {
   std::vector<uint16_t> edge;  // local voxel index * 3 + axis, ascending
   std::vector<Eigen::Vector3f> position;
   std::vector<std::array<uint8_t, 3>> color;
-  int64_t offset = 0;
 };
 
 // The color at fraction t of the way from voxel a to voxel b, RGB.
@@ -374,36 +374,57 @@ const TriangleTable& triangleTable() {
   return table;
 }
 
-Mesh marchingCubes(const std::vector<BlockCoord>& coords, const std::vector<const Voxel*>& blocks, float voxel_size,
-                   float truncation) {
-  Lattice lattice = buildLattice(coords, blocks, voxel_size, truncation, 0);
-  int64_t total = 0;
-  for (auto& v : lattice.vertices) {
-    v.offset = total;
-    total += static_cast<int64_t>(v.edge.size());
+MeshPieces::MeshPieces(float voxel_size, float truncation) : voxel_size_(voxel_size), truncation_(truncation) {}
+
+Mesh MeshPieces::next(const std::vector<BlockCoord>& coords, const std::vector<const Voxel*>& blocks, int wanted) {
+  for (int b = 0; b < wanted; ++b) {
+    if (coords[b].x > lowest_x_) throw Error("volume: internal error: mesh pieces out of order");
   }
-  const int n = static_cast<int>(coords.size());
-  std::vector<std::vector<Eigen::Vector3i>> triangles(n);
-  forEachBlockTriangles(lattice, coords, blocks, n, truncation, 0, [&](int b, const TriangleRefs& refs) {
+  // Only the wanted blocks' vertices are complete (their +x/+y/+z neighbours
+  // are in coords); the neighbours' were made when they were wanted.
+  const Lattice lattice = buildLattice(coords, blocks, voxel_size_, truncation_, 0);
+  Mesh piece;
+  std::vector<int64_t> base(wanted);
+  for (int b = 0; b < wanted; ++b) {
+    const BlockVertices& v = lattice.vertices[b];
+    base[b] = emitted_ + static_cast<int64_t>(piece.vertices.size());
+    piece.vertices.insert(piece.vertices.end(), v.position.begin(), v.position.end());
+    piece.colors.insert(piece.colors.end(), v.color.begin(), v.color.end());
+  }
+  auto globalIndex = [&](VertexRef r) -> int64_t {
+    if (r.block < wanted) return base[r.block] + r.index;
+    const auto owner = owners_.find(coords[r.block]);
+    if (owner == owners_.end()) throw Error("volume: internal error: a mesh piece's neighbour was not meshed before it");
+    const uint16_t edge = lattice.vertices[r.block].edge[r.index];
+    const auto& edges = owner->second.edges;
+    return owner->second.base + (std::lower_bound(edges.begin(), edges.end(), edge) - edges.begin());
+  };
+  std::vector<std::vector<Eigen::Vector3i>> triangles(wanted);
+  forEachBlockTriangles(lattice, coords, blocks, wanted, truncation_, 0, [&](int b, const TriangleRefs& refs) {
     for (const auto& tri : refs) {
       Eigen::Vector3i t;
-      for (int j = 0; j < 3; ++j) t[j] = static_cast<int>(lattice.vertices[tri[j].block].offset + tri[j].index);
+      for (int j = 0; j < 3; ++j) {
+        const int64_t i = globalIndex(tri[j]);
+        if (i > std::numeric_limits<int32_t>::max()) throw Error("volume: the mesh has over 2^31 vertices (PLY's int indices); mesh a part of the map");
+        t[j] = static_cast<int32_t>(i);
+      }
       triangles[b].push_back(t);
     }
   });
-
-  Mesh mesh;
-  mesh.vertices.reserve(total);
-  mesh.colors.reserve(total);
-  for (const auto& v : lattice.vertices) {
-    mesh.vertices.insert(mesh.vertices.end(), v.position.begin(), v.position.end());
-    mesh.colors.insert(mesh.colors.end(), v.color.begin(), v.color.end());
+  for (const auto& t : triangles) piece.triangles.insert(piece.triangles.end(), t.begin(), t.end());
+  // Remember the wanted blocks' vertices for the pieces to come, and forget
+  // those no later piece can use: a block's vertices serve the cubes of its
+  // own block and of its -x/-y/-z neighbours, so those with x above the
+  // piece's lowest x + 1.
+  int32_t lowest = lowest_x_;
+  for (int b = 0; b < wanted; ++b) {
+    owners_[coords[b]] = Owned{base[b], lattice.vertices[b].edge};
+    lowest = std::min(lowest, coords[b].x);
   }
-  size_t tri_total = 0;
-  for (const auto& t : triangles) tri_total += t.size();
-  mesh.triangles.reserve(tri_total);
-  for (const auto& t : triangles) mesh.triangles.insert(mesh.triangles.end(), t.begin(), t.end());
-  return mesh;
+  lowest_x_ = lowest;
+  for (auto it = owners_.begin(); it != owners_.end();) it = it->first.x > lowest_x_ + 1 ? owners_.erase(it) : std::next(it);
+  emitted_ += static_cast<int64_t>(piece.vertices.size());
+  return piece;
 }
 
 std::vector<BlockMesh> marchingCubesPerBlock(const std::vector<BlockCoord>& coords, const std::vector<const Voxel*>& blocks,

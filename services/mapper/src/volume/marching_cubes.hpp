@@ -4,6 +4,8 @@
 // so neighbouring cubes and blocks share it.
 #include <array>
 #include <cstdint>
+#include <limits>
+#include <unordered_map>
 #include <vector>
 
 #include "rekon/common/mesh.hpp"
@@ -17,9 +19,34 @@ namespace rekon::volume {
 using TriangleTable = std::array<std::array<int8_t, 37>, 256>;
 const TriangleTable& triangleTable();
 
-// blocks[i] holds kBlockVoxels voxels of block coords[i]; both from any store.
-Mesh marchingCubes(const std::vector<BlockCoord>& coords, const std::vector<const Voxel*>& blocks, float voxel_size,
-                   float truncation);
+// Marching cubes over a map too large to hold its mesh and voxels at once,
+// one piece of blocks at a time. Each piece is a mesh whose triangles index
+// every vertex of the pieces before it and of itself (its own after theirs),
+// so the pieces written one after the other are one mesh, the same surface as
+// the whole map's. Pieces must come in descending (x, y, z) order of their
+// blocks, each with its blocks' +x/+y/+z neighbours that exist after them (as
+// for marchingCubesPerBlock): the neighbours were meshed in earlier pieces.
+// What it keeps between pieces is the vertex numbering of the blocks at most
+// one x above the last piece's lowest.
+class MeshPieces {
+ public:
+  MeshPieces(float voxel_size, float truncation);
+  // blocks[i] holds kBlockVoxels voxels of block coords[i]; the first `wanted` are meshed.
+  Mesh next(const std::vector<BlockCoord>& coords, const std::vector<const Voxel*>& blocks, int wanted);
+
+ private:
+  struct CoordHash {
+    size_t operator()(const BlockCoord& c) const { return hashBlock(c); }
+  };
+  struct Owned {
+    int64_t base;                 // its first vertex's index in the mesh
+    std::vector<uint16_t> edges;  // its vertices' edges (local voxel * 3 + axis), ascending
+  };
+  float voxel_size_, truncation_;
+  int64_t emitted_ = 0;
+  int32_t lowest_x_ = std::numeric_limits<int32_t>::max();
+  std::unordered_map<BlockCoord, Owned, CoordHash> owners_;
+};
 
 // The meshes of the first `wanted` blocks of coords, each on its own: the
 // triangles of the cubes whose lower corner lies in it, every vertex it owns

@@ -335,11 +335,26 @@ void TsdfVolume::streamOutBeyond(const Eigen::Vector3d& centre, int64_t excess) 
 }
 
 Mesh TsdfVolume::extractMesh() const {
-  const std::vector<BlockCoord> coords = blockCoords();
-  std::vector<const Voxel*> data;
-  std::vector<Voxel> copied;
-  voxelPointers(coords, data, copied);
-  return marchingCubes(coords, data, static_cast<float>(params_.voxel_size), static_cast<float>(params_.truncation));
+  Mesh mesh;
+  extractMeshInPieces([&mesh](const Mesh& piece) { appendMesh(mesh, piece); });
+  return mesh;
+}
+
+void TsdfVolume::extractMeshInPieces(const std::function<void(const Mesh&)>& sink, int blocks_per_piece) const {
+  std::vector<BlockCoord> coords = blockCoords();
+  std::sort(coords.begin(), coords.end(), [](const BlockCoord& a, const BlockCoord& b) {
+    return std::tie(a.x, a.y, a.z) > std::tie(b.x, b.y, b.z);  // MeshPieces' order
+  });
+  MeshPieces pieces(static_cast<float>(params_.voxel_size), static_cast<float>(params_.truncation));
+  for (size_t begin = 0; begin < coords.size(); begin += static_cast<size_t>(blocks_per_piece)) {
+    const size_t end = std::min(coords.size(), begin + static_cast<size_t>(blocks_per_piece));
+    const std::vector<BlockCoord> piece = withUpperNeighbours(
+        {coords.begin() + static_cast<std::ptrdiff_t>(begin), coords.begin() + static_cast<std::ptrdiff_t>(end)});
+    std::vector<const Voxel*> data;
+    std::vector<Voxel> copied;  // this piece's blocks read from disk (or the device) only
+    voxelPointers(piece, data, copied);
+    sink(pieces.next(piece, data, static_cast<int>(end - begin)));
+  }
 }
 
 std::vector<BlockCoord> TsdfVolume::takeMeshChanges() {
@@ -351,32 +366,38 @@ std::vector<BlockCoord> TsdfVolume::takeMeshChanges() {
   out.reserve(changed.size());
   for (const BlockCoord& c : changed) {
     // A neighbour that does not exist has no mesh to change, unless it was freed (then it was touched itself).
-    if (tableFind(c) != kEmptySlot || host_->contains(c) || touched_.count(c)) out.push_back(c);
+    if (exists(c) || touched_.count(c)) out.push_back(c);
   }
   touched_.clear();
   return out;
 }
 
-std::vector<BlockMesh> TsdfVolume::meshBlocks(const std::vector<BlockCoord>& wanted) const {
-  // The wanted blocks that exist first, then their +x/+y/+z neighbours (whose voxels and vertices their cubes use).
-  std::vector<BlockCoord> coords;
-  std::unordered_set<BlockCoord, CoordHash> listed;
-  auto exists = [&](const BlockCoord& c) { return tableFind(c) != kEmptySlot || host_->contains(c); };
-  for (const BlockCoord& c : wanted) {
-    if (exists(c) && listed.insert(c).second) coords.push_back(c);
-  }
-  const int present = static_cast<int>(coords.size());
-  for (int i = 0; i < present; ++i) {
-    const BlockCoord c = coords[i];
-    for (int n = 1; n < 8; ++n) {
-      const BlockCoord nb{c.x + (n & 1), c.y + ((n >> 1) & 1), c.z + ((n >> 2) & 1)};
-      if (exists(nb) && listed.insert(nb).second) coords.push_back(nb);
+std::vector<BlockCoord> TsdfVolume::withUpperNeighbours(std::vector<BlockCoord> blocks) const {
+  std::unordered_set<BlockCoord, CoordHash> listed(blocks.begin(), blocks.end());
+  const size_t n = blocks.size();
+  for (size_t i = 0; i < n; ++i) {
+    for (int k = 1; k < 8; ++k) {
+      const BlockCoord nb{blocks[i].x + (k & 1), blocks[i].y + ((k >> 1) & 1), blocks[i].z + ((k >> 2) & 1)};
+      if (exists(nb) && listed.insert(nb).second) blocks.push_back(nb);
     }
   }
+  return blocks;
+}
+
+bool TsdfVolume::exists(const BlockCoord& c) const { return tableFind(c) != kEmptySlot || host_->contains(c); }
+
+std::vector<BlockMesh> TsdfVolume::meshBlocks(const std::vector<BlockCoord>& wanted) const {
+  std::vector<BlockCoord> present;
+  std::unordered_set<BlockCoord, CoordHash> listed;
+  for (const BlockCoord& c : wanted) {
+    if (exists(c) && listed.insert(c).second) present.push_back(c);
+  }
+  const int count = static_cast<int>(present.size());
+  const std::vector<BlockCoord> coords = withUpperNeighbours(std::move(present));
   std::vector<const Voxel*> data;
   std::vector<Voxel> copied;
   voxelPointers(coords, data, copied);
-  std::vector<BlockMesh> meshes = marchingCubesPerBlock(coords, data, present, static_cast<float>(params_.voxel_size),
+  std::vector<BlockMesh> meshes = marchingCubesPerBlock(coords, data, count, static_cast<float>(params_.voxel_size),
                                                         static_cast<float>(params_.truncation));
   for (const BlockCoord& c : wanted) {
     if (!listed.count(c)) meshes.push_back(BlockMesh{c.x, c.y, c.z, 0, {}, {}, {}});

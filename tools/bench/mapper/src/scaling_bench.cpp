@@ -10,6 +10,7 @@
 // Rendering is not timed; times are the process's CPU time unless --wall.
 #include <spdlog/spdlog.h>
 
+#include <chrono>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -122,6 +123,39 @@ void writeCurve(const std::vector<ScalingPoint>& points, const std::string& dir,
   writeMemoryPlot(points, dir);
 }
 
+// Linux's peak resident memory of this process (VmHWM) in MiB, reset to now
+// by the call, or -1 where /proc does not say.
+double peakRssSinceLastCallMb() {
+  std::ifstream status("/proc/self/status");
+  double peak = -1.0;
+  for (std::string line; std::getline(status, line);) {
+    if (line.rfind("VmHWM:", 0) == 0) peak = std::stod(line.substr(6)) / 1024.0;
+  }
+  std::ofstream("/proc/self/clear_refs") << "5";
+  return peak;
+}
+
+// What the end of a run costs in memory beyond the map: the mesh written in
+// pieces (the mapper's way) against the mesh held whole.
+void measureMeshMemory(const mapper::Mapper& mapper, const std::string& dir) {
+  const double rss = currentRssMb();
+  peakRssSinceLastCallMb();
+  const auto t0 = std::chrono::steady_clock::now();
+  PlyWriter ply(dir + "/mesh.ply", true);
+  mapper.extractMeshInPieces([&ply](const Mesh& piece) { ply.add(piece); });
+  ply.finish();
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  const double pieces_peak = peakRssSinceLastCallMb();
+  const size_t whole_vertices = mapper.extractMesh().vertices.size();
+  const double whole_peak = peakRssSinceLastCallMb();
+  std::printf("%s\n", keyValueLine({{"mesh_vertices", static_cast<double>(ply.vertices())},
+                                    {"mesh_s", seconds},
+                                    {"mesh_in_pieces_extra_mb", pieces_peak - rss},
+                                    {"mesh_whole_extra_mb", whole_peak - rss},
+                                    {"mesh_whole_vertices", static_cast<double>(whole_vertices)}})
+                          .c_str());
+}
+
 }  // namespace
 
 int benchScalingCommand(int argc, char** argv) {
@@ -138,6 +172,7 @@ int benchScalingCommand(int argc, char** argv) {
       .option("every", "a point of the curve every this many frames", "500")
       .option("drift", "drift of the fused poses: metres per metre,degrees per metre", "0.03,1.5")
       .flag("wall", "time in wall clock instead of the process's CPU time")
+      .flag("mesh", "at the end write OUT/mesh.ply in pieces and print the memory that took, and that of the mesh held whole")
       .option("config", "YAML file laid over config/default.yaml (volume and mapper settings)")
       .repeated("set", "override one key, e.g. --set mapper.m=5");
   if (!args.parse(argc, argv)) return 0;
@@ -204,6 +239,7 @@ int benchScalingCommand(int argc, char** argv) {
   };
   const auto [first_integration, last_integration] = ends(&ScalingPoint::integrations, &ScalingPoint::integration_ms);
   const auto [first_round, last_round] = ends(&ScalingPoint::rounds, &ScalingPoint::round_ms);
+  if (args.flagSet("mesh")) measureMeshMemory(mapper, out);
   std::printf("%s\n", keyValueLine({{"first_integration_ms", first_integration},
                                     {"last_integration_ms", last_integration},
                                     {"first_round_ms", first_round},

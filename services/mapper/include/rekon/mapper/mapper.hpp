@@ -163,12 +163,15 @@ class Mapper {
   int64_t firstMissingFrame() const;
   const MapperCounters& counters() const { return counters_; }
   Mesh extractMesh() const { return volume_->extractMesh(); }
+  // extractMesh() in pieces (TsdfVolume::extractMeshInPieces), for a map too large to mesh at once.
+  void extractMeshInPieces(const std::function<void(const Mesh&)>& sink) const { volume_->extractMeshInPieces(sink); }
   // Blocks whose mesh changed since the last call (TsdfVolume::takeMeshChanges).
   std::vector<volume::BlockCoord> takeMeshChanges() { return volume_->takeMeshChanges(); }
   // The paper's baseline: every KF keyframe integrated once at its first
   // pose, never corrected, into a fresh volume of the same settings. Equals
   // extractMesh() when no keyframe moved.
   Mesh extractUncorrectedMesh() const;
+  void extractUncorrectedMeshInPieces(const std::function<void(const Mesh&)>& sink) const;
   MemoryUse memoryUse() const;
   // Deletes the keyframe store (after a clean end of the run).
   void removeStore();

@@ -6,6 +6,7 @@
 #include <opencv2/core/mat.hpp>
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 #include <unordered_map>
@@ -110,6 +111,12 @@ class TsdfVolume {
   // Marching cubes over active and host blocks (those on disk read back); vertices are shared along
   // voxel edges, colors are RGB.
   Mesh extractMesh() const;
+  // The same mesh in pieces of `blocks_per_piece` blocks (MeshPieces: each
+  // piece's triangles index the vertices of the pieces before it), so that
+  // neither the mesh nor the blocks on disk need to fit in memory at once;
+  // sink(piece) writes it out (PlyWriter) or collects it (extractMesh).
+  static constexpr int kMeshPieceBlocks = 8192;  // 48 MiB of voxels
+  void extractMeshInPieces(const std::function<void(const Mesh&)>& sink, int blocks_per_piece = kMeshPieceBlocks) const;
   // Blocks whose mesh may have changed since the last call: (de-)integration
   // changes a block's voxels, and with them its own mesh and those of its
   // -x/-y/-z neighbours (their cubes reach into its first layer); blocks
@@ -151,6 +158,11 @@ class TsdfVolume {
   // Moves active blocks outside the sphere around centre to the host store:
   // all of them without a budget, else `excess` of them (see streamAround).
   void streamOutBeyond(const Eigen::Vector3d& centre, int64_t excess);
+  // Allocated, active or host.
+  bool exists(const BlockCoord& c) const;
+  // `blocks` (allocated, each once) followed by their +x/+y/+z neighbours
+  // that exist, whose voxels and vertices their cubes use (marchingCubesPerBlock, MeshPieces).
+  std::vector<BlockCoord> withUpperNeighbours(std::vector<BlockCoord> blocks) const;
   // Voxels of each block of coords (active or host; every one must exist), copied when the pool is not on the host.
   void voxelPointers(const std::vector<BlockCoord>& coords, std::vector<const Voxel*>& data, std::vector<Voxel>& copied) const;
 
