@@ -77,12 +77,13 @@ int fuseCommand(int argc, char** argv) {
   if (without_pose > 0) spdlog::warn("fuse: {} frame(s) had no pose within {} s and were skipped", without_pose, options.max_time_difference);
 
   const auto mesh_start = std::chrono::steady_clock::now();
-  const Mesh mesh = volume.extractMesh();
+  PlyWriter ply(args.get("out"), true);
+  volume.extractMeshInPieces([&ply](const Mesh& piece) { ply.add(piece); });
+  ply.finish();
   const double mesh_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - mesh_start).count();
-  writePly(mesh, args.get("out"));
   const VolumeStats s = volume.stats();
   spdlog::info("fuse: {} frames on the {} backend, mesh of {} vertices and {} triangles in {:.3f} s -> {}", integrated,
-               s.backend, mesh.vertices.size(), mesh.triangles.size(), mesh_s, args.get("out"));
+               s.backend, ply.vertices(), ply.faces(), mesh_s, args.get("out"));
   std::printf("ms_per_frame=%.2f blocks=%lld bytes_per_voxel=%d\n", integrate_ms / integrated,
               static_cast<long long>(s.blocks), s.bytes_per_voxel);
   return 0;

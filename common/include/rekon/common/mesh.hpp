@@ -35,6 +35,7 @@ class PlyWriter {
   void add(const Mesh& piece);
   void finish();
   int64_t vertices() const { return vertices_; }
+  int64_t faces() const { return faces_; }
 
  private:
   void closeParts();
