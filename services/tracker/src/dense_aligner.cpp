@@ -127,6 +127,62 @@ int DenseAligner::warp(const KeyframeReference::Level& ref, const PyramidLevel& 
   return n;
 }
 
+namespace {
+
+// The per-pixel passes of estimateScale() (REKON_SIMD_CLONES: AVX2 lanes and
+// FMAs); the sums stay in float lanes, which is precise enough for a
+// weighting matrix.
+struct SecondMoments {
+  float s11 = 0.f, s12 = 0.f, s22 = 0.f;
+};
+
+REKON_SIMD_CLONES SecondMoments squareSums(const float* __restrict ri, const float* __restrict rz, int n) {
+  float s11 = 0.f, s22 = 0.f;
+#pragma omp simd reduction(+ : s11, s22)
+  for (int k = 0; k < n; ++k) {
+    s11 += ri[k] * ri[k];
+    s22 += rz[k] * rz[k];
+  }
+  return {s11, 0.f, s22};
+}
+
+// Sums of w r r^T with w = (nu + 2) / (nu + r^T S^-1 r), S^-1 = [a b; b c] and b2 = 2 b.
+REKON_SIMD_CLONES SecondMoments weightedSquareSums(const float* __restrict ri, const float* __restrict rz, int n,
+                                                   float a, float b2, float c, float nu) {
+  float s11 = 0.f, s12 = 0.f, s22 = 0.f;
+#pragma omp simd reduction(+ : s11, s12, s22)
+  for (int k = 0; k < n; ++k) {
+    const float x = ri[k], y = rz[k];
+    const float w = (nu + 2.f) / (nu + a * x * x + b2 * x * y + c * y * y);
+    s11 += w * x * x;
+    s12 += w * x * y;
+    s22 += w * y * y;
+  }
+  return {s11, s12, s22};
+}
+
+// Sum of log(1 + |U r|^2 / nu) over the pixels; `q` is scratch for n floats.
+// The logarithms as one Eigen array expression into float, which vectorises
+// (Eigen's packet log; logs cast to double on the way to a sum are one libm
+// call a pixel), and summed in double lanes: the step test compares these
+// sums between iterations, so they keep double precision.
+REKON_SIMD_CLONES double sumLogQuadratic(const float* __restrict ri, const float* __restrict rz, int n, float u11,
+                                         float u12, float u22, float inv_nu, float* __restrict q) {
+#pragma omp simd
+  for (int k = 0; k < n; ++k) {
+    const float e1 = u11 * ri[k] + u12 * rz[k], e2 = u22 * rz[k];
+    q[k] = 1.f + inv_nu * (e1 * e1 + e2 * e2);
+  }
+  Eigen::Map<Eigen::ArrayXf> logs(q, n);
+  logs = logs.log();
+  double sum = 0.0;
+#pragma omp simd reduction(+ : sum)
+  for (int k = 0; k < n; ++k) sum += static_cast<double>(q[k]);
+  return sum;
+}
+
+}  // namespace
+
 double DenseAligner::estimateScale(int n, Scale& scale) {
   const float* ri = res_i_.data();
   const float* rz = res_z_.data();
@@ -134,35 +190,21 @@ double DenseAligner::estimateScale(int n, Scale& scale) {
   const float nu = static_cast<float>(params_.t_dof);
   const double inv_n = 1.0 / n;
   if (scale.s11 <= 0.0) {
-    float s11 = 0.f, s22 = 0.f;
-#pragma omp simd reduction(+ : s11, s22)
-    for (int k = 0; k < n; ++k) {
-      s11 += ri[k] * ri[k];
-      s22 += rz[k] * rz[k];
-    }
-    scale.s11 = s11 * inv_n;
-    scale.s22 = s22 * inv_n;
+    const SecondMoments m = squareSums(ri, rz, n);
+    scale.s11 = m.s11 * inv_n;
+    scale.s22 = m.s22 * inv_n;
     scale.s12 = 0.0;
   }
   clampScale(scale.s11, scale.s12, scale.s22, use_depth);
   // EM for the scale matrix of the t-distribution (Kerl et al. ICRA 2013):
   // S = mean of w r r^T with w = (nu + 2) / (nu + r^T S^-1 r). Each pass is one
-  // fused loop; the sums stay in float lanes, which is precise enough for a
-  // weighting matrix, and the previous iteration's S makes a warm start.
+  // fused loop, and the previous iteration's S makes a warm start.
   for (int it = 0; it < kScaleIterations; ++it) {
     const double det = scale.s11 * scale.s22 - scale.s12 * scale.s12;
-    const float a = static_cast<float>(scale.s22 / det), b2 = static_cast<float>(-2.0 * scale.s12 / det),
-                c = static_cast<float>(scale.s11 / det);
-    float s11 = 0.f, s12 = 0.f, s22 = 0.f;
-#pragma omp simd reduction(+ : s11, s12, s22)
-    for (int k = 0; k < n; ++k) {
-      const float x = ri[k], y = rz[k];
-      const float w = (nu + 2.f) / (nu + a * x * x + b2 * x * y + c * y * y);
-      s11 += w * x * x;
-      s12 += w * x * y;
-      s22 += w * y * y;
-    }
-    Scale next{s11 * inv_n, s12 * inv_n, s22 * inv_n};
+    const SecondMoments m =
+        weightedSquareSums(ri, rz, n, static_cast<float>(scale.s22 / det), static_cast<float>(-2.0 * scale.s12 / det),
+                           static_cast<float>(scale.s11 / det), nu);
+    Scale next{m.s11 * inv_n, m.s12 * inv_n, m.s22 * inv_n};
     clampScale(next.s11, next.s12, next.s22, use_depth);
     const bool settled = std::abs(next.s11 - scale.s11) <= kScaleTolerance * scale.s11 &&
                          std::abs(next.s22 - scale.s22) <= kScaleTolerance * scale.s22;
@@ -180,13 +222,7 @@ double DenseAligner::estimateScale(int n, Scale& scale) {
   const double log_det = std::log(scale.s22) + pw2 * std::log(conditional);
   const Whitening u = whitening(scale);
   const float inv_nu = static_cast<float>(1.0 / params_.t_dof);
-  float* q = weight_.data();
-#pragma omp simd
-  for (int k = 0; k < n; ++k) {
-    const float e1 = u.u11 * ri[k] + u.u12 * rz[k], e2 = u.u22 * rz[k];
-    q[k] = 1.f + inv_nu * (e1 * e1 + e2 * e2);
-  }
-  const double mean_log = Eigen::Map<Eigen::ArrayXf>(q, n).log().cast<double>().sum() * inv_n;
+  const double mean_log = sumLogQuadratic(ri, rz, n, u.u11, u.u12, u.u22, inv_nu, weight_.data()) * inv_n;
   return 0.5 * log_det + 0.5 * (params_.t_dof + 2.0) * mean_log;
 }
 
@@ -206,11 +242,14 @@ namespace {
 
 // The rows of one block of pixels, column by column (7 columns: 6 Jacobian
 // entries and the residual) with the photometric rows of the `count` pixels
-// first and their geometric rows after them. One pass over the pixels, written
-// so that the compiler vectorises it (the Jacobians are gathered by index).
-REKON_SIMD_CLONES void fillBlock(const float* __restrict res_i, const float* __restrict res_z,
-                                 const int* __restrict index, const float* __restrict jacobians, int count,
-                                 float u11, float u12, float u22, float nu, float* __restrict block) {
+// first and their geometric rows after them, and the 28 dot products of
+// column pairs added to `sums` (upper triangle). One pass over the pixels
+// (the Jacobians gathered by index), then contiguous reductions; both
+// vectorise, and the clone makes the reductions AVX2 FMAs.
+REKON_SIMD_CLONES void accumulateBlock(const float* __restrict res_i, const float* __restrict res_z,
+                                       const int* __restrict index, const float* __restrict jacobians, int count,
+                                       float u11, float u12, float u22, float nu, float* __restrict block,
+                                       double sums[7][7]) {
   const int rows = 2 * count;
 #pragma omp simd  // independent pixels: the 14 rows a pixel writes never overlap another pixel's
   for (int k = 0; k < count; ++k) {
@@ -226,6 +265,30 @@ REKON_SIMD_CLONES void fillBlock(const float* __restrict res_i, const float* __r
     block[6 * rows + k] = sw * e1;
     block[6 * rows + count + k] = sw * e2;
   }
+  // Column p against all seven columns in one pass: seven independent sums
+  // keep the FMA units busy (one sum at a time waits on each FMA's latency),
+  // and a row of column p is loaded once. The products with q < p are not
+  // needed; they cost less than the stalls they avoid.
+  const float *__restrict c0 = block, *__restrict c1 = c0 + rows, *__restrict c2 = c1 + rows,
+              *__restrict c3 = c2 + rows, *__restrict c4 = c3 + rows, *__restrict c5 = c4 + rows,
+              *__restrict c6 = c5 + rows;
+  for (int p = 0; p < 7; ++p) {
+    const float* __restrict gp = block + p * rows;
+    float d0 = 0.f, d1 = 0.f, d2 = 0.f, d3 = 0.f, d4 = 0.f, d5 = 0.f, d6 = 0.f;
+#pragma omp simd reduction(+ : d0, d1, d2, d3, d4, d5, d6)
+    for (int r = 0; r < rows; ++r) {
+      const float g = gp[r];
+      d0 += g * c0[r];
+      d1 += g * c1[r];
+      d2 += g * c2[r];
+      d3 += g * c3[r];
+      d4 += g * c4[r];
+      d5 += g * c5[r];
+      d6 += g * c6[r];
+    }
+    const float dots[7] = {d0, d1, d2, d3, d4, d5, d6};
+    for (int q = p; q < 7; ++q) sums[p][q] += dots[q];
+  }
 }
 
 }  // namespace
@@ -233,24 +296,20 @@ REKON_SIMD_CLONES void fillBlock(const float* __restrict res_i, const float* __r
 void DenseAligner::accumulate(const KeyframeReference::Level& ref, int n, const Scale& scale, Matrix6d& h,
                               Vector6d& b) {
   // whitening() turns the 2x2-weighted joint residual into two scalar rows
-  // sqrt(w) (U J | U r) per pixel (fillBlock), and the 28 dot products of
-  // column pairs give J^T W J and J^T W r: contiguous, vectorised reductions
-  // with no gathering. Float within a block, double across blocks.
+  // sqrt(w) (U J | U r) per pixel, and the 28 dot products of column pairs
+  // give J^T W J and J^T W r (accumulateBlock). Float within a block, double
+  // across blocks.
   const Whitening u = whitening(scale);
   const float nu = static_cast<float>(params_.t_dof);
-  Eigen::Matrix<double, 7, 7> total = Eigen::Matrix<double, 7, 7>::Zero();
+  double sums[7][7] = {};
   for (int start = 0; start < n; start += kBlockPixels) {
     const int count = std::min(kBlockPixels, n - start);
-    const int rows = 2 * count;
-    fillBlock(res_i_.data() + start, res_z_.data() + start, index_.data() + start, ref.jacobians.data(), count, u.u11,
-              u.u12, u.u22, nu, block_.data());
-    for (int p = 0; p < 7; ++p) {
-      const Eigen::Map<const Eigen::VectorXf> gp(block_.data() + static_cast<size_t>(p) * rows, rows);
-      for (int q = p; q < 7; ++q)
-        total(p, q) += gp.dot(Eigen::Map<const Eigen::VectorXf>(block_.data() + static_cast<size_t>(q) * rows, rows));
-    }
+    accumulateBlock(res_i_.data() + start, res_z_.data() + start, index_.data() + start, ref.jacobians.data(), count,
+                    u.u11, u.u12, u.u22, nu, block_.data(), sums);
   }
-  total.triangularView<Eigen::StrictlyLower>() = total.transpose();
+  Eigen::Matrix<double, 7, 7> total;
+  for (int p = 0; p < 7; ++p)
+    for (int q = p; q < 7; ++q) total(p, q) = total(q, p) = sums[p][q];
   h = total.topLeftCorner<6, 6>();
   b = total.block<6, 1>(0, 6);
 }

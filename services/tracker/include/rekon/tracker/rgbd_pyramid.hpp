@@ -2,6 +2,7 @@
 // An RGB-D frame as the dense aligner reads it: per pyramid level a float
 // intensity plane (0..1) and a float depth plane (metres, NaN = missing),
 // structure of arrays, row-major. Level l halves the resolution l times.
+#include <cstdint>
 #include <vector>
 
 #include "rekon/common/camera.hpp"
@@ -47,6 +48,7 @@ class RgbdPyramid {
   void setLevels(const Intrinsics& k, int finest, int coarsest);
 
   std::vector<PyramidLevel> levels_;
+  std::vector<uint16_t> column_sums_;  // build()'s scratch: a row pair's color sums
   int finest_ = 0, coarsest_ = -1;
   double valid_depth_fraction_ = 0.0, mean_intensity_ = 0.0;
 };
