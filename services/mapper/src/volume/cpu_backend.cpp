@@ -4,6 +4,7 @@
 #include <cstring>
 
 #include "parallel_for.hpp"
+#include "rekon/common/simd.hpp"
 #include "rekon/mapper/volume/volume_backend.hpp"
 
 namespace rekon::volume {
@@ -14,6 +15,21 @@ namespace {
 constexpr int kRecentBlocks = 1 << 12;
 constexpr int kRowsPerChunk = 8;
 constexpr int kBlocksPerChunk = 16;
+
+// Updates blocks [begin, end) of one worker's chunk. Built for AVX2 and the
+// baseline (REKON_SIMD_CLONES): a block's rows are 8 voxels, one AVX2 vector.
+// Returns the UpdateStatus values that occurred, ORed.
+REKON_SIMD_CLONES int updateChunk(Voxel* pool, const BlockRef* blocks, int begin, int end, const FrameImages& frame,
+                                  const CameraView& cam, const IntegrationSettings& s, int sign, uint8_t* empty) {
+  int flags = 0;
+  for (int i = begin; i < end; ++i) {
+    Voxel* voxels = pool + static_cast<size_t>(blocks[i].slot) * kBlockVoxels;
+    const BlockUpdateResult r = updateBlock(voxels, blocks[i].coord, frame, cam, s, sign);
+    flags |= (r.overflow ? kWeightOverflow : 0) | (r.underflow ? kWeightUnderflow : 0);
+    empty[i] = r.occupied ? 0 : 1;
+  }
+  return flags;
+}
 
 class CpuBackend final : public VolumeBackend {
  public:
@@ -52,13 +68,9 @@ class CpuBackend final : public VolumeBackend {
     empty.assign(blocks.size(), 0);
     std::vector<int> overflow(parallelWorkers(), 0), underflow(parallelWorkers(), 0);
     parallelFor(static_cast<int>(blocks.size()), kBlocksPerChunk, threads_, [&](int begin, int end, int worker) {
-      for (int i = begin; i < end; ++i) {
-        Voxel* voxels = pool_.data() + static_cast<size_t>(blocks[i].slot) * kBlockVoxels;
-        const BlockUpdateResult r = updateBlock(voxels, blocks[i].coord, frame_, cam, s, sign);
-        overflow[worker] |= r.overflow;
-        underflow[worker] |= r.underflow;
-        empty[i] = r.occupied ? 0 : 1;
-      }
+      const int flags = updateChunk(pool_.data(), blocks.data(), begin, end, frame_, cam, s, sign, empty.data());
+      overflow[worker] |= flags & kWeightOverflow;
+      underflow[worker] |= flags & kWeightUnderflow;
     });
     FrameUpdateReport report;
     report.weight_overflow = std::any_of(overflow.begin(), overflow.end(), [](int f) { return f != 0; });

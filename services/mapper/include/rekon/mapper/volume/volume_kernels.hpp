@@ -149,12 +149,25 @@ struct IntegrationSettings {
 
 REKON_HD inline bool validDepth(float z, float max_depth) { return z > 0.f && z <= max_depth; }  // false for NaN
 
+// kWeighted says whether the frame has a weight image (without one every pixel
+// weighs 1). A template parameter rather than a test of the pointer per voxel,
+// so that the row loop of updateBlock has no branch and vectorises.
+template <bool kWeighted>
+REKON_HD inline uint32_t pixelWeightUnits(const float* weights, int pixel, float weight_units) {
+  if constexpr (!kWeighted) {
+    return static_cast<uint32_t>(weight_units + 0.5f);
+  } else {
+    const float w = weights[pixel];
+    // Clamped before the conversion, not after: converting a float out of
+    // int32's range is undefined, and SIMD converts to signed integers only.
+    const float units = w > 0.f ? w * weight_units + 0.5f : 0.f;  // 0 for NaN too
+    const float max_units = static_cast<float>(kMaxVoxelWeight);     // exact: below 2^24
+    return static_cast<uint32_t>(static_cast<int32_t>(units < max_units ? units : max_units));
+  }
+}
 REKON_HD inline uint32_t pixelWeightUnits(const FrameImages& f, int pixel, float weight_units) {
-  if (f.weights == nullptr) return static_cast<uint32_t>(weight_units + 0.5f);
-  const float w = f.weights[pixel];
-  if (!(w > 0.f)) return 0u;
-  const float units = w * weight_units + 0.5f;
-  return units >= static_cast<float>(kMaxVoxelWeight) ? kMaxVoxelWeight : static_cast<uint32_t>(units);
+  return f.weights ? pixelWeightUnits<true>(f.weights, pixel, weight_units)
+                   : pixelWeightUnits<false>(nullptr, pixel, weight_units);
 }
 
 // What one frame says about one voxel. `weight == 0` means nothing.
@@ -164,66 +177,119 @@ struct Observation {
   int pixel;        // for the color; -1 without color
 };
 
+// x clamped to [lo, hi]; lo for NaN. Selects that compile to min/max instructions.
+REKON_HD inline float clampSelect(float x, float lo, float hi) {
+  x = x > lo ? x : lo;
+  return x < hi ? x : hi;
+}
+
 // Projective (along z) truncated signed distance of the voxel at camera
 // coordinates `pc`, as in KinectFusion and the paper's eq. 2. Written without
 // early returns: every test becomes a mask, so neighbouring voxels run the
 // same instructions (no mispredicted branches on the CPU, no divergence on
-// the GPU) and a row of voxels can be computed side by side.
+// the GPU) and a row of voxels can be computed side by side. Masks combine
+// with `&`, not `&&`, and values are clamped rather than selected by a mask
+// where a masked-out value is not used: GCC keeps a loop scalar when it would
+// have to speculate a float operation out of a branch (it may trap).
+template <bool kWeighted>
 REKON_HD inline Observation observe(const FrameImages& f, const CameraView& cam, const IntegrationSettings& s, Vec3f pc) {
   const float inv_z = 1.f / pc.z;
   const float uf = cam.fx * pc.x * inv_z + cam.cx;
   const float vf = cam.fy * pc.y * inv_z + cam.cy;
   // False for NaN too (pc.z = 0 gives inf * 0).
-  const bool inside = pc.z > 0.f && uf > -0.5f && vf > -0.5f && uf < cam.width - 0.5f && vf < cam.height - 0.5f;
-  const int u = inside ? static_cast<int>(uf + 0.5f) : 0;
-  const int v = inside ? static_cast<int>(vf + 0.5f) : 0;
+  const bool inside = (pc.z > 0.f) & (uf > -0.5f) & (vf > -0.5f) & (uf < cam.width - 0.5f) & (vf < cam.height - 0.5f);
+  // The nearest pixel when inside (clamping moves no coordinate that rounds
+  // into the image), some pixel of the image otherwise.
+  const int u = static_cast<int>(clampSelect(uf, 0.f, static_cast<float>(cam.width - 1)) + 0.5f);
+  const int v = static_cast<int>(clampSelect(vf, 0.f, static_cast<float>(cam.height - 1)) + 0.5f);
   const int pixel = v * f.width + u;
   const float depth = f.depth[pixel];
   const float sdf = depth - pc.z;
-  const uint32_t w = pixelWeightUnits(f, pixel, s.weight_units);
-  const bool valid = inside && validDepth(depth, s.max_depth) && sdf >= -s.truncation && w != 0u;
-  float tsdf = valid ? sdf * s.inv_truncation : 0.f;
-  tsdf = tsdf > 1.f ? 1.f : tsdf;
-  const float q = tsdf * static_cast<float>(kSdfSteps);
-  return {static_cast<int32_t>(q >= 0.f ? q + 0.5f : q - 0.5f), valid ? w : 0u, valid && f.bgr ? pixel : -1};
+  const uint32_t w = pixelWeightUnits<kWeighted>(f.weights, pixel, s.weight_units);
+  const bool valid = inside & (depth > 0.f) & (depth <= s.max_depth) & (sdf >= -s.truncation) & (w != 0u);
+  // Where valid, sdf >= -truncation: clamping at -1 changes no rounded value
+  // (and keeps a NaN of an invalid voxel, whose sdf is unused, in range).
+  const float q = clampSelect(sdf * s.inv_truncation, -1.f, 1.f) * static_cast<float>(kSdfSteps);
+  const float rounded = q >= 0.f ? q + 0.5f : q - 0.5f;
+  const bool has_color = f.bgr != nullptr;
+  return {static_cast<int32_t>(rounded), valid ? w : 0u, (valid & has_color) ? pixel : -1};
 }
+REKON_HD inline Observation observe(const FrameImages& f, const CameraView& cam, const IntegrationSettings& s, Vec3f pc) {
+  return f.weights ? observe<true>(f, cam, s, pc) : observe<false>(f, cam, s, pc);
+}
+
+// One row of a block (x = 0..7) as a frame sees it, as structure of arrays:
+// filling it is then one SIMD lane per voxel (the depth read a gather).
+struct ObservationRow {
+  int32_t sdf[kBlockSide];
+  uint32_t weight[kBlockSide];
+  int32_t pixel[kBlockSide];
+  uint32_t bgr[kBlockSide];  // pixelBgr of `pixel` (of pixel 0 where it is -1)
+};
 
 enum UpdateStatus : int { kUpdated = 0, kWeightOverflow = 1, kWeightUnderflow = 2 };
 
 // Weighted running average in fixed point, in the incremental form
 // avg + (sample - avg) * w / W_new, which (unlike (avg W + s w) / W_new) does
 // not cancel large products when de-integration leaves little weight, so float
-// keeps its error far below one fixed-point unit.
+// keeps its error far below one fixed-point unit. Clamped before the
+// conversion (NaN to 0; the value of a blend that is not applied), through
+// int32: what SIMD converts.
 REKON_HD inline uint32_t blendColor(uint32_t old_fixed, int sample, float ratio) {
-  const float old_value = static_cast<float>(old_fixed);
+  const float old_value = static_cast<float>(static_cast<int32_t>(old_fixed));
   const float avg = old_value + (static_cast<float>(sample * static_cast<int>(kColorScale)) - old_value) * ratio + 0.5f;
-  return avg <= 0.f ? 0u : (avg >= static_cast<float>(kMaxColor) ? kMaxColor : static_cast<uint32_t>(avg));
+  return static_cast<uint32_t>(static_cast<int32_t>(clampSelect(avg, 0.f, static_cast<float>(kMaxColor))));
+}
+
+// `a` where `take`, else `b`, by masks rather than a conditional: GCC turns a
+// choice between a new and the stored value into a conditional store, and
+// sinks the loads of values used on one side only into a branch, and then
+// keeps the loop scalar.
+REKON_HD inline uint32_t maskSelect(bool take, uint32_t a, uint32_t b) {
+  const uint32_t mask = 0u - static_cast<uint32_t>(take);
+  return (a & mask) | (b & ~mask);
+}
+
+// A pixel's B, G and R in the low three bytes of a word.
+REKON_HD inline uint32_t pixelBgr(const uint8_t* bgr, int pixel) {
+  const uint8_t* c = bgr + 3 * pixel;
+  return static_cast<uint32_t>(c[0]) | (static_cast<uint32_t>(c[1]) << 8) | (static_cast<uint32_t>(c[2]) << 16);
 }
 
 // Adds (sign = +1) or removes (sign = -1) one observation: the weighted running
-// average of the paper's integration and its inverse, eq. 2.
-REKON_HD inline int applyObservation(Voxel& v, const Observation& o, const uint8_t* bgr, int sign) {
-  const uint32_t weight = voxelWeight(v);
-  if (sign > 0) {
-    if (weight > kMaxVoxelWeight - o.weight) return kWeightOverflow;
-  } else if (weight < o.weight) {
-    return kWeightUnderflow;
-  }
-  const int64_t sw = sign > 0 ? static_cast<int64_t>(o.weight) : -static_cast<int64_t>(o.weight);
-  const uint32_t new_weight = sign > 0 ? weight + o.weight : weight - o.weight;
-  uint32_t r = voxelColorFixed(v, 0), g = voxelColorFixed(v, 1), b = voxelColorFixed(v, 2);
-  if (new_weight == 0u) {
-    r = g = b = 0u;
-  } else if (o.pixel >= 0) {
-    const uint8_t* c = bgr + 3 * o.pixel;
-    const float ratio = static_cast<float>(sw) / static_cast<float>(new_weight);
-    r = blendColor(r, c[2], ratio);
-    g = blendColor(g, c[1], ratio);
-    b = blendColor(b, c[0], ratio);
-  }
-  v.sdf_sum += static_cast<int32_t>(sw) * o.sdf;
-  setWeightAndColor(v, new_weight, r, g, b);
-  return kUpdated;
+// average of the paper's integration and its inverse, eq. 2; `bgr` is the
+// color of o.pixel (pixelBgr), unused when o.pixel < 0. An observation
+// without weight, or one that would overflow or underflow the weight, leaves
+// v as it was. Branch-free like observe() (every value computed, then
+// selected, v always written), so that a row of voxels updates side by side.
+REKON_HD inline int applyObservation(Voxel& v, const Observation& o, uint32_t bgr, int sign) {
+  const uint32_t lo = v.bits[0], hi = v.bits[1];  // see setWeightAndColor
+  const uint32_t weight = lo & kMaxVoxelWeight;
+  const bool adding = sign > 0;
+  const bool overflow = adding & (weight > kMaxVoxelWeight - o.weight);
+  const bool underflow = !adding & (weight < o.weight);
+  const bool apply = (o.weight != 0u) & !overflow & !underflow;
+  const int32_t sw = adding ? static_cast<int32_t>(o.weight) : -static_cast<int32_t>(o.weight);
+  const uint32_t new_weight = weight + static_cast<uint32_t>(sw);
+  constexpr uint32_t kChannel = (1u << kColorBits) - 1;
+  const uint32_t r = (lo >> kWeightBits) | ((hi << (32 - kWeightBits)) & kChannel);
+  const uint32_t g = (hi >> (kWeightBits + kColorBits - 32)) & kChannel;
+  const uint32_t b = (hi >> (kWeightBits + 2 * kColorBits - 32)) & kChannel;
+  // Both weights are below 2^21: exact as int32 and as float.
+  const float ratio = static_cast<float>(sw) / static_cast<float>(static_cast<int32_t>(new_weight));
+  const bool blend = o.pixel >= 0, kept = new_weight != 0u;  // all weight removed: no color
+  const uint32_t new_r = maskSelect(kept, maskSelect(blend, blendColor(r, (bgr >> 16) & 0xffu, ratio), r), 0u);
+  const uint32_t new_g = maskSelect(kept, maskSelect(blend, blendColor(g, (bgr >> 8) & 0xffu, ratio), g), 0u);
+  const uint32_t new_b = maskSelect(kept, maskSelect(blend, blendColor(b, bgr & 0xffu, ratio), b), 0u);
+  const int32_t sdf_sum = v.sdf_sum;
+  v.sdf_sum = static_cast<int32_t>(
+      maskSelect(apply, static_cast<uint32_t>(sdf_sum + sw * o.sdf), static_cast<uint32_t>(sdf_sum)));
+  v.bits[0] = maskSelect(apply, new_weight | (new_r << kWeightBits), lo);
+  v.bits[1] = maskSelect(apply,
+                         (new_r >> (32 - kWeightBits)) | (new_g << (kWeightBits + kColorBits - 32)) |
+                             (new_b << (kWeightBits + 2 * kColorBits - 32)),
+                         hi);
+  return overflow ? kWeightOverflow : (underflow ? kWeightUnderflow : kUpdated);
 }
 
 // Camera coordinates of a block's voxels: origin plus integer steps along
@@ -246,14 +312,15 @@ REKON_HD inline int updateVoxel(Voxel& v, const BlockInCamera& b, int x, int y, 
                                 const CameraView& cam, const IntegrationSettings& s, int sign, bool& observed) {
   const Observation o = observe(f, cam, s, voxelInCamera(b, x, y, z));
   observed = o.weight != 0u;
-  return observed ? applyObservation(v, o, f.bgr, sign) : static_cast<int>(kUpdated);
+  return observed ? applyObservation(v, o, o.pixel >= 0 ? pixelBgr(f.bgr, o.pixel) : 0u, sign)
+                  : static_cast<int>(kUpdated);
 }
 
 // Result of updating one block: which statuses occurred, and `occupied`:
 // for integration whether the frame updated any voxel (only then does a
 // freshly allocated block hold data), for de-integration whether any voxel
-// still carries weight (a block with none is freed). Integration thus never
-// reads voxels it does not update.
+// still carries weight (a block with none is freed). Integration's answer
+// thus depends on no voxel it does not update.
 struct BlockUpdateResult {
   int overflow;
   int underflow;
@@ -264,26 +331,77 @@ REKON_HD inline bool blockOccupiedAfter(const Voxel& v, int status, bool observe
   return sign > 0 ? (observed && status == kUpdated) : voxelWeight(v) != 0u;
 }
 
+template <bool kWeighted, bool kColor>
 REKON_HD inline BlockUpdateResult updateBlock(Voxel* voxels, BlockCoord coord, const FrameImages& f,
                                               const CameraView& cam, const IntegrationSettings& s, int sign) {
+  constexpr int kUpdatedFlag = 4;  // a bit beside the UpdateStatus values
   BlockUpdateResult result{0, 0, 0};
   const BlockInCamera b = blockInCamera(cam, coord, s.voxel_size);
   for (int z = 0; z < kBlockSide; ++z) {
     for (int y = 0; y < kBlockSide; ++y) {
-      // A row's observations first (independent, branch-free), then the updates.
-      Observation o[kBlockSide];
-      for (int x = 0; x < kBlockSide; ++x) o[x] = observe(f, cam, s, voxelInCamera(b, x, y, z));
+      // A row's observations first (independent, branch-free: vectorised), then the updates.
+      ObservationRow row;
+      uint32_t row_weight = 0;
       for (int x = 0; x < kBlockSide; ++x) {
-        Voxel& v = voxels[localIndex(x, y, z)];
-        const bool observed = o[x].weight != 0u;
-        const int status = observed ? applyObservation(v, o[x], f.bgr, sign) : static_cast<int>(kUpdated);
-        result.overflow |= status == kWeightOverflow;
-        result.underflow |= status == kWeightUnderflow;
-        result.occupied |= blockOccupiedAfter(v, status, observed, sign);
+        const Observation o = observe<kWeighted>(f, cam, s, voxelInCamera(b, x, y, z));
+        row.sdf[x] = o.sdf;
+        row.weight[x] = o.weight;
+        row.pixel[x] = o.pixel;
+        row_weight |= o.weight;
       }
+      if (row_weight == 0u) continue;  // a row the frame does not observe is left unread and unwritten
+      Voxel* voxel_row = voxels + localIndex(0, y, z);
+      if constexpr (kColor) {
+        // Byte loads do not gather: this loop stays scalar.
+        for (int x = 0; x < kBlockSide; ++x) row.bgr[x] = pixelBgr(f.bgr, row.pixel[x] >= 0 ? row.pixel[x] : 0);
+      }
+      // The row's voxels copied in and out as structure of arrays too: the
+      // pool's voxels interleave three words, which GCC does not vectorise
+      // (x86 has no three-way shuffles).
+      int32_t sdf_sum[kBlockSide];
+      uint32_t bits0[kBlockSide], bits1[kBlockSide];
+      for (int x = 0; x < kBlockSide; ++x) {
+        sdf_sum[x] = voxel_row[x].sdf_sum;
+        bits0[x] = voxel_row[x].bits[0];
+        bits1[x] = voxel_row[x].bits[1];
+      }
+      // Each voxel's outcome stored, then ORed: GCC vectorises neither an OR
+      // reduction it has turned into a select nor one across the outer loops.
+      int32_t outcome[kBlockSide];
+      for (int x = 0; x < kBlockSide; ++x) {
+        Voxel v{sdf_sum[x], {bits0[x], bits1[x]}};
+        const bool observed = row.weight[x] != 0u;
+        const int status =
+            applyObservation(v, {row.sdf[x], row.weight[x], row.pixel[x]}, kColor ? row.bgr[x] : 0u, sign);
+        outcome[x] = status | ((observed & (status == kUpdated)) ? kUpdatedFlag : 0);
+        sdf_sum[x] = v.sdf_sum;
+        bits0[x] = v.bits[0];
+        bits1[x] = v.bits[1];
+      }
+      for (int x = 0; x < kBlockSide; ++x) voxel_row[x] = Voxel{sdf_sum[x], {bits0[x], bits1[x]}};
+      int row_outcome = 0;
+      for (int x = 0; x < kBlockSide; ++x) row_outcome |= outcome[x];
+      result.overflow |= (row_outcome & kWeightOverflow) != 0;
+      result.underflow |= (row_outcome & kWeightUnderflow) != 0;
+      result.occupied |= (row_outcome & kUpdatedFlag) != 0;
     }
   }
+  if (sign < 0) {
+    // Occupied after de-integration: any voxel of the block, observed or not, still weighted.
+    uint32_t weight = 0;
+    for (int i = 0; i < kBlockVoxels; ++i) weight |= voxelWeight(voxels[i]);
+    result.occupied = weight != 0u;
+  }
   return result;
+}
+REKON_HD inline BlockUpdateResult updateBlock(Voxel* voxels, BlockCoord coord, const FrameImages& f,
+                                              const CameraView& cam, const IntegrationSettings& s, int sign) {
+  if (f.weights) {
+    return f.bgr ? updateBlock<true, true>(voxels, coord, f, cam, s, sign)
+                 : updateBlock<true, false>(voxels, coord, f, cam, s, sign);
+  }
+  return f.bgr ? updateBlock<false, true>(voxels, coord, f, cam, s, sign)
+               : updateBlock<false, false>(voxels, coord, f, cam, s, sign);
 }
 
 // Block coordinates crossed by the truncation band of one depth pixel: the
