@@ -22,15 +22,15 @@ using volume::TsdfVolume;
 using volume::VolumeParams;
 
 struct Remeshed {
-  Mesh mesh;
   int keyframes = 0, without_pose = 0;
-  int64_t blocks = 0;
+  int64_t blocks = 0, vertices = 0, triangles = 0;
   double seconds = 0;
 };
 
 // Every keyframe of the session integrated at its newest pose (its anchor's
-// pose in anchors.txt) into a fresh volume of `params`.
-Remeshed remesh(const Session& session, const VolumeParams& params) {
+// pose in anchors.txt) into a fresh volume of `params`, its mesh written to
+// `ply_path` in pieces (a long session's mesh is never held whole).
+Remeshed remesh(const Session& session, const VolumeParams& params, const std::string& ply_path) {
   const auto start = std::chrono::steady_clock::now();
   TsdfVolume volume(params);
   Remeshed r;
@@ -51,7 +51,11 @@ Remeshed remesh(const Session& session, const VolumeParams& params) {
     spdlog::warn("{} keyframe(s) have no anchor pose in {}/anchors.txt (in flight when the run ended); left out",
                  r.without_pose, session.dir());
   if (r.keyframes == 0) throw Error(session.dir() + " has no keyframe with a pose to integrate; was the run stopped before its first keyframe?");
-  r.mesh = volume.extractMesh();
+  PlyWriter ply(ply_path, true);
+  volume.extractMeshInPieces([&ply](const Mesh& piece) { ply.add(piece); });
+  ply.finish();
+  r.vertices = ply.vertices();
+  r.triangles = ply.faces();
   r.blocks = volume.stats().blocks;
   r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return r;
@@ -105,12 +109,11 @@ int remeshCommand(int argc, char** argv) {
   if (args.has("max-depth")) params.max_depth = args.getDouble("max-depth");
   params.backend = args.get("backend");
   params.validate();
-  const Remeshed r = remesh(session, params);
-  writePly(r.mesh, args.get("out"));
+  const Remeshed r = remesh(session, params, args.get("out"));
   spdlog::info("remesh: {} keyframes at {} m voxels in {:.2f} s: {} vertices, {} triangles -> {}", r.keyframes,
-               params.voxel_size, r.seconds, r.mesh.vertices.size(), r.mesh.triangles.size(), args.get("out"));
-  std::printf("keyframes=%d seconds=%.3f blocks=%lld triangles=%zu\n", r.keyframes, r.seconds,
-              static_cast<long long>(r.blocks), r.mesh.triangles.size());
+               params.voxel_size, r.seconds, r.vertices, r.triangles, args.get("out"));
+  std::printf("keyframes=%d seconds=%.3f blocks=%lld triangles=%lld\n", r.keyframes, r.seconds,
+              static_cast<long long>(r.blocks), static_cast<long long>(r.triangles));
   return 0;
 }
 
@@ -135,9 +138,8 @@ int exportCommand(int argc, char** argv) {
   } else {
     spdlog::warn("{} has no graph.g2o (a run without the optimiser, or stopped before its first optimisation)", session.dir());
   }
-  const Remeshed r = remesh(session, sessionVolume(session));
-  writePly(r.mesh, (out / "mesh.ply").string());
-  spdlog::info("export: {} keyframes, mesh of {} triangles in {:.2f} s -> {}", r.keyframes, r.mesh.triangles.size(),
+  const Remeshed r = remesh(session, sessionVolume(session), (out / "mesh.ply").string());
+  spdlog::info("export: {} keyframes, mesh of {} triangles in {:.2f} s -> {}", r.keyframes, r.triangles,
                r.seconds, out.string());
   return 0;
 }
