@@ -2,7 +2,9 @@
 
 #include <Eigen/Cholesky>
 #include <algorithm>
+#include <bit>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <numbers>
 #include <string>
@@ -21,9 +23,10 @@ constexpr double kMaxCorrelation = 0.99;
 constexpr int kScaleIterations = 5;
 constexpr double kScaleTolerance = 1e-2;  // relative change that ends the EM of the scale
 // Pixels per block of the normal-equation sums: float within a block, double
-// across blocks; the block (7 columns of 2 rows per pixel, 28 KiB) stays in
-// the L1 cache.
-constexpr int kBlockPixels = 512;
+// across blocks. The block (7 columns of 2 rows per pixel, 14 KiB) stays in
+// the L1 cache beside the 15 input streams that fill it (512 pixels, 28 KiB,
+// and 128 took a larger share of tracker_bench's profile).
+constexpr int kBlockPixels = 256;
 
 void clampScale(double& s11, double& s12, double& s22, bool use_depth) {
   s11 = std::max(s11, kMinIntensitySigma * kMinIntensitySigma);
@@ -68,11 +71,15 @@ struct WarpConstants {
 // Every reference point in one pass, written so that the compiler vectorises
 // it (-fopt-info-vec): no branches (each test a mask), selects as a > b ? a :
 // b, outputs that alias nothing (restrict parameters). A point that does not
-// count reads a clamped pixel and gets keep = 0. Same arithmetic as testing
-// point by point.
-REKON_SIMD_CLONES void warpPoints(const float* __restrict points, int count, const float* __restrict intensity,
-                                  const float* __restrict depth, const WarpConstants c, float* __restrict res_i,
-                                  float* __restrict res_z, int* __restrict keep) {
+// count reads a clamped pixel and gets valid = 0 and residuals 0, so that the
+// passes after it run over every point in order (contiguous loads, no
+// gathers) and it adds nothing to their sums. Same arithmetic as testing
+// point by point. Returns the number of points that count.
+REKON_SIMD_CLONES int warpPoints(const float* __restrict points, int count, const float* __restrict intensity,
+                                 const float* __restrict depth, const WarpConstants c, float* __restrict res_i,
+                                 float* __restrict res_z, float* __restrict valid) {
+  int n = 0;
+#pragma omp simd reduction(+ : n)
   for (int i = 0; i < count; ++i) {
     const bool use_depth = c.use_depth > 0.f;
     const float* p = points + KeyframeReference::kPointStride * i;
@@ -95,10 +102,16 @@ REKON_SIMD_CLONES void warpPoints(const float* __restrict points, int count, con
     const float i00 = intensity[o], i01 = intensity[o + 1], i10 = intensity[o + c.width],
                 i11 = intensity[o + c.width + 1];
     const float itop = i00 + ax * (i01 - i00), ibottom = i10 + ax * (i11 - i10);
-    res_i[i] = itop + ay * (ibottom - itop) - p[3];
-    res_z[i] = use_depth ? dtop + ay * (dbottom - dtop) - z : 0.f;
-    keep[i] = (inside & (depth_ok | !use_depth)) ? 1 : 0;
+    const bool keep = inside & (depth_ok | !use_depth);
+    // Both residuals computed, then selected: GCC 12 does not vectorise the
+    // loop with the selects around the expressions ("control flow in loop").
+    const float ri = itop + ay * (ibottom - itop) - p[3], rz = dtop + ay * (dbottom - dtop) - z;
+    res_i[i] = keep ? ri : 0.f;
+    res_z[i] = keep & use_depth ? rz : 0.f;
+    valid[i] = keep ? 1.f : 0.f;
+    n += keep;
   }
+  return n;
 }
 
 }  // namespace
@@ -113,25 +126,16 @@ int DenseAligner::warp(const KeyframeReference::Level& ref, const PyramidLevel& 
                         static_cast<float>(w - 1) - 1e-3f, static_cast<float>(h - 1) - 1e-3f,
                         static_cast<float>(params_.min_depth), static_cast<float>(params_.max_depth_step),
                         w, params_.use_depth ? 1.f : 0.f};
-  warpPoints(ref.points.data(), ref.count, cur.intensity.data(), cur.depth.data(), c, res_i_.data(), res_z_.data(),
-             index_.data());
-  // Compaction in place (n <= i): the points that count, with their index.
-  int n = 0;
-  for (int i = 0; i < ref.count; ++i) {
-    const int keep = index_[i];
-    res_i_[n] = res_i_[i];
-    res_z_[n] = res_z_[i];
-    index_[n] = i;
-    n += keep;
-  }
-  return n;
+  return warpPoints(ref.points.data(), ref.count, cur.intensity.data(), cur.depth.data(), c, res_i_.data(),
+                    res_z_.data(), valid_.data());
 }
 
 namespace {
 
 // The per-pixel passes of estimateScale() (REKON_SIMD_CLONES: AVX2 lanes and
-// FMAs); the sums stay in float lanes, which is precise enough for a
-// weighting matrix.
+// FMAs) over all of a level's points: those that do not count have residuals
+// 0 and add 0 (log 1 to the likelihood). The sums stay in float lanes, which
+// is precise enough for a weighting matrix.
 struct SecondMoments {
   float s11 = 0.f, s12 = 0.f, s22 = 0.f;
 };
@@ -161,36 +165,56 @@ REKON_SIMD_CLONES SecondMoments weightedSquareSums(const float* __restrict ri, c
   return {s11, s12, s22};
 }
 
-// Sum of log(1 + |U r|^2 / nu) over the pixels; `q` is scratch for n floats.
-// The logarithms as one Eigen array expression into float, which vectorises
-// (Eigen's packet log; logs cast to double on the way to a sum are one libm
-// call a pixel), and summed in double lanes: the step test compares these
-// sums between iterations, so they keep double precision.
+// ln x for a finite x >= 1 (ln 1 = 0 exactly), within 1 ulp of std::log
+// (measured on 2e7 values): Cephes' logf, as in Eigen's packet log. x = m 2^e
+// with m in [sqrt(1/2), sqrt(2)) is taken apart by its bits, and ln m is a
+// polynomial. Branch-free, so that GCC vectorises it in an AVX2 clone, where
+// std::log is one libm call a pixel and Eigen's packet log is SSE only (Eigen
+// picks its packets at compile time).
+inline float logAtLeastOne(float x) {
+  const auto bits = std::bit_cast<int32_t>(x);
+  const float half_to_one = std::bit_cast<float>((bits & 0x007fffff) | 0x3f000000);  // m / 2 in [0.5, 1)
+  const float exponent = static_cast<float>((bits >> 23) - 126);
+  const bool low = half_to_one < 0.707106781186547524f;
+  const float m1 = (low ? half_to_one + half_to_one : half_to_one) - 1.f;
+  const float e = low ? exponent - 1.f : exponent;
+  float p = 7.0376836292e-2f;  // Horner; written out, as a loop over the coefficients does not vectorise
+  p = p * m1 - 1.1514610310e-1f;
+  p = p * m1 + 1.1676998740e-1f;
+  p = p * m1 - 1.2420140846e-1f;
+  p = p * m1 + 1.4249322787e-1f;
+  p = p * m1 - 1.6668057665e-1f;
+  p = p * m1 + 2.0000714765e-1f;
+  p = p * m1 - 2.4999993993e-1f;
+  p = p * m1 + 3.3333331174e-1f;
+  const float m2 = m1 * m1;
+  const float y = m1 * m2 * p + e * -2.12194440e-4f - 0.5f * m2;
+  return m1 + y + e * 0.693359375f;
+}
+
+// Sum of log(1 + |U r|^2 / nu) over the pixels, in double lanes: the step
+// test compares these sums between iterations, so they keep double precision.
 REKON_SIMD_CLONES double sumLogQuadratic(const float* __restrict ri, const float* __restrict rz, int n, float u11,
-                                         float u12, float u22, float inv_nu, float* __restrict q) {
-#pragma omp simd
-  for (int k = 0; k < n; ++k) {
-    const float e1 = u11 * ri[k] + u12 * rz[k], e2 = u22 * rz[k];
-    q[k] = 1.f + inv_nu * (e1 * e1 + e2 * e2);
-  }
-  Eigen::Map<Eigen::ArrayXf> logs(q, n);
-  logs = logs.log();
+                                         float u12, float u22, float inv_nu) {
   double sum = 0.0;
 #pragma omp simd reduction(+ : sum)
-  for (int k = 0; k < n; ++k) sum += static_cast<double>(q[k]);
+  for (int k = 0; k < n; ++k) {
+    const float e1 = u11 * ri[k] + u12 * rz[k], e2 = u22 * rz[k];
+    sum += static_cast<double>(logAtLeastOne(1.f + inv_nu * (e1 * e1 + e2 * e2)));
+  }
   return sum;
 }
 
 }  // namespace
 
-double DenseAligner::estimateScale(int n, Scale& scale) {
+double DenseAligner::estimateScale(int count, int n, Scale& scale) {
   const float* ri = res_i_.data();
   const float* rz = res_z_.data();
   const bool use_depth = params_.use_depth;
   const float nu = static_cast<float>(params_.t_dof);
   const double inv_n = 1.0 / n;
   if (scale.s11 <= 0.0) {
-    const SecondMoments m = squareSums(ri, rz, n);
+    const SecondMoments m = squareSums(ri, rz, count);
     scale.s11 = m.s11 * inv_n;
     scale.s22 = m.s22 * inv_n;
     scale.s12 = 0.0;
@@ -202,7 +226,7 @@ double DenseAligner::estimateScale(int n, Scale& scale) {
   for (int it = 0; it < kScaleIterations; ++it) {
     const double det = scale.s11 * scale.s22 - scale.s12 * scale.s12;
     const SecondMoments m =
-        weightedSquareSums(ri, rz, n, static_cast<float>(scale.s22 / det), static_cast<float>(-2.0 * scale.s12 / det),
+        weightedSquareSums(ri, rz, count, static_cast<float>(scale.s22 / det), static_cast<float>(-2.0 * scale.s12 / det),
                            static_cast<float>(scale.s11 / det), nu);
     Scale next{m.s11 * inv_n, m.s12 * inv_n, m.s22 * inv_n};
     clampScale(next.s11, next.s12, next.s22, use_depth);
@@ -222,7 +246,7 @@ double DenseAligner::estimateScale(int n, Scale& scale) {
   const double log_det = std::log(scale.s22) + pw2 * std::log(conditional);
   const Whitening u = whitening(scale);
   const float inv_nu = static_cast<float>(1.0 / params_.t_dof);
-  const double mean_log = sumLogQuadratic(ri, rz, n, u.u11, u.u12, u.u22, inv_nu, weight_.data()) * inv_n;
+  const double mean_log = sumLogQuadratic(ri, rz, count, u.u11, u.u12, u.u22, inv_nu) * inv_n;
   return 0.5 * log_det + 0.5 * (params_.t_dof + 2.0) * mean_log;
 }
 
@@ -243,24 +267,25 @@ namespace {
 // The rows of one block of pixels, column by column (7 columns: 6 Jacobian
 // entries and the residual) with the photometric rows of the `count` pixels
 // first and their geometric rows after them, and the 28 dot products of
-// column pairs added to `sums` (upper triangle). One pass over the pixels
-// (the Jacobians gathered by index), then contiguous reductions; both
-// vectorise, and the clone makes the reductions AVX2 FMAs.
+// column pairs added to `sums` (upper triangle). `jacobians` is the block's
+// first pixel in the level's planes, `plane` floats apart. One pass over the
+// pixels, then contiguous reductions; both vectorise (AVX2 FMAs in the
+// clone). A pixel that does not count (valid 0) gets zero rows.
 REKON_SIMD_CLONES void accumulateBlock(const float* __restrict res_i, const float* __restrict res_z,
-                                       const int* __restrict index, const float* __restrict jacobians, int count,
-                                       float u11, float u12, float u22, float nu, float* __restrict block,
-                                       double sums[7][7]) {
+                                       const float* __restrict valid, const float* __restrict jacobians,
+                                       int plane, int count, float u11, float u12, float u22, float nu,
+                                       float* __restrict block, double sums[7][7]) {
   const int rows = 2 * count;
 #pragma omp simd  // independent pixels: the 14 rows a pixel writes never overlap another pixel's
   for (int k = 0; k < count; ++k) {
     const float ri = res_i[k], rz = res_z[k];
     const float e1 = u11 * ri + u12 * rz, e2 = u22 * rz;
-    const float sw = std::sqrt((nu + 2.f) / (nu + e1 * e1 + e2 * e2));
-    const int j = KeyframeReference::kJacobianStride * index[k];  // an offset, not a pointer: gathers need one
+    const float sw = valid[k] * std::sqrt((nu + 2.f) / (nu + e1 * e1 + e2 * e2));
     const float s1 = sw * u11, s12 = sw * u12, s2 = sw * u22;
     for (int d = 0; d < 6; ++d) {
-      block[d * rows + k] = s1 * jacobians[j + d] + s12 * jacobians[j + 8 + d];
-      block[d * rows + count + k] = s2 * jacobians[j + 8 + d];
+      const float ji = jacobians[d * plane + k], jz = jacobians[(6 + d) * plane + k];
+      block[d * rows + k] = s1 * ji + s12 * jz;
+      block[d * rows + count + k] = s2 * jz;
     }
     block[6 * rows + k] = sw * e1;
     block[6 * rows + count + k] = sw * e2;
@@ -293,8 +318,7 @@ REKON_SIMD_CLONES void accumulateBlock(const float* __restrict res_i, const floa
 
 }  // namespace
 
-void DenseAligner::accumulate(const KeyframeReference::Level& ref, int n, const Scale& scale, Matrix6d& h,
-                              Vector6d& b) {
+void DenseAligner::accumulate(const KeyframeReference::Level& ref, const Scale& scale, Matrix6d& h, Vector6d& b) {
   // whitening() turns the 2x2-weighted joint residual into two scalar rows
   // sqrt(w) (U J | U r) per pixel, and the 28 dot products of column pairs
   // give J^T W J and J^T W r (accumulateBlock). Float within a block, double
@@ -302,10 +326,10 @@ void DenseAligner::accumulate(const KeyframeReference::Level& ref, int n, const 
   const Whitening u = whitening(scale);
   const float nu = static_cast<float>(params_.t_dof);
   double sums[7][7] = {};
-  for (int start = 0; start < n; start += kBlockPixels) {
-    const int count = std::min(kBlockPixels, n - start);
-    accumulateBlock(res_i_.data() + start, res_z_.data() + start, index_.data() + start, ref.jacobians.data(), count,
-                    u.u11, u.u12, u.u22, nu, block_.data(), sums);
+  for (int start = 0; start < ref.count; start += kBlockPixels) {
+    const int count = std::min(kBlockPixels, ref.count - start);
+    accumulateBlock(res_i_.data() + start, res_z_.data() + start, valid_.data() + start,
+                    ref.jacobians.data() + start, ref.count, count, u.u11, u.u12, u.u22, nu, block_.data(), sums);
   }
   Eigen::Matrix<double, 7, 7> total;
   for (int p = 0; p < 7; ++p)
@@ -331,8 +355,7 @@ AlignResult DenseAligner::align(const KeyframeReference& reference, const RgbdPy
   if (res_i_.size() < capacity) {
     res_i_.resize(capacity);
     res_z_.resize(capacity);
-    weight_.resize(capacity);
-    index_.resize(capacity);
+    valid_.resize(capacity);
   }
   block_.resize(7 * 2 * kBlockPixels);
   result.selected_pixels = reference.level(finest).count;
@@ -357,7 +380,7 @@ AlignResult DenseAligner::align(const KeyframeReference& reference, const RgbdPy
         break;
       }
       const Scale before = scale;
-      const double nll = estimateScale(n, scale);
+      const double nll = estimateScale(ref.count, n, scale);
       if (nll > prev_nll) {
         t_ck = t_prev;
         scale = before;
@@ -366,7 +389,7 @@ AlignResult DenseAligner::align(const KeyframeReference& reference, const RgbdPy
       }
       Matrix6d h;
       Vector6d b;
-      accumulate(ref, n, scale, h, b);
+      accumulate(ref, scale, h, b);
       const Vector6d delta = h.ldlt().solve(b);
       if (!delta.allFinite()) {
         t_ck = t_prev;

@@ -18,8 +18,6 @@ inline void twistJacobian(float a, float b, float c, float x, float y, float z, 
   j[3] = y * c - z * b;
   j[4] = z * a - x * c;
   j[5] = x * b - y * a;
-  j[6] = 0.f;
-  j[7] = 0.f;
 }
 
 void selectLevel(const PyramidLevel& src, const AlignerParams& p, KeyframeReference::Level& out) {
@@ -52,11 +50,12 @@ void selectLevel(const PyramidLevel& src, const AlignerParams& p, KeyframeRefere
       grad2_threshold = std::max(min_grad2, grad2[grad2.size() - budget]);
     }
   }
+  constexpr int kRows = KeyframeReference::kJacobianRows;
   out.k = k;
   out.points.clear();
-  out.jacobians.clear();
   out.points.reserve(static_cast<size_t>(w) * h * KeyframeReference::kPointStride / 2);
-  out.jacobians.reserve(static_cast<size_t>(w) * h * KeyframeReference::kJacobianStride / 2);
+  std::vector<float> rows;  // pixel by pixel, laid out as planes at the end
+  rows.reserve(static_cast<size_t>(w) * h * kRows / 2);
   for (int y = 1; y < h - 1; ++y) {
     for (int x = 1; x < w - 1; ++x) {
       const int o = y * w + x;
@@ -82,20 +81,22 @@ void selectLevel(const PyramidLevel& src, const AlignerParams& p, KeyframeRefere
       const float px = (static_cast<float>(x) - cx) * z / fx;
       const float py = (static_cast<float>(y) - cy) * z / fy;
       out.points.insert(out.points.end(), {px, py, z, I[o]});
-      float j[KeyframeReference::kJacobianStride];
+      float j[kRows];
       const float iz = 1.f / z;
       // Photometric: grad(I) * d(projection)/d(point).
       const float a = gx * fx * iz, b = gy * fy * iz;
       twistJacobian(a, b, -(a * px + b * py) * iz, px, py, z, j);
       // Geometric: grad(Z) * d(projection)/d(point) minus d(point z)/d(point).
       const float ad = zgx * fx * iz, bd = zgy * fy * iz;
-      twistJacobian(ad, bd, -(ad * px + bd * py) * iz - 1.f, px, py, z, j + 8);
-      out.jacobians.insert(out.jacobians.end(), j, j + KeyframeReference::kJacobianStride);
+      twistJacobian(ad, bd, -(ad * px + bd * py) * iz - 1.f, px, py, z, j + 6);
+      rows.insert(rows.end(), j, j + kRows);
     }
   }
   out.count = static_cast<int>(out.points.size() / KeyframeReference::kPointStride);
   out.points.shrink_to_fit();
-  out.jacobians.shrink_to_fit();
+  out.jacobians.assign(static_cast<size_t>(kRows) * out.count, 0.f);
+  for (int i = 0; i < out.count; ++i)
+    for (int r = 0; r < kRows; ++r) out.jacobians[static_cast<size_t>(r) * out.count + i] = rows[static_cast<size_t>(kRows) * i + r];
 }
 
 }  // namespace

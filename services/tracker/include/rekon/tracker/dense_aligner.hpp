@@ -62,12 +62,13 @@ class DenseAligner {
     float u11, u12, u22;
   };
   Whitening whitening(const Scale& scale) const;
-  double estimateScale(int n, Scale& scale);
-  void accumulate(const KeyframeReference::Level& ref, int n, const Scale& scale, Matrix6d& h, Vector6d& b);
+  // Over all `count` points of the level, of which warp() kept `n`.
+  double estimateScale(int count, int n, Scale& scale);
+  void accumulate(const KeyframeReference::Level& ref, const Scale& scale, Matrix6d& h, Vector6d& b);
 
   AlignerParams params_;
-  std::vector<float> res_i_, res_z_, weight_, block_;
-  std::vector<int> index_;
+  // Per reference point: residuals (0 where it does not count), valid (1 or 0).
+  std::vector<float> res_i_, res_z_, valid_, block_;
 };
 
 }  // namespace rekon::tracker

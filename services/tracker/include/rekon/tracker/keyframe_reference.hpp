@@ -13,11 +13,12 @@ namespace rekon::tracker {
 
 class KeyframeReference {
  public:
-  // Per selected pixel: kPointStride floats (x y z intensity) and
-  // kJacobianStride floats (photometric J[6], 0, 0, geometric J[6], 0, 0); the
-  // padding lets a Jacobian load as two aligned 8-float vectors.
+  // Per selected pixel kPointStride floats (x y z intensity). The Jacobians
+  // as kJacobianRows planes of `count` floats (photometric J[0..5], then
+  // geometric J[0..5]): an alignment reads every pixel's in order, so each
+  // plane is a contiguous stream for vector loads.
   static constexpr int kPointStride = 4;
-  static constexpr int kJacobianStride = 16;
+  static constexpr int kJacobianRows = 12;
 
   struct Level {
     Intrinsics k;
