@@ -43,11 +43,12 @@ MapperParams testParams() {
 }
 
 // Every frame at its true pose, all in DVO keyframe 0 at the origin.
-void play(Mapper& mapper, MeshPublisher& publisher) {
+// Frames [first, end) of the tabletop scene, ticking the publisher after each.
+void play(Mapper& mapper, MeshPublisher& publisher, int first = 0, int end = kFrames) {
   const auto scene = synth::Scene::make("tabletop");
   const Trajectory truth = scene->trajectory(kFrames, 3);
   mapper.setKeyframeEstimate(0, Pose::Identity());
-  for (int i = 0; i < kFrames; ++i) {
+  for (int i = first; i < end; ++i) {
     RgbdFrame f = scene->render(testCamera(), truth[i].pose, synth::Noise::None, 100 + i, 2);
     f.id = i;
     f.timestamp = truth[i].timestamp;
@@ -149,6 +150,38 @@ TEST_F(MeshPublisherTest, ARequestBringsAFullSnapshotOfEveryBlock) {
   EXPECT_GE(full_, 1);
   EXPECT_EQ(blocks_ - blocks_before, static_cast<int64_t>(mapper.volume().blockCoords().size()));
   EXPECT_EQ(publisher.stats().full_snapshots, 1);
+}
+
+// Issue 30: a run nobody watches meshes nothing for the bus; the first
+// request gets the whole map, and updates follow from then on.
+TEST_F(MeshPublisherTest, UnaskedNothingGoesOutAndTheFirstRequestBringsTheWholeMapThenUpdates) {
+  Mapper mapper(testParams());
+  MeshPublisherSettings settings;
+  settings.publish_unasked = false;
+  MeshPublisher publisher(ctx_, settings, testParams().volume);
+  publisher.subscribe();
+  play(mapper, publisher, 0, kFrames / 2);
+  receiveAll();
+  EXPECT_EQ(bytes_, 0);
+  EXPECT_EQ(publisher.stats().updates, 0);
+  rekon_msgs::mesh_request_t request{};
+  request.requester = "test";
+  subscriber_->publish(channel::kMeshRequest, request);
+  while (ctx_.bus().handle(0)) {  // the publisher's handler runs here (a memory:// bus dispatches on handle())
+  }
+  publisher.tick(mapper);
+  receiveAll();
+  EXPECT_EQ(publisher.stats().full_snapshots, 1);
+  EXPECT_EQ(publisher.stats().updates, 1);
+  EXPECT_EQ(blocks_, static_cast<int64_t>(mapper.volume().blockCoords().size()));
+  const Mesh whole = mapper.extractMesh();
+  const double quantum = 0.01 / 1024;  // volume.voxel_size / 1024
+  EXPECT_EQ(quantaOf(map_.toMesh(), quantum), quantaOf(whole, quantum));
+  play(mapper, publisher, kFrames / 2, kFrames);  // frames after the request: their changes go out as updates
+  publisher.finish(mapper, BlockCause::kFinalPass);
+  receiveAll();
+  EXPECT_GT(publisher.stats().updates, 1);
+  EXPECT_EQ(quantaOf(map_.toMesh(), quantum), quantaOf(mapper.extractMesh(), quantum));
 }
 
 // Issue 27: a viewer counts corrections, so every block says why it changed.

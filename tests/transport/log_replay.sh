@@ -38,7 +38,9 @@ start() {  # FOLDER SERVICE [--set ...]
 timeout 300 lcm-logger --quiet --lcm-url="$url" "$dir/run.lcmlog" > /dev/null 2>&1 &
 logger=$!
 sleep 0.5
-timeout 240 "$bin/rekon" run --dataset "$data" --out "$dir/live" --set transport.mode=lcm > "$dir/live.out" 2>&1
+# The map goes on the bus unasked: the log is watched later (mesh/ below), not now.
+timeout 240 "$bin/rekon" run --dataset "$data" --out "$dir/live" --set transport.mode=lcm \
+  --set mapper.mesh_publish_unasked=true > "$dir/live.out" 2>&1
 kill -INT $logger
 wait $logger || true
 

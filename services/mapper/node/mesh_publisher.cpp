@@ -48,6 +48,7 @@ MeshPublisherSettings MeshPublisherSettings::fromConfig(const Config& config) {
   const int max_message = config.getInt("mapper.mesh_max_message_bytes");
   s.full_every_s = config.getDouble("mapper.mesh_full_every_s");
   s.coarse_first = config.getBool("mapper.mesh_coarse_first");
+  s.publish_unasked = config.getBool("mapper.mesh_publish_unasked");
   auto bad = [](const std::string& key, double value, const std::string& want) {
     throw Error("mapper." + key + " = " + std::to_string(value) + " is invalid; it must be " + want);
   };
@@ -74,6 +75,7 @@ void MeshPublisher::subscribe() {
   ctx_.bus().subscribe<rekon_msgs::mesh_request_t>(channel::kMeshRequest, [this](const rekon_msgs::mesh_request_t& m) {
     spdlog::info("mapper: {} asks for the whole mesh", m.requester.empty() ? std::string("a subscriber") : m.requester);
     full_requested_ = true;
+    asked_ = true;
   });
 }
 
@@ -94,6 +96,7 @@ void MeshPublisher::tick(Mapper& mapper, BlockCause cause) {
 void MeshPublisher::update(Mapper& mapper, BlockCause cause) {
   const double cpu0 = threadCpuMs();
   noteChanges(mapper, cause);
+  if (!publishing()) return;
   const Clock::time_point now = Clock::now();
   const bool periodic_full = settings_.full_every_s > 0.0 && now - last_full_ >= seconds(settings_.full_every_s);
   if ((full_requested_ || periodic_full) && now - last_full_ >= seconds(MeshPublisherSettings::kFullMinIntervalS)) {
@@ -112,7 +115,7 @@ void MeshPublisher::finish(Mapper& mapper, BlockCause cause) {
     noteChanges(mapper, cause);
     if (full_requested_) {
       publishFull(mapper);
-    } else {
+    } else if (publishing()) {
       publishDelta(mapper, true);
     }
   } catch (const Error& e) {
@@ -133,7 +136,8 @@ int64_t MeshPublisher::newVersion() {
 void MeshPublisher::noteChanges(Mapper& mapper, BlockCause cause) {
   if (!settings_.enabled) return;
   const std::vector<volume::BlockCoord> changed = mapper.takeMeshChanges();
-  if (changed.empty()) return;
+  // Unasked, nobody has seen a block: the first request's snapshot sends them all.
+  if (changed.empty() || !publishing()) return;
   const int64_t version = newVersion();
   for (const volume::BlockCoord& c : changed) {
     Stamp& stamp = version_[c];

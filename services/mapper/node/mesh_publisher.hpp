@@ -41,6 +41,9 @@ struct MeshPublisherSettings {
   size_t max_message_bytes = MeshBlocksParams::kDefaultMaxMessageBytes;
   double full_every_s = 0.0;  // 0: full snapshots only on request
   bool coarse_first = true;   // blocks never sent go first as coarse meshes when the budget is short
+  // false: nothing is meshed or sent until a subscriber's MESH_REQUEST, which
+  // the whole map then answers (a run nobody watches spends nothing on it).
+  bool publish_unasked = true;
 
   // Throws rekon::Error naming a key out of range.
   static MeshPublisherSettings fromConfig(const Config& config);
@@ -83,6 +86,8 @@ class MeshPublisher {
   struct CoordHash {
     size_t operator()(const volume::BlockCoord& c) const { return volume::hashBlock(c); }
   };
+  // Updates go out: from the start (publish_unasked), else once a subscriber asked.
+  bool publishing() const { return settings_.publish_unasked || asked_; }
   void update(Mapper& mapper, BlockCause cause);
   void publishDelta(Mapper& mapper, bool unlimited);
   void publishFull(Mapper& mapper);
@@ -101,6 +106,7 @@ class MeshPublisher {
   MeshPublisherSettings settings_;
   MeshBlocksParams codec_;
   std::atomic<bool> full_requested_{false};
+  std::atomic<bool> asked_{false};  // a MESH_REQUEST came (publish_unasked false: the updates start)
   struct Stamp {
     int64_t version = 0;  // even (newVersion); its coarse mesh goes as version - 1
     BlockCause cause = BlockCause::kNewData;

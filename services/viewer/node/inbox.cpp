@@ -2,7 +2,9 @@
 
 #include <spdlog/spdlog.h>
 
+#include <chrono>
 #include <memory>
+#include <string>
 
 #include "rekon/common/error.hpp"
 #include "rekon/common/graph_update.hpp"
@@ -44,16 +46,30 @@ void subscribePoses(Bus& bus, ViewerState& state) {
   });
 }
 
-void requestMesh(Bus& bus, const std::string& service) {
-  rekon_msgs::mesh_request_t r{};
-  r.requester = service;
-  bus.publish(channel::kMeshRequest, r);
-}
+// The viewer's ask for the whole mesh, until a snapshot answers it: the
+// mapper publishes only once asked (mapper.mesh_publish_unasked false), and
+// an ask can be lost (sent before the mapper subscribed, or dropped by UDP).
+// Touched only by the bus thread's handlers.
+struct MeshAsk {
+  static constexpr std::chrono::seconds kAgainAfter{2};
+  std::string service;
+  int mapper_pid = 0;
+  bool answered = false;
+  std::chrono::steady_clock::time_point last{};
+
+  void send(Bus& bus) {
+    rekon_msgs::mesh_request_t r{};
+    r.requester = service;
+    bus.publish(channel::kMeshRequest, r);
+    last = std::chrono::steady_clock::now();
+  }
+};
 
 // A full snapshot's first part starts it, its last part ends it (blocks it
 // lacks are then removed); parts lost on the way only delay that.
-void subscribeMesh(Bus& bus, ViewerState& state) {
-  bus.subscribe<rekon_msgs::mesh_blocks_t>(channel::kMeshBlocks, [&state](const rekon_msgs::mesh_blocks_t& m) {
+void subscribeMesh(Bus& bus, ViewerState& state, const std::shared_ptr<MeshAsk>& ask) {
+  bus.subscribe<rekon_msgs::mesh_blocks_t>(channel::kMeshBlocks, [&state, ask](const rekon_msgs::mesh_blocks_t& m) {
+    if (m.full) ask->answered = true;
     std::vector<BlockMesh> blocks;
     try {
       blocks = decodeMeshBlocks(m);
@@ -67,15 +83,19 @@ void subscribeMesh(Bus& bus, ViewerState& state) {
   });
 }
 
-void subscribeStatus(Bus& bus, ViewerState& state, const std::string& service) {
+void subscribeStatus(Bus& bus, ViewerState& state, const std::shared_ptr<MeshAsk>& ask) {
   // A mapper seen under a new pid (started after this viewer, or restarted)
-  // is asked for its whole mesh, as is the one running when the viewer starts.
-  auto mapper_pid = std::make_shared<int>(0);
-  bus.subscribe<rekon_msgs::heartbeat_t>(channel::kHeartbeat, [&bus, &state, service, mapper_pid](const rekon_msgs::heartbeat_t& m) {
+  // is asked for its whole mesh, as is the one running when the viewer
+  // starts, and asked again at its heartbeats until a snapshot comes.
+  bus.subscribe<rekon_msgs::heartbeat_t>(channel::kHeartbeat, [&bus, &state, ask](const rekon_msgs::heartbeat_t& m) {
     state.heartbeat(m.service, m.pid, m.host, m.state, m.last_frame_id);
-    if (m.service == "mapper" && m.pid != *mapper_pid) {
-      *mapper_pid = m.pid;
-      requestMesh(bus, service);
+    if (m.service != "mapper") return;
+    if (m.pid != ask->mapper_pid) {
+      ask->mapper_pid = m.pid;
+      ask->answered = false;
+      ask->send(bus);
+    } else if (!ask->answered && std::chrono::steady_clock::now() - ask->last >= MeshAsk::kAgainAfter) {
+      ask->send(bus);
     }
   });
   bus.subscribe<rekon_msgs::service_stats_t>(channel::kStats, [&state](const rekon_msgs::service_stats_t& m) {
@@ -86,10 +106,12 @@ void subscribeStatus(Bus& bus, ViewerState& state, const std::string& service) {
 }  // namespace
 
 void subscribeViewer(Bus& bus, ViewerState& state, const std::string& service) {
-  subscribeMesh(bus, state);
+  auto ask = std::make_shared<MeshAsk>();
+  ask->service = service;
+  subscribeMesh(bus, state, ask);
   subscribePoses(bus, state);
-  subscribeStatus(bus, state, service);
-  requestMesh(bus, service);  // a mapper already running sends everything it has
+  subscribeStatus(bus, state, ask);
+  ask->send(bus);  // a mapper already running sends everything it has
 }
 
 }  // namespace rekon::viewer
