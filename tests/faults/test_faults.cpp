@@ -131,11 +131,16 @@ TEST(Faults, KilledMapperIsRestartedAndItsMeshMatchesAnUninterruptedRun) {
 // resume point is past the last frame, so nothing is sent again, but the
 // player announces the end of the stream again (it once waited for ever).
 // The mapper stores the last one in its final pass, moments before it exits:
-// the kill script holds it stopped while it counts, so the kill lands.
+// the kill script holds it stopped while it counts, so the kill lands. The
+// map goes on the bus unasked here: sending every block at the end keeps the
+// mapper alive ~0.5 s after that store, which the script's checks (0.1 s
+// apart) need; without it the store and done_t are ~0.1 s apart and the kill
+// can land after done_t (the CI rehearsal of 2026-12-03 caught that: the
+// restarted mapper then waits for an end of stream nobody sends again).
 TEST(Faults, MapperKilledAfterTheLastFrameGetsTheEndOfTheStreamAgain) {
   rekon::test::TempDir dir;
   const std::string out = dir / "run";
-  const Faulty f = runKilling("mapper", out, "", 5);
+  const Faulty f = runKilling("mapper", out, "--set mapper.mesh_publish_unasked=true", 5);
   ASSERT_NE(f.output.find("killed rekon-mapper"), std::string::npos) << f.output;
   ASSERT_NE(f.output.find("with 5 KF keyframes stored"), std::string::npos) << f.output;
   ASSERT_EQ(f.rc, 0) << f.output << readText(out + "/player.log");
