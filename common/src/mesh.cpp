@@ -18,6 +18,36 @@ std::string facePart(const std::string& path) { return path + ".faces.tmp"; }
   throw Error("cannot write " + path + " (" + what + "); check the folder's permissions and free space");
 }
 
+// The binary little-endian format writePly and PlyWriter share: the header,
+// then each vertex (xyz float, rgb uchar when colored), then each face.
+std::string plyHeader(int64_t vertices, int64_t faces, bool colored) {
+  std::ostringstream header;
+  header << "ply\nformat binary_little_endian 1.0\ncomment rekon\nelement vertex " << vertices
+         << "\nproperty float x\nproperty float y\nproperty float z\n";
+  if (colored) header << "property uchar red\nproperty uchar green\nproperty uchar blue\n";
+  header << "element face " << faces << "\nproperty list uchar int vertex_indices\nend_header\n";
+  return header.str();
+}
+
+void put(std::vector<char>& buf, const void* p, size_t n) {
+  buf.insert(buf.end(), static_cast<const char*>(p), static_cast<const char*>(p) + n);
+}
+
+void appendVertices(std::vector<char>& buf, const Mesh& mesh, bool colored) {
+  for (size_t i = 0; i < mesh.vertices.size(); ++i) {
+    put(buf, mesh.vertices[i].data(), 12);
+    if (colored) put(buf, mesh.colors[i].data(), 3);
+  }
+}
+
+void appendFaces(std::vector<char>& buf, const Mesh& mesh) {
+  for (const auto& t : mesh.triangles) {
+    const uint8_t n = 3;
+    put(buf, &n, 1);
+    put(buf, t.data(), 12);
+  }
+}
+
 }  // namespace
 
 void appendMesh(Mesh& to, const Mesh& piece) {
@@ -26,10 +56,17 @@ void appendMesh(Mesh& to, const Mesh& piece) {
   to.triangles.insert(to.triangles.end(), piece.triangles.begin(), piece.triangles.end());
 }
 
+// A mesh in memory: one buffer, written beside and renamed
+// (writeFileAtomically), so a killed process leaves the previous file.
 void writePly(const Mesh& mesh, const std::string& path) {
-  PlyWriter ply(path, mesh.colors.size() == mesh.vertices.size() && !mesh.vertices.empty());
-  ply.add(mesh);
-  ply.finish();
+  const bool colored = mesh.colors.size() == mesh.vertices.size() && !mesh.vertices.empty();
+  const std::string head = plyHeader(static_cast<int64_t>(mesh.vertices.size()),
+                                     static_cast<int64_t>(mesh.triangles.size()), colored);
+  std::vector<char> buf(head.begin(), head.end());
+  buf.reserve(head.size() + mesh.vertices.size() * 15 + mesh.triangles.size() * 13);
+  appendVertices(buf, mesh, colored);
+  appendFaces(buf, mesh);
+  writeFileAtomically(path, std::string_view(buf.data(), buf.size()));
 }
 
 PlyWriter::PlyWriter(std::string path, bool colored)
@@ -59,21 +96,13 @@ void PlyWriter::add(const Mesh& piece) {
                 std::to_string(piece.vertices.size()) + " vertices");
   std::vector<char> buf;
   buf.reserve(piece.vertices.size() * 15);
-  auto put = [&buf](const void* p, size_t n) { buf.insert(buf.end(), static_cast<const char*>(p), static_cast<const char*>(p) + n); };
   auto flush = [&](std::FILE* f) {
     if (std::fwrite(buf.data(), 1, buf.size(), f) != buf.size()) cannotWrite(path_, "write");
     buf.clear();
   };
-  for (size_t i = 0; i < piece.vertices.size(); ++i) {
-    put(piece.vertices[i].data(), 12);
-    if (colored_) put(piece.colors[i].data(), 3);
-  }
+  appendVertices(buf, piece, colored_);
   flush(vertex_out_);
-  for (const auto& t : piece.triangles) {
-    const uint8_t n = 3;
-    put(&n, 1);
-    put(t.data(), 12);
-  }
+  appendFaces(buf, piece);
   flush(face_out_);
   vertices_ += static_cast<int64_t>(piece.vertices.size());
   faces_ += static_cast<int64_t>(piece.triangles.size());
@@ -83,14 +112,9 @@ void PlyWriter::finish() {
   if (!vertex_out_) throw Error("cannot write " + path_ + ": finish() called twice");
   const bool flushed = std::fflush(vertex_out_) == 0 && std::fflush(face_out_) == 0;
   if (!flushed) cannotWrite(path_, "write");
-  std::ostringstream header;
-  header << "ply\nformat binary_little_endian 1.0\ncomment rekon\nelement vertex " << vertices_
-         << "\nproperty float x\nproperty float y\nproperty float z\n";
-  if (colored_) header << "property uchar red\nproperty uchar green\nproperty uchar blue\n";
-  header << "element face " << faces_ << "\nproperty list uchar int vertex_indices\nend_header\n";
-  const std::string tmp = path_ + ".tmp";
+  const std::string tmp = path_ + ".tmp";  // as writeFileAtomically: renamed over PATH when whole
   std::FILE* out = std::fopen(tmp.c_str(), "wb");
-  bool ok = out != nullptr && std::fputs(header.str().c_str(), out) >= 0;
+  bool ok = out != nullptr && std::fputs(plyHeader(vertices_, faces_, colored_).c_str(), out) >= 0;
   std::vector<char> buf(1 << 20);
   for (std::FILE* part : {vertex_out_, face_out_}) {
     ok = ok && std::fseek(part, 0, SEEK_SET) == 0;
