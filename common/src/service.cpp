@@ -213,7 +213,7 @@ void ServiceContext::writeStats() {
   } catch (const std::exception& e) {  // the file below matters more than the watchers
     spdlog::warn("stats not published on the bus: {}", e.what());
   }
-  if (out_dir_.empty()) return;
+  if (out_dir_.empty() || !stats_file_) return;
   stats_.save((std::filesystem::path(out_dir_) / (name_ + "_stats.json")).string());
 }
 

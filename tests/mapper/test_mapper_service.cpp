@@ -204,3 +204,49 @@ TEST(MapperService, AKilledMapperRestartedWithResumeContinuesFromTheStore) {
   EXPECT_TRUE(fs::exists(dir / "out/mesh.ply"));
   EXPECT_FALSE(fs::exists("/dev/shm/" + store));  // removed at the clean end
 }
+
+// A mapper killed after its done_t (its outputs written) and restarted, as
+// rekon run restarts it: the restart finds the store marked finished, says
+// the end again (a watcher counts the new instance as unfinished: it waited
+// 120 s for an end of stream nobody sends again) and leaves the outputs and
+// the stats file of the instance that did the work as they were. Run 1
+// stands for the killed instance (it leaves the store, as under rekon run);
+// `rekon listen --mesh` exits only at a mapper's done_t.
+TEST(MapperService, AMapperRestartedAfterItsRunFinishedSaysDoneAgainAndKeepsTheOutputs) {
+  rekon::test::TempDir dir;
+  rekon::synth::SequenceOptions o;
+  o.scene = "tabletop";
+  o.frames = 20;
+  rekon::synth::writeSequence(o, dir / "data");
+  const std::string bin = rekon::test::binDir(), id = std::to_string(getpid());
+  const std::string store = "rekon_msf_kf_" + id;
+  const std::string mapper = bin + "/rekon-mapper --out " + (dir / "out") + " --set mapper.kappa=5 --set mapper.store_segment=" + store;
+  const std::string run1 =
+      mapper + " --set mapper.remove_store_at_end=false > " + (dir / "mapper1.log") + " 2>&1 & m=$!; " + bin +
+      "/rekon-replay --trajectory " + (dir / "data/groundtruth.txt") + " --target " + (dir / "data/groundtruth.txt") + " > " + (dir / "replay.log") + " 2>&1 & r=$!; " + bin +
+      "/rekon-player --dataset " + (dir / "data") + " --set player.wait_for=[replay,mapper] --set transport.mode=shm" +
+      " --set transport.segment=rekon_msf_" + id + " > " + (dir / "player.log") + " 2>&1; p=$?; wait $r; rr=$?; wait $m; mm=$?; " +
+      "echo run 1: $p $rr $mm; [ $p$rr$mm = 000 ]";
+  std::string out;
+  int rc = runCommand("timeout 120 " + rekon::test::sourceDir() + "/tests/support/in_netns.sh bash -c '" + run1 + "'", &out);
+  ASSERT_EQ(rc, 0) << out << "\nmapper1:\n" << readText(dir / "mapper1.log");
+  ASSERT_TRUE(fs::exists("/dev/shm/" + store)) << readText(dir / "mapper1.log");
+  const std::string mesh = readText(dir / "out/mesh.ply"), stats = readText(dir / "out/mapper_stats.json");
+  ASSERT_EQ(jsonInt(stats, "kf_keyframes"), 4) << stats;
+
+  const std::string run2 =
+      bin + "/rekon listen --mesh " + (dir / "listened.ply") + " > " + (dir / "listen.log") + " 2>&1 & l=$!; " +
+      "for i in $(seq 600); do grep -q \"listening for the mesh\" " + (dir / "listen.log") + " && break; sleep 0.05; done; " +
+      mapper + " --set mapper.resume=true > " + (dir / "mapper2.log") + " 2>&1; mm=$?; wait $l; ll=$?; " +
+      "echo run 2: $mm $ll; [ $mm$ll = 00 ]";
+  rc = runCommand("timeout 60 " + rekon::test::sourceDir() + "/tests/support/in_netns.sh bash -c '" + run2 + "'", &out);
+  const bool store_left = fs::exists("/dev/shm/" + store);
+  rekon::store::KeyframeStore::remove(store);
+  const std::string log2 = readText(dir / "mapper2.log");
+  ASSERT_EQ(rc, 0) << out << "\nmapper2:\n" << log2 << "\nlisten:\n" << readText(dir / "listen.log");
+  EXPECT_NE(log2.find("its run finished at frame 19 and its outputs are written"), std::string::npos) << log2;
+  EXPECT_EQ(log2.find("rebuilding the volume"), std::string::npos) << log2;
+  EXPECT_EQ(readText(dir / "out/mesh.ply"), mesh);
+  EXPECT_EQ(readText(dir / "out/mapper_stats.json"), stats);
+  EXPECT_FALSE(store_left) << log2;  // the restart's own default: removed at its end
+}

@@ -227,6 +227,9 @@ RunPlan planRun(const RunOptions& opt) {
   config.set("transport.segment", plan.frame_ring);
   plan.keyframe_store = config.getString("mapper.store_segment") + "_" + std::to_string(getpid());
   config.set("mapper.store_segment", plan.keyframe_store);
+  // A restartable mapper leaves its store to us (removed below, after the run):
+  // one killed after its done_t is restarted into it and only says done again.
+  if (plan.restartable.count("mapper") > 0) config.set("mapper.remove_store_at_end", "false");
 
   const std::string source = frameSource(opt);
   std::vector<std::string> services = servicesToRun(config, bin, source);
@@ -557,9 +560,8 @@ int launch(const RunOptions& opt) {
   const double wall = std::chrono::duration<double>(Clock::now() - start).count();
   const bool interrupted = g_interrupted.load();
   if (removeFrameRing(plan.frame_ring)) spdlog::info("removed the frame ring '{}' left by a stopped player", plan.frame_ring);
-  // With its spill files, when a mapper that died for good left it.
-  if (store::KeyframeStore::remove(plan.keyframe_store))
-    spdlog::info("removed the keyframe store '{}' left by a stopped mapper", plan.keyframe_store);
+  // With its spill files: a restartable mapper leaves it, and one that died for good too.
+  if (store::KeyframeStore::remove(plan.keyframe_store)) spdlog::debug("removed the keyframe store '{}'", plan.keyframe_store);
 
   writeRunStats(plan, wall, interrupted);
   if (opt.report) {

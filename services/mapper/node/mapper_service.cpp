@@ -31,6 +31,10 @@ struct Settings {
   // integration. With reintegration none mesh.ply already is that baseline.
   bool baseline_wanted;
   MeshPublisherSettings mesh;
+  // False: whoever started this mapper removes the store once the process
+  // has exited (rekon run does), so that one restarted after its done_t
+  // finds the store marked finished and only says done again.
+  bool remove_store_at_end;
 };
 
 bool contains(const std::vector<std::string>& list, const std::string& s) {
@@ -49,7 +53,7 @@ Settings readSettings(const ServiceContext& ctx) {
       config.getBool("mapper.wait_for_optimiser") && contains(config.getStringList("run.services"), "optimiser");
   return {params, max_queued, when_full == "drop", progress_every, wait_for_optimiser,
           write_uncorrected && params.mode != ReintegrationMode::kNone && !ctx.outDir().empty(),
-          MeshPublisherSettings::fromConfig(config)};
+          MeshPublisherSettings::fromConfig(config), config.getBool("mapper.remove_store_at_end")};
 }
 
 // Where the frame source resumes for this instance: after the frames of the
@@ -109,11 +113,35 @@ void finishAndWrite(ServiceContext& ctx, const Settings& settings, Mapper& mappe
   recordStats(ctx, mapper, settings.params, inbox.counts(), mesh.stats());
 }
 
+// The clean end, once the outputs are written: the store is marked finished
+// before done_t, so an instance killed from here on and restarted finds its
+// work done (sayTheEndAgain) instead of waiting for a stream that has ended.
+void endTheRun(ServiceContext& ctx, const Settings& settings, Mapper& mapper, int64_t end_frame) {
+  mapper.markRunFinished(end_frame);
+  publishDone(ctx, end_frame);
+  if (settings.remove_store_at_end) mapper.removeStore();
+}
+
+// A restart of a mapper whose run had finished: its outputs and stats file
+// stay as they are; the resume point past the end and done_t go out again
+// for the watchers, which count this new instance as unfinished.
+void sayTheEndAgain(ServiceContext& ctx, const Settings& settings, Mapper& mapper, int64_t end_frame) {
+  spdlog::info("keyframe store '{}': its run finished at frame {} and its outputs are written; saying done again",
+               settings.params.store.segment, end_frame);
+  ctx.keepEarlierStatsFile();
+  rekon_msgs::resume_point_t resume_point = resumePoint(ctx, mapper);
+  resume_point.first_missing_frame = end_frame + 1;
+  ctx.bus().publish(channel::kResumePoint, resume_point);
+  ctx.setState("finishing");
+  endTheRun(ctx, settings, mapper, end_frame);
+}
+
 }  // namespace
 
 void runMapperService(ServiceContext& ctx) {
   const Settings settings = readSettings(ctx);
   Mapper mapper(settings.params);
+  if (const auto end = mapper.finishedRunEnd()) return sayTheEndAgain(ctx, settings, mapper, *end);
   Inbox inbox(ctx, settings.max_queued_frames, settings.drop_when_full);
   MeshPublisher mesh(ctx, settings.mesh, settings.params.volume);
   MappingWorker worker(ctx, mapper, inbox, mesh);
@@ -145,8 +173,7 @@ void runMapperService(ServiceContext& ctx) {
     throw Error(worker_error);
   }
   finishAndWrite(ctx, settings, mapper, worker, mesh, inbox, clean);
-  if (clean) publishDone(ctx, inbox.endFrame());
-  if (clean) mapper.removeStore();
+  if (clean) endTheRun(ctx, settings, mapper, inbox.endFrame());
 }
 
 }  // namespace rekon::mapper

@@ -87,6 +87,8 @@ Mapper::Mapper(const MapperParams& params) : params_(params) {
     } catch (const Error&) {
       return;  // no store yet: created with the first frame's camera
     }
+    finished_run_end_ = store_->runEndFrame();
+    if (finished_run_end_) return;  // nothing to rebuild: the run's outputs are written
     restoreFromStore();
   }
 }
@@ -505,6 +507,10 @@ MemoryUse Mapper::memoryUse() const {
   m.host_voxel_bytes_in_memory = (vs.host_blocks - vs.host_blocks_on_disk) * block_bytes;
   m.voxel_bytes_on_disk = vs.host_blocks_on_disk * block_bytes;
   return m;
+}
+
+void Mapper::markRunFinished(int64_t end_frame) {
+  if (store_) store_->markRunFinished(end_frame);
 }
 
 void Mapper::removeStore() {

@@ -66,6 +66,9 @@ class ServiceContext {
   // published on STATS, so that watchers end with the final numbers.
   JsonObject& stats() { return stats_; }
   void writeStats();
+  // This instance's stats go on the bus only: <name>_stats.json stays the
+  // earlier instance's, which did the work (a restart that finds it done).
+  void keepEarlierStatsFile() { stats_file_ = false; }
 
   // Starts the bus thread (handlers run there) and the heartbeat thread.
   void start();
@@ -85,6 +88,7 @@ class ServiceContext {
   std::atomic<int64_t> last_frame_{-1};
   std::unique_ptr<Threads> threads_;
   JsonObject stats_;
+  bool stats_file_ = true;
 };
 
 // Stops the bus and heartbeat threads when it goes out of scope. A service

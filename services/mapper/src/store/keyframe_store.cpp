@@ -25,7 +25,7 @@ namespace bip = boost::interprocess;
 namespace {
 
 constexpr uint32_t kMagic = 0x524b4653;  // "RKFS"
-constexpr uint32_t kLayoutVersion = 2;  // 2: spill folder, spilled flag
+constexpr uint32_t kLayoutVersion = 3;  // 2: spill folder, spilled flag; 3: the run's end
 constexpr size_t kMaxSpillDirChars = 1023;
 
 struct ShmPose {
@@ -64,6 +64,8 @@ struct Header {
   double fx = 0, fy = 0, cx = 0, cy = 0, depth_scale = 0;
   char spill_dir[kMaxSpillDirChars + 1] = {};  // absolute; empty = spilling off
   uint64_t spilled_bytes = 0;
+  int32_t run_finished = 0;  // 1 once the mapper's run finished (outputs written)
+  int64_t run_end_frame = 0;  // then: the stream's last frame, as its done_t says it
   bip::interprocess_mutex mutex;
 };
 
@@ -435,6 +437,18 @@ void KeyframeStore::setAnchorPose(int64_t keyframe_id, const Pose& pose) {
   }
   impl_->pushBack(*impl_->anchors, ShmAnchor{keyframe_id, toShm(pose)},
                   "the pose of DVO keyframe " + std::to_string(keyframe_id), pose.translation().eval());
+}
+
+void KeyframeStore::markRunFinished(int64_t end_frame) {
+  auto l = impl_->lock();
+  impl_->header->run_end_frame = end_frame;
+  impl_->header->run_finished = 1;
+}
+
+std::optional<int64_t> KeyframeStore::runEndFrame() const {
+  auto l = impl_->lock();
+  if (impl_->header->run_finished == 0) return std::nullopt;
+  return impl_->header->run_end_frame;
 }
 
 std::vector<std::pair<int64_t, Pose>> KeyframeStore::anchorPoses() const {

@@ -175,6 +175,12 @@ class Mapper {
   MemoryUse memoryUse() const;
   // Deletes the keyframe store (after a clean end of the run).
   void removeStore();
+  // Marks the store's run finished (outputs written) before the end is said
+  // on the bus, so that an instance restarted after that only says it again.
+  void markRunFinished(int64_t end_frame);
+  // With params.resume: the end frame of a finished run found in the store
+  // (which was then not rebuilt from); nullopt otherwise.
+  std::optional<int64_t> finishedRunEnd() const { return finished_run_end_; }
 
  private:
   std::optional<Pose> keyframePose(int64_t keyframe_id) const;
@@ -206,6 +212,7 @@ class Mapper {
   std::unique_ptr<store::KeyframeStore> store_;
   std::unique_ptr<store::SessionWriter> session_;
   std::unique_ptr<store::Session> continued_;  // the session a continued run reads its keyframes' images from
+  std::optional<int64_t> finished_run_end_;
   void writeAnchorPoses();  // to the session, when there is one
   std::optional<Intrinsics> camera_;
   std::unique_ptr<fusion::KeyframeFuser> fuser_;

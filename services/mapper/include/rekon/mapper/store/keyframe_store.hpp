@@ -106,6 +106,11 @@ class KeyframeStore {
   // Latest known world pose of a DVO keyframe (so a restart can place frames).
   void setAnchorPose(int64_t keyframe_id, const Pose& pose);
   std::vector<std::pair<int64_t, Pose>> anchorPoses() const;
+  // The run that filled the store finished: its outputs are written and its
+  // end (the stream's last frame) is said. A mapper restarted after this has
+  // nothing to redo; it says the end again (runEndFrame) instead.
+  void markRunFinished(int64_t end_frame);
+  std::optional<int64_t> runEndFrame() const;
 
   std::vector<KeyframeInfo> list() const;
   // The full keyframe (images copied out of the segment or read from its
