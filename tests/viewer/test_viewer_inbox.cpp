@@ -1,7 +1,7 @@
 // The viewer's bus wiring over a memory:// bus: what the run publishes lands
 // in the state (mesh blocks through the codec, full snapshots, keyframes,
 // tracked frames, loop closures, heartbeats), the mapper is asked for its
-// mesh at start and when a new instance appears, and a message that does not
+// mesh at start and when a new instance is past "starting", and a message that does not
 // decode is dropped without touching the state.
 #include <gtest/gtest.h>
 
@@ -99,7 +99,12 @@ TEST(ViewerInbox, PosesLoopClosuresAndANewMapperInstance) {
   hb.state = "running";
   w.run_bus->publish(channel::kHeartbeat, hb);
   w.run_bus->publish(channel::kHeartbeat, hb);  // the same instance: no second request
-  hb.pid = 101;                                  // restarted
+  hb.pid = 101;                                  // restarted, and not subscribed yet: an ask would be lost
+  hb.state = "starting";
+  w.run_bus->publish(channel::kHeartbeat, hb);
+  w.deliver();
+  EXPECT_EQ(w.requests, 2);  // at start, mapper 100
+  hb.state = "running";  // its heartbeat as soon as it has subscribed
   w.run_bus->publish(channel::kHeartbeat, hb);
   w.deliver();
   const ViewerState::Counts c = w.state.counts();

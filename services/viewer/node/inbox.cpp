@@ -47,8 +47,8 @@ void subscribePoses(Bus& bus, ViewerState& state) {
 }
 
 // The viewer's ask for the whole mesh, until a snapshot answers it: the
-// mapper publishes only once asked (mapper.mesh_publish_unasked false), and
-// an ask can be lost (sent before the mapper subscribed, or dropped by UDP).
+// mapper publishes only once asked (mapper.mesh_publish_unasked false, the
+// default), and an ask can be lost (dropped by UDP).
 // Touched only by the bus thread's handlers.
 struct MeshAsk {
   static constexpr std::chrono::seconds kAgainAfter{2};
@@ -86,17 +86,19 @@ void subscribeMesh(Bus& bus, ViewerState& state, const std::shared_ptr<MeshAsk>&
 void subscribeStatus(Bus& bus, ViewerState& state, const std::shared_ptr<MeshAsk>& ask) {
   // A mapper seen under a new pid (started after this viewer, or restarted)
   // is asked for its whole mesh, as is the one running when the viewer
-  // starts, and asked again at its heartbeats until a snapshot comes.
+  // starts: once it is past "starting" (before that it has not subscribed
+  // and the ask would be lost; its heartbeat comes at once when its state
+  // changes), and again at its heartbeats until a snapshot comes.
   bus.subscribe<rekon_msgs::heartbeat_t>(channel::kHeartbeat, [&bus, &state, ask](const rekon_msgs::heartbeat_t& m) {
     state.heartbeat(m.service, m.pid, m.host, m.state, m.last_frame_id);
     if (m.service != "mapper") return;
     if (m.pid != ask->mapper_pid) {
       ask->mapper_pid = m.pid;
       ask->answered = false;
-      ask->send(bus);
-    } else if (!ask->answered && std::chrono::steady_clock::now() - ask->last >= MeshAsk::kAgainAfter) {
-      ask->send(bus);
+      ask->last = {};
     }
+    if (!ask->answered && m.state != "starting" && std::chrono::steady_clock::now() - ask->last >= MeshAsk::kAgainAfter)
+      ask->send(bus);
   });
   bus.subscribe<rekon_msgs::service_stats_t>(channel::kStats, [&state](const rekon_msgs::service_stats_t& m) {
     state.stats(m.service, m.json);
