@@ -46,6 +46,7 @@ struct Difference {
   size_t pixels = 0, depth_differ = 0, weight_differ = 0, color_differ = 0, colored = 0;
   int color_max = 0;
   double color_abs_sum = 0;
+  double depth_max_m = 0, weight_max = 0;  // largest differences
   std::array<size_t, 4> by_max{};  // pixels whose largest channel difference is 1, 2-4, 5-16, > 16
 
   void add(const rekon::fusion::FusedKeyframe& kf, const std::string& path) {
@@ -59,6 +60,11 @@ struct Difference {
     for (size_t i = 0; i < n; ++i) {
       depth_differ += std::memcmp(depth.data() + 4 * i, kf.depth.data + 4 * i, 4) != 0;
       weight_differ += std::memcmp(weight.data() + 4 * i, kf.weight.data + 4 * i, 4) != 0;
+      float dumped[2];
+      std::memcpy(&dumped[0], depth.data() + 4 * i, 4);
+      std::memcpy(&dumped[1], weight.data() + 4 * i, 4);
+      depth_max_m = std::max(depth_max_m, static_cast<double>(std::abs(dumped[0] - kf.depth.ptr<float>()[i])));
+      weight_max = std::max(weight_max, static_cast<double>(std::abs(dumped[1] - kf.weight.ptr<float>()[i])));
       int m = 0;
       for (size_t c = 0; c < 3; ++c) {
         const int d = std::abs(static_cast<int>(static_cast<uint8_t>(color[3 * i + c])) - kf.color.data[3 * i + c]);
@@ -74,8 +80,8 @@ struct Difference {
   }
   void print() const {
     const double p = 100.0 / static_cast<double>(pixels);
-    spdlog::info("compare: {} pixels ({} colored); depth differs at {}, weight at {}", pixels, colored, depth_differ,
-                 weight_differ);
+    spdlog::info("compare: {} pixels ({} colored); depth differs at {} (at most {:.3g} m), weight at {} (at most {:.3g})",
+                 pixels, colored, depth_differ, depth_max_m, weight_differ, weight_max);
     spdlog::info("compare: color differs at {} pixels ({:.4f} %), max channel difference {}, mean {:.6f} a channel",
                  color_differ, color_differ * p, color_max, color_abs_sum / (3.0 * static_cast<double>(pixels)));
     spdlog::info("compare: pixels whose largest channel difference is 1: {}, 2-4: {}, 5-16: {}, >16: {}", by_max[0],
