@@ -222,6 +222,33 @@ TEST_F(LoopClosureTest, CandidatesAreEarlierKeyframesInTheSphereWithoutTheExclud
   EXPECT_EQ(std::count(ids.begin(), ids.end(), 1), 1);
 }
 
+// The tracker checks on every core once the stream has ended: the same loops
+// and counts, bit for bit, as on one thread (each candidate is checked on its
+// own; the database is read before, in candidate order).
+TEST_F(LoopClosureTest, DetectOnSeveralThreadsFindsWhatOneThreadFinds) {
+  params.loop.exclude_predecessors = 1;
+  std::vector<LoopConstraint> found[2];
+  LoopClosureStats stats[2];
+  for (int run = 0; run < 2; ++run) {
+    LoopClosureDetector d(params);
+    d.setThreads(run == 0 ? 1 : 3);
+    addChain(d, 0, {0, 12, 24});
+    addChain(d, 3, {300});  // across the room: no candidate
+    addChain(d, 4, {566, 578, 590}, drift());
+    found[run] = d.detect(6, stats[run]);
+  }
+  EXPECT_EQ(stats[1].candidates, stats[0].candidates);
+  EXPECT_EQ(stats[1].accepted, stats[0].accepted);
+  EXPECT_EQ(stats[1].rejected, stats[0].rejected);
+  ASSERT_GE(found[0].size(), 2u) << "the loop's start is found from its end";
+  ASSERT_EQ(found[1].size(), found[0].size());
+  for (size_t i = 0; i < found[0].size(); ++i) {
+    EXPECT_EQ(found[1][i].from_id, found[0][i].from_id);
+    EXPECT_EQ(found[1][i].relative.matrix(), found[0][i].relative.matrix());
+    EXPECT_EQ(found[1][i].information, found[0][i].information);
+  }
+}
+
 TEST_F(LoopClosureTest, AViewOfADifferentPlaceIsRejectedEvenWhenTheEstimatePutsItClose) {
   params.loop.exclude_predecessors = 1;  // keyframe 0 is only three keyframes back
   LoopClosureDetector d(params);

@@ -2,6 +2,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <chrono>
 #include <thread>
 
@@ -55,6 +56,9 @@ bool trackUntilEndOfStream(ServiceContext& ctx, const Inbox& inbox, const Tracki
 // here.
 void finish(ServiceContext& ctx, const Inbox& inbox, History& history, LoopClosureWorker& loops, const PeerWatch& peers) {
   spdlog::debug("end of stream: waiting for the loop-closure checks");  // the inbox logged the end once
+  // Tracking is idle now: the checks left over (the stream kept both cores
+  // busy, and they run below tracking's priority) get every core.
+  loops.useThreads(static_cast<int>(std::max(1u, std::thread::hardware_concurrency())));
   while (!loops.waitUntilDrained(kDrainPollMs) && !ctx.stopRequested()) history.serveReplays();
   history.markDone();
   const rekon_msgs::done_t done = doneMessage("tracker", inbox.endFrame());

@@ -8,8 +8,10 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <exception>
 #include <limits>
 #include <numbers>
+#include <thread>
 
 #include "rekon/common/error.hpp"
 
@@ -43,22 +45,29 @@ Pose bothDirections(const AlignResult& forward, const AlignResult& backward) {
 
 LoopClosureDetector::LoopClosureDetector(const TrackerParams& params, std::shared_ptr<KeyframeCache> cache)
     : params_(params), cache_(cache ? std::move(cache) : std::make_shared<KeyframeCache>(params)),
-      aligner_(params.aligner) {
+      aligners_{DenseAligner(params.aligner), std::nullopt} {
   params_.validate();
+  aligners_ = makeAligners();
+}
+
+LoopClosureDetector::Aligners LoopClosureDetector::makeAligners() const {
+  Aligners a{DenseAligner(params_.aligner), std::nullopt};
   // Without the geometric term there is nothing to refine towards.
   if (params_.loop.refine_photometric_weight < 1.0 && params_.aligner.use_depth) {
     AlignerParams refining = params_.aligner;
     refining.photometric_weight = params_.loop.refine_photometric_weight;
-    refiner_.emplace(refining);
+    a.refiner.emplace(refining);
   }
+  return a;
 }
 
 std::pair<AlignResult, AlignResult> LoopClosureDetector::refine(const Keyframe& reference, const Keyframe& current,
-                                                                const AlignResult& fine, const AlignResult& back) {
-  if (!refiner_) return {fine, back};
+                                                                const AlignResult& fine, const AlignResult& back,
+                                                                Aligners& a) const {
+  if (!a.refiner) return {fine, back};
   const double limit = params_.loop.max_cross_check_m;
   auto refined = [&](const KeyframeReference& from, const RgbdPyramid& to, const AlignResult& full) {
-    const AlignResult r = refiner_->align(from, to, full.pose);
+    const AlignResult r = a.refiner->align(from, to, full.pose);
     return r.valid && translationDistance(r.pose, full.pose) <= limit ? r : full;
   };
   return {refined(reference.reference, current.pyramid, fine), refined(current.reference, reference.pyramid, back)};
@@ -139,8 +148,8 @@ std::optional<double> LoopClosureDetector::incomingLogDet(int64_t id, Entry& e, 
     const auto from = entries_.find(e.incoming->from_id);
     if (from == entries_.end()) return std::nullopt;
     const int coarsest = params_.aligner.coarsest_level;
-    const AlignResult r = aligner_.align(keyframe(from->first)->reference, keyframe(id)->pyramid, e.incoming->relative,
-                                         coarsest, coarsest);
+    const AlignResult r = aligners_.aligner.align(keyframe(from->first)->reference, keyframe(id)->pyramid,
+                                                  e.incoming->relative, coarsest, coarsest);
     if (!r.valid) return std::nullopt;
     e.incoming_coarse_log_det = logDetOfEntropy(r.entropy);
     coarse_sum_ += *e.incoming_coarse_log_det;
@@ -205,44 +214,58 @@ std::vector<Pose> LoopClosureDetector::odometryNeighbours(int64_t id) const {
 
 CandidateCheck LoopClosureDetector::check(int64_t candidate_id, const Keyframe& current,
                                           const std::vector<Pose>& guesses) {
+  return align(prepare(candidate_id, current.id), current, guesses, aligners_);
+}
+
+LoopClosureDetector::Prepared LoopClosureDetector::prepare(int64_t candidate_id, int64_t current_id) {
+  Prepared p;
+  p.candidate_id = candidate_id;
+  p.known = entries_.count(candidate_id) > 0;
+  if (!p.known) return p;
+  p.coarse_ref = odometryLogDet(candidate_id, current_id, true);
+  p.fine_ref = odometryLogDet(candidate_id, current_id, false);
+  if (p.coarse_ref && p.fine_ref) p.reference = keyframe(candidate_id);
+  return p;
+}
+
+CandidateCheck LoopClosureDetector::align(const Prepared& p, const Keyframe& current, const std::vector<Pose>& guesses,
+                                          Aligners& a) const {
   CandidateCheck out;
-  out.candidate_id = candidate_id;
+  out.candidate_id = p.candidate_id;
   out.keyframe_id = current.id;
-  const auto cand = entries_.find(candidate_id);
-  if (cand == entries_.end()) {
+  if (!p.known) {
     out.reason = "unknown keyframe";
     return out;
   }
-  const auto coarse_ref = odometryLogDet(candidate_id, current.id, true);
-  const auto fine_ref = odometryLogDet(candidate_id, current.id, false);
-  if (!coarse_ref || !fine_ref) {
+  if (!p.reference) {
     out.reason = "no odometry constraint to compare with";
     return out;
   }
-  const std::shared_ptr<const Keyframe> held = keyframe(candidate_id);  // alive through the check
-  const Keyframe& reference = *held;
+  const double coarse_ref = *p.coarse_ref, fine_ref = *p.fine_ref;
+  const int64_t candidate_id = p.candidate_id;
+  const Keyframe& reference = *p.reference;
   const int coarsest = params_.aligner.coarsest_level;
   const LoopClosureParams& lp = params_.loop;
   out.reason = "coarse stage";
   double best_log_det = -std::numeric_limits<double>::infinity();
   for (const Pose& guess : guesses) {
-    const AlignResult coarse = aligner_.align(reference.reference, current.pyramid, guess, coarsest, coarsest);
+    const AlignResult coarse = a.aligner.align(reference.reference, current.pyramid, guess, coarsest, coarsest);
     if (!coarse.valid) continue;
     const double coarse_log_det = logDetOfEntropy(coarse.entropy);
-    const double coarse_ratio = coarse_log_det / *coarse_ref;
+    const double coarse_ratio = coarse_log_det / coarse_ref;
     out.best_coarse_ratio = std::max(out.best_coarse_ratio, coarse_ratio);
-    if (!informationPasses(coarse_log_det, *coarse_ref, lp.coarse_entropy_ratio) ||
+    if (!informationPasses(coarse_log_det, coarse_ref, lp.coarse_entropy_ratio) ||
         coarse.valid_pixels < lp.min_pixel_ratio * coarse.selected_pixels)
       continue;
-    const AlignResult fine = aligner_.align(reference.reference, current.pyramid, coarse.pose);
+    const AlignResult fine = a.aligner.align(reference.reference, current.pyramid, coarse.pose);
     if (!fine.valid) {
       out.reason = "fine alignment failed";
       continue;
     }
     const double fine_log_det = logDetOfEntropy(fine.entropy);
-    const double fine_ratio = fine_log_det / *fine_ref;
+    const double fine_ratio = fine_log_det / fine_ref;
     out.best_fine_ratio = std::max(out.best_fine_ratio, fine_ratio);
-    if (!informationPasses(fine_log_det, *fine_ref, lp.fine_entropy_ratio)) {
+    if (!informationPasses(fine_log_det, fine_ref, lp.fine_entropy_ratio)) {
       out.reason = "fine entropy ratio";
       continue;
     }
@@ -255,14 +278,14 @@ CandidateCheck LoopClosureDetector::check(int64_t candidate_id, const Keyframe& 
     // DVO-SLAM's cross validation: the same pair aligned the other way round
     // from the inverse result must come back to it. A true minimum of the
     // joint residual does; a wrong one reached from a far guess mostly does not.
-    const AlignResult back = aligner_.align(current.reference, reference.pyramid, fine.pose.inverse());
+    const AlignResult back = a.aligner.align(current.reference, reference.pyramid, fine.pose.inverse());
     const double cross = back.valid ? (back.pose * fine.pose).translation().norm() : std::numeric_limits<double>::infinity();
     if (cross > lp.max_cross_check_m) {
       out.reason = "cross check";
       continue;
     }
     best_log_det = fine_log_det;
-    const auto [forward, backward] = refine(reference, current, fine, back);
+    const auto [forward, backward] = refine(reference, current, fine, back, a);
     LoopConstraint c;
     c.from_id = candidate_id;
     c.to_id = current.id;
@@ -281,6 +304,30 @@ CandidateCheck LoopClosureDetector::check(int64_t candidate_id, const Keyframe& 
   return out;
 }
 
+std::vector<CandidateCheck> LoopClosureDetector::alignAll(const std::vector<Prepared>& prepared, const Keyframe& current,
+                                                          const std::vector<std::vector<Pose>>& guesses) {
+  std::vector<CandidateCheck> out(prepared.size());
+  const size_t threads = std::min(prepared.size(), static_cast<size_t>(threads_.load()));
+  while (helpers_.size() + 1 < threads) helpers_.push_back(std::make_unique<Aligners>(makeAligners()));
+  std::atomic<size_t> next{0};
+  std::vector<std::exception_ptr> errors(std::max<size_t>(threads, 1));
+  auto work = [&](Aligners& a, std::exception_ptr& error) {
+    try {
+      for (size_t i = next++; i < prepared.size(); i = next++) out[i] = align(prepared[i], current, guesses[i], a);
+    } catch (...) {
+      error = std::current_exception();
+      next = prepared.size();  // the others stop too
+    }
+  };
+  std::vector<std::thread> pool;
+  for (size_t t = 1; t < threads; ++t) pool.emplace_back(work, std::ref(*helpers_[t - 1]), std::ref(errors[t]));
+  work(aligners_, errors[0]);
+  for (std::thread& t : pool) t.join();
+  for (const std::exception_ptr& e : errors)
+    if (e) std::rethrow_exception(e);
+  return out;
+}
+
 std::vector<LoopConstraint> LoopClosureDetector::detect(int64_t keyframe_id, LoopClosureStats& stats) {
   std::vector<LoopConstraint> accepted;
   std::vector<int64_t> ids = candidates(keyframe_id);
@@ -289,18 +336,25 @@ std::vector<LoopConstraint> LoopClosureDetector::detect(int64_t keyframe_id, Loo
     ids.resize(static_cast<size_t>(params_.loop.max_candidates));
   }
   ++stats.keyframes_checked;
+  if (ids.empty()) return accepted;
+  // The database is read here, in candidate order; the alignments may then run side by side.
+  std::vector<Prepared> prepared;
+  std::vector<std::vector<Pose>> guesses;
   for (const int64_t id : ids) {
-    const CandidateCheck c = check(id, keyframe_id);
+    prepared.push_back(prepare(id, keyframe_id));
+    guesses.push_back({Pose::Identity(), orthonormalised(estimate(id).inverse() * estimate(keyframe_id))});
+  }
+  for (const CandidateCheck& c : alignAll(prepared, *keyframe(keyframe_id), guesses)) {
     ++stats.candidates;
     if (c.accepted) {
       ++stats.accepted;
-      spdlog::debug("loop closure {} -> {} accepted (ln det ratios coarse {:.3f}, fine {:.3f})", id, keyframe_id,
-                    c.constraint->coarse_ratio, c.constraint->fine_ratio);
+      spdlog::debug("loop closure {} -> {} accepted (ln det ratios coarse {:.3f}, fine {:.3f})", c.candidate_id,
+                    keyframe_id, c.constraint->coarse_ratio, c.constraint->fine_ratio);
       accepted.push_back(*c.constraint);
     } else {
       ++stats.rejected;
-      spdlog::debug("loop closure {} -> {} rejected: {} (ln det ratios coarse {:.3f}, fine {:.3f})", id, keyframe_id,
-                    c.reason, c.best_coarse_ratio, c.best_fine_ratio);
+      spdlog::debug("loop closure {} -> {} rejected: {} (ln det ratios coarse {:.3f}, fine {:.3f})", c.candidate_id,
+                    keyframe_id, c.reason, c.best_coarse_ratio, c.best_fine_ratio);
     }
   }
   return accepted;

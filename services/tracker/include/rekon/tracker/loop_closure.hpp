@@ -9,6 +9,8 @@
 // threshold times the mean ln det of the odometry constraints around the two
 // keyframes aligned on the same levels (the paper's entropy ratio with
 // H ~ ln det(covariance)), and enough of the candidate's pixels constrain it.
+#include <algorithm>
+#include <atomic>
 #include <condition_variable>
 #include <cstdint>
 #include <deque>
@@ -123,6 +125,10 @@ class LoopClosureDetector {
 
   // candidates() then check() for each (up to max_candidates); accumulates into `stats`.
   std::vector<LoopConstraint> detect(int64_t keyframe_id, LoopClosureStats& stats);
+  // Threads that detect()'s alignments run on from now on (1, the default:
+  // the calling thread only). The outcome does not depend on it: each
+  // candidate is checked on its own, the results taken in candidate order.
+  void setThreads(int threads) { threads_ = std::max(1, threads); }
 
   const LoopClosureParams& params() const { return params_.loop; }
   KeyframeCacheStats keyframeCacheStats() const { return cache_->stats(); }
@@ -140,16 +146,38 @@ class LoopClosureDetector {
   // An added keyframe with its images (rekon::Error when the cache lost it).
   std::shared_ptr<const Keyframe> keyframe(int64_t id) const;
 
+  // A check's aligners: their buffers are its working state, so each thread
+  // of detect() has its own.
+  struct Aligners {
+    DenseAligner aligner;
+    std::optional<DenseAligner> refiner;  // absent when refinement is off
+  };
+  Aligners makeAligners() const;
+  // What checking a candidate reads of the database, read before its
+  // alignments (on the calling thread: it fills caches), so that those can
+  // run on any thread.
+  struct Prepared {
+    int64_t candidate_id = -1;
+    bool known = false;                         // the candidate is in the database
+    std::optional<double> coarse_ref, fine_ref;  // odometryLogDet of the pair
+    std::shared_ptr<const Keyframe> reference;  // the candidate, when both are known
+  };
+  Prepared prepare(int64_t candidate_id, int64_t current_id);
+  CandidateCheck align(const Prepared& p, const Keyframe& current, const std::vector<Pose>& guesses, Aligners& a) const;
+  // align() for each, on up to threads_ threads; results in the order given.
+  std::vector<CandidateCheck> alignAll(const std::vector<Prepared>& prepared, const Keyframe& current,
+                                       const std::vector<std::vector<Pose>>& guesses);
   // The accepted pair's forward (`fine`) and backward alignments refined by
-  // refiner_ (LoopClosureParams::refine_photometric_weight); each falls back
+  // a.refiner (LoopClosureParams::refine_photometric_weight); each falls back
   // to its full result when its refinement fails or strays.
   std::pair<AlignResult, AlignResult> refine(const Keyframe& reference, const Keyframe& current,
-                                             const AlignResult& fine, const AlignResult& back);
+                                             const AlignResult& fine, const AlignResult& back, Aligners& a) const;
 
   TrackerParams params_;
   std::shared_ptr<KeyframeCache> cache_;
-  DenseAligner aligner_;
-  std::optional<DenseAligner> refiner_;  // absent when refinement is off
+  Aligners aligners_;                                // the calling thread's
+  std::vector<std::unique_ptr<Aligners>> helpers_;  // detect()'s other threads'
+  std::atomic<int> threads_{1};
   std::map<int64_t, Entry> entries_;
   double fine_sum_ = 0.0, coarse_sum_ = 0.0;
   int64_t fine_count_ = 0, coarse_count_ = 0;
@@ -190,6 +218,9 @@ class LoopClosureWorker {
   KeyframeCacheStats keyframeCacheStats() const { return detector_.keyframeCacheStats(); }
   // Ids of the keyframes whose check ran, in order.
   std::vector<int64_t> checkedKeyframes() const;
+  // Checks from now on use this many threads (LoopClosureDetector::setThreads):
+  // the tracker's cores once the stream has ended and tracking is idle.
+  void useThreads(int threads) { detector_.setThreads(threads); }
 
  private:
   // kCheck: a new keyframe, added and checked; kCandidate: a new keyframe
