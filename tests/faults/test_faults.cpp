@@ -130,7 +130,12 @@ TEST(Faults, KilledMapperIsRestartedAndItsMeshMatchesAnUninterruptedRun) {
 // Killed once it stored the last KF keyframe (5 of the room's 90 frames),
 // which it does in its final pass, moments before it exits: the kill script
 // holds it stopped while it counts, so the kill lands. Where it lands decides
-// what the restart does, and both must end the run with the same map:
+// what the restart does, and both must end the run with the same map. The
+// map goes on the bus unasked here: sending every block at the end keeps the
+// mapper alive ~0.5 s after that store, longer than the script lets it run
+// between two checks (0.1 s); without it the mapper can finish between them
+// and nothing is killed (the CI rehearsal of 2026-12-03, evidence
+// /tmp/rekon_test_Hp2SFK):
 // - before the store is marked finished: the restart rebuilds from the store;
 //   its resume point is past the last frame, so nothing is sent again, but
 //   the player announces the end of the stream again (it once waited for ever);
@@ -141,7 +146,7 @@ TEST(Faults, KilledMapperIsRestartedAndItsMeshMatchesAnUninterruptedRun) {
 TEST(Faults, MapperKilledAfterTheLastFrameGetsTheEndOfTheStreamAgain) {
   rekon::test::TempDir dir;
   const std::string out = dir / "run";
-  const Faulty f = runKilling("mapper", out, "", 5);
+  const Faulty f = runKilling("mapper", out, "--set mapper.mesh_publish_unasked=true", 5);
   ASSERT_NE(f.output.find("killed rekon-mapper"), std::string::npos) << f.output;
   ASSERT_NE(f.output.find("with 5 KF keyframes stored"), std::string::npos) << f.output;
   const std::string logs = f.output + "\nplayer.log:\n" + readText(out + "/player.log") + "mapper.log:\n" + readText(out + "/mapper.log");
