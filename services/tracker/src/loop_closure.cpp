@@ -26,6 +26,12 @@ double viewAngle(const Pose& a, const Pose& b) {
   return std::acos(std::clamp(za.dot(zb), -1.0, 1.0));
 }
 
+// The parameters, checked before anything is built from them.
+const TrackerParams& validated(const TrackerParams& params) {
+  params.validate();
+  return params;
+}
+
 }  // namespace
 
 double logDetOfEntropy(double entropy) { return 2.0 * (kEntropyConstant - entropy); }
@@ -44,11 +50,8 @@ Pose bothDirections(const AlignResult& forward, const AlignResult& backward) {
 }
 
 LoopClosureDetector::LoopClosureDetector(const TrackerParams& params, std::shared_ptr<KeyframeCache> cache)
-    : params_(params), cache_(cache ? std::move(cache) : std::make_shared<KeyframeCache>(params)),
-      aligners_{DenseAligner(params.aligner), std::nullopt} {
-  params_.validate();
-  aligners_ = makeAligners();
-}
+    : params_(validated(params)), cache_(cache ? std::move(cache) : std::make_shared<KeyframeCache>(params)),
+      aligners_(makeAligners()) {}
 
 LoopClosureDetector::Aligners LoopClosureDetector::makeAligners() const {
   Aligners a{DenseAligner(params_.aligner), std::nullopt};
