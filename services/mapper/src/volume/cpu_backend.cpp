@@ -35,7 +35,8 @@ REKON_SIMD_CLONES int updateChunk(Voxel* pool, const BlockRef* blocks, int begin
 
 // The voxel pool, not value-initialised: every slot is written when it is
 // taken (a fresh block's zeros or its voxels streamed in), so the pages of
-// slots never taken are never touched. A std::vector zeroed the whole of
+// slots never taken are not touched until the pool grows (a growth copies
+// the old pool whole). A std::vector zeroed the whole of
 // volume.block_capacity at start (192 MiB of page faults and RSS where
 // 7-Scenes uses 62 MiB).
 class VoxelPool {
