@@ -144,7 +144,8 @@ Difference compare(const VoxelMap& a, const VoxelMap& b) {
   return d;
 }
 
-void expectCorrectedVolumeEqualsOneFromScratch(const MapperParams& params) {
+// Returns the mapper's volume statistics at the end.
+volume::VolumeStats expectCorrectedVolumeEqualsOneFromScratch(const MapperParams& params) {
   Mapper mapper(params);
   EXPECT_GE(play(mapper, kFrames), 4);  // updates during the stream and 3 after it
   mapper.finish();
@@ -166,6 +167,12 @@ void expectCorrectedVolumeEqualsOneFromScratch(const MapperParams& params) {
   EXPECT_EQ(d.weight_or_sdf, 0);
   // Colors are rounded running averages: each de-integration may shift one by a level or two.
   EXPECT_LE(d.max_color_levels, 2u);  // measured 1
+  const volume::VolumeStats vs = mapper.volume().stats();
+  std::printf("blocks %lld, peak active %lld, streamed out %lld, in %lld, spilled to disk %lld, read back %lld\n",
+              static_cast<long long>(vs.blocks), static_cast<long long>(vs.peak_active_blocks),
+              static_cast<long long>(vs.streamed_out), static_cast<long long>(vs.streamed_in),
+              static_cast<long long>(vs.spilled_to_disk), static_cast<long long>(vs.read_back_from_disk));
+  return vs;
 }
 
 }  // namespace
@@ -185,6 +192,20 @@ TEST(Mapper, CorrectionsSpreadOverFramesEndAtTheSameVolume) {
     p.round_budget_ms = budget;
     expectCorrectedVolumeEqualsOneFromScratch(p);
   }
+}
+
+TEST(Mapper, TinyVoxelBudgetsCorrectToTheSameVolume) {
+  // Issue 26: an active pool and a host tier far smaller than the map, so
+  // that rounds make room in the pool for the blocks they update (away from
+  // the camera's sphere), and blocks spill to disk and come back: the
+  // corrected voxels are still those integrated from scratch.
+  test::TempDir dir;
+  MapperParams p = testParams();
+  p.volume.active_max_blocks = 800;  // of 2 337 blocks
+  p.volume.host_max_blocks = 200;
+  p.volume.spill_dir = dir.path();
+  const volume::VolumeStats vs = expectCorrectedVolumeEqualsOneFromScratch(p);
+  EXPECT_GT(vs.read_back_from_disk, 0);
 }
 
 TEST(Mapper, WithoutCorrectionTheVolumeDiffersFromTheFinalPoses) {

@@ -336,8 +336,9 @@ TEST_P(VolumeTest, AnActiveBudgetKeepsBlocksOutsideTheSphereUntilItIsFullAndChan
   TsdfVolume unbudgeted(p);
   std::vector<Eigen::Vector3d> eyes;
   const std::vector<int64_t> sphere = walkCorridor(unbudgeted, &eyes);
-  // Twice the sphere once streamAround has left its sixteenth of the budget free.
-  p.active_max_blocks = 2 * *std::max_element(sphere.begin(), sphere.end()) * 16 / 15 + 1;
+  // Twice the sphere once streamAround has left its sixteenth of the budget
+  // free and streamed out a batch of another sixteenth.
+  p.active_max_blocks = 2 * *std::max_element(sphere.begin(), sphere.end()) * 16 / 14 + 1;
   TsdfVolume budgeted(p);
   const std::vector<int64_t> active = walkCorridor(budgeted);
   for (size_t i = 0; i < active.size(); ++i)

@@ -309,7 +309,7 @@ void Mapper::closeKeyframe() {
   const auto pose = currentPose(keyframes_.back().kf);
   if (!pose) throw Error("mapper: KF keyframe's DVO keyframe lost its pose");  // anchors are never forgotten
   const double t1 = clockMs();
-  integrateKeyframe(keyframes_.back(), images, *pose);
+  integrateKeyframe(keyframes_.back(), images, *pose, true);
   keyframes_.back().first_pose = *pose;
   counters_.first_integration_ms_total += clockMs() - t1;
   ++counters_.integrations;
@@ -336,9 +336,10 @@ fusion::FusedKeyframe Mapper::leaveImagesAt(KeyframeRecord& rec, ImagesHome home
   return with_images;
 }
 
-void Mapper::integrateKeyframe(KeyframeRecord& rec, const fusion::FusedKeyframe& images, const Pose& pose) {
+void Mapper::integrateKeyframe(KeyframeRecord& rec, const fusion::FusedKeyframe& images, const Pose& pose,
+                               bool at_camera) {
   const double t0 = clockMs();
-  volume_->streamAround(pose.translation());
+  if (at_camera) volume_->streamAround(pose.translation());
   volume_->integrate(images.depth, images.color, images.weight, *camera_, pose);
   counters_.integrate_ms_total += clockMs() - t0;
   rec.integrated = true;
@@ -357,19 +358,18 @@ ReintegrationRound Mapper::reintegrate(const std::vector<size_t>& chosen, bool b
     updated.push_back(*currentPose(keyframes_[i].kf));
     loaded.push_back(images(keyframes_[i]));
   }
-  // Paper 4.3: the sphere around the first keyframe's old pose, de-integrate
-  // with the old poses, the sphere around its new pose, re-integrate with the
-  // new poses, then back to the camera.
-  volume_->streamAround(keyframes_[chosen.front()].integrated_pose.translation());
+  // De-integrate with the old poses, re-integrate with the new ones (paper
+  // 4.3). The paper streams the sphere around each old and new pose in
+  // first; here each (de-)integration brings in only the blocks it updates,
+  // and the camera's sphere stays (TsdfVolume::streamAround), so a round
+  // streams no more than it touches and the next integration nothing back.
   for (size_t n = 0; n < chosen.size(); ++n) {
     const KeyframeRecord& r = keyframes_[chosen[n]];
-    volume_->streamAround(r.integrated_pose.translation());
     volume_->deintegrate(loaded[n].depth, loaded[n].color, loaded[n].weight, *camera_, r.integrated_pose);
     ++counters_.deintegrations;
   }
-  volume_->streamAround(updated.front().translation());
   for (size_t n = 0; n < chosen.size(); ++n) {
-    integrateKeyframe(keyframes_[chosen[n]], loaded[n], updated[n]);
+    integrateKeyframe(keyframes_[chosen[n]], loaded[n], updated[n], false);
     ++counters_.reintegrations;
   }
   if (back_to_camera) volume_->streamAround(camera_position_);

@@ -127,6 +127,7 @@ void TsdfVolume::update(const cv::Mat& depth_m, const cv::Mat& color, const cv::
   std::vector<uint8_t> empty;
   const FrameUpdateReport report = backend_->updateBlocks(cam, settings, blocks, sign, empty);
   last_update_blocks_ = static_cast<int64_t>(blocks.size());
+  updated_blocks_ += last_update_blocks_;
   // Integration frees fresh blocks it did not touch; de-integration every block left without weight.
   for (size_t i = 0; i < blocks.size(); ++i) {
     const bool fresh = sign > 0 && i >= fresh_begin;
@@ -170,6 +171,10 @@ std::vector<BlockRef> TsdfVolume::resolveBandBlocks(const std::vector<BlockCoord
   std::vector<BlockCoord> stored, fresh;
   for (const BlockCoord& c : missing) (host_->contains(c) ? stored : fresh).push_back(c);
   if (!allocate) fresh.clear();
+  // An update away from the streaming centre (a correction round's) brings
+  // in only these blocks; with a budget they take the room of the least
+  // recently updated ones outside the sphere, never of this band's.
+  makeRoom(static_cast<int64_t>(stored.size() + fresh.size()));
   ensureCapacity(active_blocks_ + static_cast<int64_t>(stored.size() + fresh.size()));
   std::vector<int32_t> slots;
   streamIn(stored, slots);
@@ -291,12 +296,25 @@ void TsdfVolume::streamAround(const Eigen::Vector3d& centre) {
   if (params_.streaming_radius <= 0.0) return;
   const double r = params_.streaming_radius;
   const std::vector<BlockCoord> in_coords = host_->within(centre, r);
-  // A sixteenth of the budget is left free for the blocks the next integrations allocate.
-  const int64_t target = params_.active_max_blocks - params_.active_max_blocks / 16;
-  streamOutBeyond(centre, active_blocks_ + static_cast<int64_t>(in_coords.size()) - target);
+  streaming_centre_ = centre;
+  if (params_.active_max_blocks == 0) streamOutBeyond(centre, 0);
+  makeRoom(static_cast<int64_t>(in_coords.size()));
   std::vector<int32_t> slots;
   streamIn(in_coords, slots);
   host_->spillBeyondBudget(centre);
+}
+
+void TsdfVolume::makeRoom(int64_t incoming) {
+  if (params_.active_max_blocks == 0 || params_.streaming_radius <= 0.0) return;
+  // A sixteenth of the budget is left free for the blocks the next
+  // integrations allocate. Once that share is taken, blocks leave in a batch
+  // of another sixteenth, so that the pool is searched for the blocks to
+  // leave once per batch rather than before every (de-)integration.
+  const int64_t share = params_.active_max_blocks / 16;
+  const int64_t excess = active_blocks_ + incoming - (params_.active_max_blocks - share);
+  if (excess <= 0) return;
+  streamOutBeyond(streaming_centre_, excess + share);
+  host_->spillBeyondBudget(streaming_centre_);
 }
 
 void TsdfVolume::streamOutBeyond(const Eigen::Vector3d& centre, int64_t excess) {
@@ -309,13 +327,14 @@ void TsdfVolume::streamOutBeyond(const Eigen::Vector3d& centre, int64_t excess) 
     int32_t slot;
   };
   std::vector<Candidate> outside;
+  const bool budget = params_.active_max_blocks > 0;
   for (size_t s = 0; s < slot_used_.size(); ++s) {
-    if (!slot_used_[s]) continue;
+    if (!slot_used_[s] || (budget && slot_stamp_[s] == frame_stamp_)) continue;  // the latest update's blocks stay
     const double d = (blockCentre(slot_coord_[s], params_.voxel_size) - centre).norm();
     if (d > params_.streaming_radius) outside.push_back({slot_stamp_[s], d, static_cast<int32_t>(s)});
   }
   size_t n = outside.size();
-  if (params_.active_max_blocks > 0) {
+  if (budget) {
     n = std::min(n, static_cast<size_t>(std::max<int64_t>(0, excess)));
     std::nth_element(outside.begin(), outside.begin() + static_cast<std::ptrdiff_t>(n), outside.end(),
                      [](const Candidate& a, const Candidate& b) {
@@ -517,6 +536,7 @@ VolumeStats TsdfVolume::stats() const {
   s.streamed_out = streamed_out_;
   s.streamed_in = streamed_in_;
   s.last_update_blocks = last_update_blocks_;
+  s.updated_blocks = updated_blocks_;
   s.backend = backend_name_;
   return s;
 }

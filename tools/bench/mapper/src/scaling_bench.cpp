@@ -36,6 +36,8 @@ struct ScalingPoint {
   int64_t frames = 0, kf_keyframes = 0, blocks = 0, integrations = 0, rounds = 0;
   double integration_ms = 0.0;  // per first integration of a KF keyframe
   double round_ms = 0.0;        // per graph-update round (de-integration, re-integration, streaming)
+  // Per round: blocks its (de-)integrations updated, and blocks it streamed in or out of the active pool.
+  double round_blocks_updated = 0.0, round_blocks_streamed = 0.0;
   // Memory now: the process, and the voxel tiers (mapper.active_mb, mapper.host_mb, disk).
   double rss_mb = 0.0, active_mb = 0.0, host_mb = 0.0, disk_mb = 0.0;
 };
@@ -44,14 +46,16 @@ struct ScalingPoint {
 struct Totals {
   int64_t integrations = 0, rounds = 0;
   double integration_ms = 0.0, round_ms = 0.0;
-  static Totals of(const mapper::MapperCounters& c) {
-    return {c.integrations, c.graph_updates, c.first_integration_ms_total, c.reintegration_ms_total};
+  int64_t round_blocks_updated = 0, round_blocks_streamed = 0;
+  static Totals of(const mapper::MapperCounters& c, int64_t round_blocks_updated) {
+    return {c.integrations, c.graph_updates, c.first_integration_ms_total, c.reintegration_ms_total,
+            round_blocks_updated, c.reintegration_blocks_streamed};
   }
 };
 
-ScalingPoint pointSince(const Totals& before, const mapper::Mapper& m) {
+ScalingPoint pointSince(const Totals& before, const mapper::Mapper& m, int64_t round_blocks_updated) {
   const mapper::MapperCounters& c = m.counters();
-  const Totals now = Totals::of(c);
+  const Totals now = Totals::of(c, round_blocks_updated);
   ScalingPoint p;
   p.frames = c.frames;
   p.kf_keyframes = c.kf_keyframes;
@@ -59,7 +63,10 @@ ScalingPoint pointSince(const Totals& before, const mapper::Mapper& m) {
   p.integrations = now.integrations - before.integrations;
   p.rounds = now.rounds - before.rounds;
   p.integration_ms = p.integrations > 0 ? (now.integration_ms - before.integration_ms) / static_cast<double>(p.integrations) : 0.0;
-  p.round_ms = p.rounds > 0 ? (now.round_ms - before.round_ms) / static_cast<double>(p.rounds) : 0.0;
+  const auto per_round = [&](double total) { return p.rounds > 0 ? total / static_cast<double>(p.rounds) : 0.0; };
+  p.round_ms = per_round(now.round_ms - before.round_ms);
+  p.round_blocks_updated = per_round(static_cast<double>(now.round_blocks_updated - before.round_blocks_updated));
+  p.round_blocks_streamed = per_round(static_cast<double>(now.round_blocks_streamed - before.round_blocks_streamed));
   const mapper::MemoryUse mem = m.memoryUse();
   p.rss_mb = currentRssMb();
   p.active_mb = static_cast<double>(mem.active_voxel_bytes) / 1048576.0;
@@ -96,8 +103,8 @@ void writeMemoryPlot(const std::vector<ScalingPoint>& points, const std::string&
 
 void writeCurve(const std::vector<ScalingPoint>& points, const std::string& dir, bool cpu_time) {
   std::ofstream csv(dir + "/scaling.csv", std::ios::trunc);
-  csv << "frames,kf_keyframes,blocks,integrations,integration_ms,rounds,round_ms,rss_mb,voxels_active_mb,voxels_host_mb,"
-         "voxels_disk_mb\n";
+  csv << "frames,kf_keyframes,blocks,integrations,integration_ms,rounds,round_ms,round_blocks_updated,"
+         "round_blocks_streamed,rss_mb,voxels_active_mb,voxels_host_mb,voxels_disk_mb\n";
   report::Series integration, round;
   integration.name = "first integration of a KF keyframe";
   round.name = "graph-update round (m KF keyframes)";
@@ -106,7 +113,8 @@ void writeCurve(const std::vector<ScalingPoint>& points, const std::string& dir,
   integration.markers = round.markers = true;
   for (const ScalingPoint& p : points) {
     csv << p.frames << ',' << p.kf_keyframes << ',' << p.blocks << ',' << p.integrations << ',' << p.integration_ms
-        << ',' << p.rounds << ',' << p.round_ms << ',' << p.rss_mb << ',' << p.active_mb << ',' << p.host_mb << ','
+        << ',' << p.rounds << ',' << p.round_ms << ',' << p.round_blocks_updated << ',' << p.round_blocks_streamed
+        << ',' << p.rss_mb << ',' << p.active_mb << ',' << p.host_mb << ','
         << p.disk_mb << '\n';
     if (p.integrations > 0) integration.x.push_back(static_cast<double>(p.kf_keyframes)), integration.y.push_back(p.integration_ms);
     if (p.rounds > 0) round.x.push_back(static_cast<double>(p.kf_keyframes)), round.y.push_back(p.round_ms);
@@ -200,8 +208,9 @@ int benchScalingCommand(int argc, char** argv) {
   replay::ReplayScript script(drifted, truth, rp, frames);
   std::vector<ScalingPoint> points;
   Totals before;
-  std::printf("frames kf_keyframes blocks integration_ms round_ms (means since the previous line) rss_mb voxels_active_mb "
-              "voxels_host_mb voxels_disk_mb\n");
+  int64_t round_blocks_updated = 0;  // by the rounds' (de-)integrations, in total
+  std::printf("frames kf_keyframes blocks integration_ms round_ms round_blocks_updated round_blocks_streamed (means since "
+              "the previous line) rss_mb voxels_active_mb voxels_host_mb voxels_disk_mb\n");
   for (int i = 0; i < frames; ++i) {
     RgbdFrame f = scene->render(k, truth[static_cast<size_t>(i)].pose, synth::Noise::Kinect, static_cast<uint64_t>(i));
     f.id = i;
@@ -209,15 +218,17 @@ int benchScalingCommand(int argc, char** argv) {
     const replay::ReplayTracked t = script.onFrame(f.id, f.timestamp);
     if (t.new_keyframe_world) mapper.setKeyframeEstimate(t.keyframe_id, *t.new_keyframe_world);
     mapper.addFrame(f, k, t.keyframe_id, t.pose_in_keyframe, t.lost);
+    const int64_t updated_before = mapper.volume().stats().updated_blocks;
     if (mapper.correctionPending()) mapper.continueCorrection(false);  // mapper.round_budget_ms, as the worker does
     if (auto u = script.dueUpdate()) mapper.applyGraphUpdate(u->poses);
+    round_blocks_updated += mapper.volume().stats().updated_blocks - updated_before;
     if ((i + 1) % every == 0 || i + 1 == frames) {
-      points.push_back(pointSince(before, mapper));
-      before = Totals::of(mapper.counters());
+      points.push_back(pointSince(before, mapper, round_blocks_updated));
+      before = Totals::of(mapper.counters(), round_blocks_updated);
       const ScalingPoint& p = points.back();
-      std::printf("%lld %lld %lld %.2f %.2f %.0f %.0f %.0f %.0f\n", static_cast<long long>(p.frames),
+      std::printf("%lld %lld %lld %.2f %.2f %.0f %.0f %.0f %.0f %.0f %.0f\n", static_cast<long long>(p.frames),
                   static_cast<long long>(p.kf_keyframes), static_cast<long long>(p.blocks), p.integration_ms, p.round_ms,
-                  p.rss_mb, p.active_mb, p.host_mb, p.disk_mb);
+                  p.round_blocks_updated, p.round_blocks_streamed, p.rss_mb, p.active_mb, p.host_mb, p.disk_mb);
       std::fflush(stdout);
       writeCurve(points, out, params.cpu_time_counters);  // as it goes: a stopped run keeps its points
     }

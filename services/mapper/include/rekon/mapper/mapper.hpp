@@ -186,7 +186,8 @@ class Mapper {
   std::optional<Pose> keyframePose(int64_t keyframe_id) const;
   void closeKeyframe();
   // `images`: rec's keyframe with its images (images(rec)).
-  void integrateKeyframe(KeyframeRecord& rec, const fusion::FusedKeyframe& images, const Pose& pose);
+  // at_camera: the volume streams around the pose first (a new keyframe; a round's stay where the camera is).
+  void integrateKeyframe(KeyframeRecord& rec, const fusion::FusedKeyframe& images, const Pose& pose, bool at_camera);
   // Releases rec's images now that `home` keeps them; returns rec's keyframe
   // with them, for the integration under way.
   static fusion::FusedKeyframe leaveImagesAt(KeyframeRecord& rec, ImagesHome home);

@@ -74,6 +74,7 @@ struct VolumeStats {
   int64_t streamed_out = 0;  // blocks moved active -> host store, in total
   int64_t streamed_in = 0;   // blocks moved host store -> active, in total
   int64_t last_update_blocks = 0;  // blocks the last (de-)integration updated
+  int64_t updated_blocks = 0;      // blocks (de-)integrations updated, in total
   int bytes_per_voxel = static_cast<int>(sizeof(Voxel));
   std::string backend;
 };
@@ -105,7 +106,10 @@ class TsdfVolume {
   // Brings the blocks whose centre lies within streaming_radius of `centre`
   // into the active volume; blocks outside the sphere move to the host store,
   // all of them without a budget (active_max_blocks 0), else only as many as
-  // keep the pool within it, least recently updated first (radius 0: no-op).
+  // keep the pool within it, least recently updated first, in batches of a
+  // sixteenth of the budget (radius 0: no-op). A (de-)integration brings in
+  // the streamed-out blocks it updates wherever it is; with a budget it makes
+  // room for them the same way, keeping the sphere around the last centre.
   void streamAround(const Eigen::Vector3d& centre);
 
   // Marching cubes over active and host blocks (those on disk read back); vertices are shared along
@@ -156,8 +160,12 @@ class TsdfVolume {
   int32_t tableFind(const BlockCoord& coord) const;
   void streamIn(const std::vector<BlockCoord>& coords, std::vector<int32_t>& slots);
   // Moves active blocks outside the sphere around centre to the host store:
-  // all of them without a budget, else `excess` of them (see streamAround).
+  // all of them without a budget, else `excess` of them (see streamAround),
+  // never those of the latest update.
   void streamOutBeyond(const Eigen::Vector3d& centre, int64_t excess);
+  // With a budget: streams out what `incoming` more blocks would take past it
+  // (see streamAround), keeping the sphere around the last streaming centre.
+  void makeRoom(int64_t incoming);
   // Allocated, active or host.
   bool exists(const BlockCoord& c) const;
   // `blocks` (allocated, each once) followed by their +x/+y/+z neighbours
@@ -176,11 +184,13 @@ class TsdfVolume {
   std::vector<uint32_t> slot_stamp_;  // last update that touched the slot (dedup; least recent streams out first)
   std::vector<int32_t> free_slots_;
   uint32_t frame_stamp_ = 0;
+  Eigen::Vector3d streaming_centre_ = Eigen::Vector3d::Zero();  // of the last streamAround
   int64_t active_blocks_ = 0;
   int64_t peak_active_blocks_ = 0;
   int64_t streamed_out_ = 0;
   int64_t streamed_in_ = 0;
   int64_t last_update_blocks_ = 0;
+  int64_t updated_blocks_ = 0;
   std::unique_ptr<HostBlocks> host_;  // blocks streamed out: memory, then disk
   std::unordered_set<BlockCoord, CoordHash> touched_;  // voxels changed since takeMeshChanges()
 };
