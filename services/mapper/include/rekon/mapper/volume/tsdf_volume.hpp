@@ -47,7 +47,8 @@ struct VolumeParams {
   double streaming_radius = kDefaultStreamingRadius;
   // Blocks outside the streaming sphere may stay active up to this many in
   // all (the active pool's budget); 0 = none stays: each streamAround moves
-  // every block outside the sphere to the host store.
+  // every block outside the sphere to the host store (those a correction
+  // round brought in stay until then).
   int64_t active_max_blocks = 0;
   // Blocks of the host tier kept in memory; beyond, the farthest from the
   // streaming centre go to a spill file in spill_dir (0 = no budget).
