@@ -222,6 +222,7 @@ int benchScalingCommand(int argc, char** argv) {
     if (mapper.correctionPending()) mapper.continueCorrection(false);  // mapper.round_budget_ms, as the worker does
     if (auto u = script.dueUpdate()) mapper.applyGraphUpdate(u->poses);
     round_blocks_updated += mapper.volume().stats().updated_blocks - updated_before;
+    mapper.takeMeshChanges();  // as the service's mesh publisher does after each frame: the change set stays small
     if ((i + 1) % every == 0 || i + 1 == frames) {
       points.push_back(pointSince(before, mapper, round_blocks_updated));
       before = Totals::of(mapper.counters(), round_blocks_updated);
