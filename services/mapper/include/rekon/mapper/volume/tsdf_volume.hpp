@@ -161,8 +161,8 @@ class TsdfVolume {
   int32_t tableFind(const BlockCoord& coord) const;
   void streamIn(const std::vector<BlockCoord>& coords, std::vector<int32_t>& slots);
   // Moves active blocks outside the sphere around centre to the host store:
-  // all of them without a budget, else `excess` of them (see streamAround),
-  // never those of the latest update.
+  // all of them without a budget, else `excess` of them (see streamAround)
+  // and never those of the latest update.
   void streamOutBeyond(const Eigen::Vector3d& centre, int64_t excess);
   // With a budget: streams out what `incoming` more blocks would take past it
   // (see streamAround), keeping the sphere around the last streaming centre.
