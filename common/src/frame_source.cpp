@@ -7,6 +7,8 @@
 #include <condition_variable>
 #include <deque>
 #include <exception>
+#include <filesystem>
+#include <fstream>
 #include <map>
 #include <mutex>
 #include <optional>
@@ -77,16 +79,37 @@ struct LiveOutlet::State {
   std::deque<int64_t> unacked;                  // ids sent, oldest first, not yet known to be acknowledged
   std::map<int64_t, Clock::time_point> capture;  // capture time of each frame sent and not yet tracked
   LatencyHistogram latency;
+  std::ofstream latency_csv;  // <out>/<service>_latency.csv; closed without --out
+  Clock::time_point started = Clock::now(), csv_flushed = started;
   std::thread thread;  // the sender; touches `sender` and `watch` outside the lock
 
   State(ServiceContext& c, FrameSender& s, ConsumerWatch& w, std::vector<std::string> names, int n)
-      : ctx(c), sender(s), watch(w), consumers(std::move(names)), in_flight(static_cast<size_t>(std::max(1, n))) {}
+      : ctx(c), sender(s), watch(w), consumers(std::move(names)), in_flight(static_cast<size_t>(std::max(1, n))) {
+    if (ctx.outDir().empty()) return;
+    const std::string path = (std::filesystem::path(ctx.outDir()) / (ctx.name() + "_latency.csv")).string();
+    latency_csv.open(path);
+    if (!latency_csv) throw Error("cannot write " + path + "; give --out a folder this user can write");
+    latency_csv << "frame_id,captured_s,latency_ms\n";
+  }
 
   void onTracked(const rekon_msgs::tracked_frame_t& msg) {
     std::lock_guard<std::mutex> lock(mutex);
     const auto it = capture.find(msg.frame_id);
-    if (it != capture.end()) latency.add(std::chrono::duration<double, std::milli>(Clock::now() - it->second).count());
+    if (it != capture.end()) record(msg.frame_id, it->second);
     capture.erase(capture.begin(), capture.upper_bound(msg.frame_id));
+  }
+
+  // One capture-to-pose latency: into the histogram and, with --out, a row of
+  // the CSV (flushed once a second, so a stopped run keeps what it measured).
+  void record(int64_t frame_id, Clock::time_point captured) {
+    const Clock::time_point now = Clock::now();
+    const double ms = std::chrono::duration<double, std::milli>(now - captured).count();
+    latency.add(ms);
+    if (!latency_csv.is_open()) return;
+    latency_csv << frame_id << ',' << std::chrono::duration<double>(captured - started).count() << ',' << ms << '\n';
+    if (now - csv_flushed < std::chrono::seconds(1)) return;
+    latency_csv.flush();
+    csv_flushed = now;
   }
 
   // True when fewer than in_flight sent frames are unacknowledged; waits (a

@@ -2,7 +2,9 @@
 """Summarises a long run (run_corridor.sh): every service's RSS, the mapper's
 voxel blocks (total and active) and the keyframe store (in shared memory and
 spilled) each 1000 frames, from memory.csv, store.csv and the mapper's
-progress lines. Usage: summarize.py RUN_DIR"""
+progress lines; the peak of all services' RSS together; and for a live run
+(player.pacing: live) the capture-to-pose latency per minute of capture
+(player_latency.csv) and the share of frames fused. Usage: summarize.py RUN_DIR"""
 import bisect
 import csv
 import datetime
@@ -94,6 +96,52 @@ for n, (t, frames, blocks, active) in enumerate(progress):
 for s in services:
     peak = max(x[1] for x in memory[s])
     print(f"peak RSS {s}: {peak:.0f} MB")
+# All services together: the samples of one sweep (once a second) summed.
+sweeps = {}
+for s in services:
+    for t, rss, _, _ in memory[s]:
+        sweeps.setdefault(round(t), {})[s] = rss
+full = [sum(v.values()) for v in sweeps.values() if len(v) == len(services)]
+if full:
+    print(f"peak RSS of all services together: {max(full):.0f} MB")
+
+
+def quantile(values, q):
+    values = sorted(values)
+    return values[min(len(values) - 1, int(q * (len(values) - 1)))] if values else float("nan")
+
+
+def json_file(name):
+    try:
+        return json.load(open(os.path.join(run, name)))
+    except (OSError, ValueError):
+        return {}
+
+
+# A live run (player.pacing: live, or a camera): the capture-to-pose latency
+# per minute of capture (<source>_latency.csv), and the share of frames fused.
+for source in ("player", "camera"):
+    path = os.path.join(run, f"{source}_latency.csv")
+    if not os.path.exists(path):
+        continue
+    minutes = {}
+    with open(path) as f:
+        for r in csv.DictReader(f):
+            # A frame the source took late can be captured just before its start: minute 0.
+            minutes.setdefault(max(0, int(float(r["captured_s"]) // 60)), []).append(float(r["latency_ms"]))
+    print("minute frames latency_ms_p50 latency_ms_p95")
+    for minute in sorted(minutes):
+        v = minutes[minute]
+        print(f"{minute} {len(v)} {quantile(v, 0.5):.0f} {quantile(v, 0.95):.0f}")
+    if len(minutes) > 1:
+        first, last = minutes[min(minutes)], minutes[max(minutes)]
+        print(f"latency p95 last minute / first minute: {quantile(last, 0.95) / quantile(first, 0.95):.2f}")
+    src, mapper = json_file(f"{source}_stats.json"), json_file("mapper_stats.json")
+    captured = src.get("frames_captured", 0) + src.get("frames_skipped_late", 0)
+    if captured and "frames_fused" in mapper:
+        print(f"frames fused: {mapper['frames_fused']} of {captured} ({100.0 * mapper['frames_fused'] / captured:.1f} %); "
+              f"{source}: {src.get('frames_skipped_late')} skipped late, {src.get('frames_dropped')} dropped; "
+              f"mapper: {mapper.get('frames_dropped')} dropped")
 try:
     stats = json.load(open(os.path.join(run, "stats.json")))
     print("stats.json: frames", stats.get("frames"), "wall_seconds", stats.get("wall_seconds"))

@@ -9,6 +9,7 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <cstdio>
 #include <atomic>
 #include <chrono>
 #include <deque>
@@ -122,6 +123,22 @@ TEST(LiveOutlet, AFastSourceBeforeASlowConsumerDropsOldFramesAndNeverQueues) {
   EXPECT_GT(counts.dropped, kOffered / 2);
   EXPECT_EQ(test::jsonInt(stats, "latency_samples"), counts.sent) << stats;
   EXPECT_NE(stats.find("latency_ms_p95"), std::string::npos) << stats;
+  // Each latency is a row of camera_latency.csv, in the order the poses came.
+  std::istringstream csv(test::readText(dir / "out/camera_latency.csv"));
+  std::string line;
+  std::getline(csv, line);
+  EXPECT_EQ(line, "frame_id,captured_s,latency_ms");
+  std::vector<int64_t> rows;
+  while (std::getline(csv, line)) {
+    int64_t id = -1;
+    double captured_s = -1, ms = -1;
+    ASSERT_EQ(std::sscanf(line.c_str(), "%ld,%lf,%lf", &id, &captured_s, &ms), 3) << line;
+    EXPECT_GE(captured_s, 0.0) << line;
+    EXPECT_GE(ms, kConsumerTakesS * 1000.0 * 0.5) << line << ": a pose comes after the consumer's work";
+    rows.push_back(id);
+  }
+  EXPECT_EQ(static_cast<long long>(rows.size()), test::jsonInt(stats, "latency_samples"));
+  EXPECT_TRUE(std::is_sorted(rows.begin(), rows.end()));
 }
 
 

@@ -40,7 +40,10 @@ void announceEndOfStream(Bus& bus, const rekon_msgs::end_of_stream_t& eos);
 // acknowledgements stall: a frame or its acknowledgement was lost), and the
 // capture times of the frames in flight.
 // Also measures the capture-to-pose latency: from a frame's capture time to
-// the tracker's tracked_frame_t for it, as this process receives it.
+// the tracker's tracked_frame_t for it, as this process receives it. With
+// --out every latency is also a row of <out>/<service>_latency.csv
+// (frame_id, captured_s: seconds from the outlet's start, latency_ms),
+// flushed once a second: the curve of a long live run, kept if it is stopped.
 // Two counts say what never reached the consumers, the same for every live
 // source: `frames_skipped_late`, frames whose time passed before the source
 // could take them (a starved or slow source: the player behind its clock, the
