@@ -3,7 +3,9 @@
 # (2 laps = 10 325 frames, 3 = 15 808) through the whole pipeline (rekon run:
 # player, tracker, optimiser, mapper) at the default config; every service's
 # memory is sampled once a second and the store's usage every 10 s, then
-# summarised per 1000 frames (summarize.py). STORE_MB=256 makes the keyframe
+# summarised per 1000 frames with plots (summarize.py). Played live at 30 Hz
+# with `--set player.rate=1 --set player.pacing=live` (the fused share and
+# the per-minute capture-to-pose latency are then summarised too). STORE_MB=256 makes the keyframe
 # store far smaller than the run's keyframes, so most of them spill to disk.
 # Not part of ctest: it takes tens of minutes (the short version is
 # tests/store, KeyframeStoreSpill.ARestartedMapper...).

@@ -4,7 +4,9 @@ voxel blocks (total and active) and the keyframe store (in shared memory and
 spilled) each 1000 frames, from memory.csv, store.csv and the mapper's
 progress lines; the peak of all services' RSS together; and for a live run
 (player.pacing: live) the capture-to-pose latency per minute of capture
-(player_latency.csv) and the share of frames fused. Usage: summarize.py RUN_DIR"""
+(player_latency.csv) and the share of frames fused; issue 26's flat ratios of
+KF integration and correction rounds; and plots into RUN_DIR (memory.svg,
+fps.svg, mapper.svg, latency.svg for a live run). Usage: summarize.py RUN_DIR"""
 import bisect
 import csv
 import datetime
@@ -12,6 +14,8 @@ import json
 import os
 import re
 import sys
+
+import svg_plot
 
 run = sys.argv[1]
 kappa = 20
@@ -124,11 +128,14 @@ for source in ("player", "camera"):
     path = os.path.join(run, f"{source}_latency.csv")
     if not os.path.exists(path):
         continue
-    minutes = {}
+    minutes, per_300 = {}, {}
     with open(path) as f:
         for r in csv.DictReader(f):
             # A frame the source took late can be captured just before its start: minute 0.
             minutes.setdefault(max(0, int(float(r["captured_s"]) // 60)), []).append(float(r["latency_ms"]))
+            per_300.setdefault(int(r["frame_id"]) // 300 * 300, []).append(float(r["latency_ms"]))
+    svg_plot.write(os.path.join(run, "latency.svg"), "capture-to-pose latency per 300 frames", "frame", "ms",
+                   {q: [(f, quantile(v, float(q[1:]) / 100)) for f, v in per_300.items()] for q in ("p50", "p95")})
     print("minute frames latency_ms_p50 latency_ms_p95")
     for minute in sorted(minutes):
         v = minutes[minute]
@@ -142,6 +149,56 @@ for source in ("player", "camera"):
         print(f"frames fused: {mapper['frames_fused']} of {captured} ({100.0 * mapper['frames_fused'] / captured:.1f} %); "
               f"{source}: {src.get('frames_skipped_late')} skipped late, {src.get('frames_dropped')} dropped; "
               f"mapper: {mapper.get('frames_dropped')} dropped")
+
+
+def read_rows(name):
+    try:
+        with open(os.path.join(run, name)) as f:
+            return list(csv.DictReader(f))
+    except OSError:
+        return []
+
+
+def binned(points, width=500):
+    """Mean y per `width` frames, at the bin's start."""
+    bins = {}
+    for x, y in points:
+        bins.setdefault(int(x) // width * width, []).append(y)
+    return [(b, sum(v) / len(v)) for b, v in sorted(bins.items())]
+
+
+def flat_ratio(label, points):
+    """Issue 26's flat goal: the mean over the last 1000 frames against frames 1000-2000."""
+    if not points:
+        return
+    end = max(x for x, _ in points)
+    early = [y for x, y in points if 1000 <= x < 2000]
+    late = [y for x, y in points if x >= end - 1000]
+    if early and late:
+        e, l = sum(early) / len(early), sum(late) / len(late)
+        print(f"{label}: {e:.1f} ms over frames 1000-2000, {l:.1f} ms over the last 1000 ({l / e:.2f}x)")
+
+
+# Plots against frames: memory (memory.svg), throughput (fps.svg), and the
+# mapper's KF integrations and correction rounds (mapper.svg).
+def frames_at(t):
+    return at(progress, t)[1] if progress else 0
+
+
+by_sweep = sorted((t, v) for t, v in sweeps.items() if len(v) == len(services))
+memory_series = {s: [(frames_at(t), v[s]) for t, v in by_sweep] for s in services}
+memory_series["all services"] = [(frames_at(t), sum(v.values())) for t, v in by_sweep]
+svg_plot.write(os.path.join(run, "memory.svg"), "RSS per service", "frames fused", "MB", memory_series)
+svg_plot.write(os.path.join(run, "fps.svg"), "frames fused per second", "frames fused", "frames/s",
+               {"mapper": [(b[1], (b[1] - a[1]) / (b[0] - a[0])) for a, b in zip(progress, progress[1:]) if b[0] > a[0]]})
+integrations = [(int(r["frame_id"]), float(r["integrate_ms"])) for r in read_rows("mapper_timing.csv")
+                if float(r["integrate_ms"]) > 0]
+rounds = [(int(r["frames_fused"]), float(r["ms"])) for r in read_rows("mapper_reintegration.csv")
+          if r.get("frames_fused") and r["final_pass"] == "0" and int(r["keyframes_reintegrated"]) > 0]
+flat_ratio("KF integration", integrations)
+flat_ratio("correction round", rounds)
+svg_plot.write(os.path.join(run, "mapper.svg"), "mapper: mean per 500 frames", "frame", "ms",
+               {"KF integration": binned(integrations), "correction round": binned(rounds)})
 try:
     stats = json.load(open(os.path.join(run, "stats.json")))
     print("stats.json: frames", stats.get("frames"), "wall_seconds", stats.get("wall_seconds"))

@@ -26,10 +26,10 @@ void writeFrameTiming(const std::vector<FrameTiming>& rows, const std::string& p
 
 void writeRounds(const std::vector<RoundRecord>& rows, const std::string& path) {
   std::ofstream out(path);
-  out << "time_s,graph_version,keyframes_reintegrated,ms,blocks_streamed,final_pass\n";
+  out << "time_s,graph_version,keyframes_reintegrated,ms,blocks_streamed,final_pass,frames_fused\n";
   for (const RoundRecord& r : rows)
     out << r.time_s << ',' << r.graph_version << ',' << r.round.keyframes << ',' << r.round.ms << ','
-        << r.round.blocks_streamed << ',' << (r.final_pass ? 1 : 0) << '\n';
+        << r.round.blocks_streamed << ',' << (r.final_pass ? 1 : 0) << ',' << r.frames_fused << '\n';
   if (!out) throw Error("cannot write " + path + "; check that the output folder is writable");
 }
 

@@ -26,6 +26,7 @@ struct RoundRecord {
   int64_t graph_version;
   ReintegrationRound round;
   bool final_pass;
+  int64_t frames_fused;  // by then: rounds against the scan's length
 };
 
 // mesh_uncorrected.ply: every KF keyframe at the pose of its first integration.
