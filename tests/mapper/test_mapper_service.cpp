@@ -143,6 +143,11 @@ TEST_F(MapperServiceRun, WritesWhatTheReportReads) {
   }
   EXPECT_EQ(updates, jsonInt(stats, "graph_updates"));
   EXPECT_EQ(keyframes, jsonInt(stats, "reintegrations"));
+  // frames_fused: rounds against the scan's length, never decreasing; every frame fused by the final pass.
+  const int fused = rounds.column("frames_fused");
+  ASSERT_GE(fused, 0);
+  for (size_t i = 1; i < rounds.rows.size(); ++i) EXPECT_GE(rounds.rows[i][fused], rounds.rows[i - 1][fused]);
+  EXPECT_EQ(static_cast<long long>(rounds.rows.back()[fused]), jsonInt(stats, "frames_fused"));
 
   // mesh_uncorrected.ply beside mesh.ply; its content is specified in test_mapper.cpp.
   ASSERT_TRUE(fs::exists(out("mesh_uncorrected.ply")));
