@@ -8,13 +8,13 @@
 #include <deque>
 #include <exception>
 #include <filesystem>
-#include <fstream>
 #include <map>
 #include <mutex>
 #include <optional>
 #include <thread>
 #include <utility>
 
+#include "rekon/common/csv_log.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/common/latency_histogram.hpp"
 #include "rekon_msgs/tracked_frame_t.hpp"
@@ -79,17 +79,15 @@ struct LiveOutlet::State {
   std::deque<int64_t> unacked;                  // ids sent, oldest first, not yet known to be acknowledged
   std::map<int64_t, Clock::time_point> capture;  // capture time of each frame sent and not yet tracked
   LatencyHistogram latency;
-  std::ofstream latency_csv;  // <out>/<service>_latency.csv; closed without --out
-  Clock::time_point started = Clock::now(), csv_flushed = started;
+  std::optional<CsvLog> latency_csv;  // <out>/<service>_latency.csv; none without --out
+  Clock::time_point started = Clock::now();
   std::thread thread;  // the sender; touches `sender` and `watch` outside the lock
 
   State(ServiceContext& c, FrameSender& s, ConsumerWatch& w, std::vector<std::string> names, int n)
       : ctx(c), sender(s), watch(w), consumers(std::move(names)), in_flight(static_cast<size_t>(std::max(1, n))) {
-    if (ctx.outDir().empty()) return;
-    const std::string path = (std::filesystem::path(ctx.outDir()) / (ctx.name() + "_latency.csv")).string();
-    latency_csv.open(path);
-    if (!latency_csv) throw Error("cannot write " + path + "; give --out a folder this user can write");
-    latency_csv << "frame_id,captured_s,latency_ms\n";
+    if (!ctx.outDir().empty())
+      latency_csv.emplace((std::filesystem::path(ctx.outDir()) / (ctx.name() + "_latency.csv")).string(),
+                          "frame_id,captured_s,latency_ms");
   }
 
   void onTracked(const rekon_msgs::tracked_frame_t& msg) {
@@ -99,17 +97,11 @@ struct LiveOutlet::State {
     capture.erase(capture.begin(), capture.upper_bound(msg.frame_id));
   }
 
-  // One capture-to-pose latency: into the histogram and, with --out, a row of
-  // the CSV (flushed once a second, so a stopped run keeps what it measured).
+  // One capture-to-pose latency: into the histogram and, with --out, a row of the CSV.
   void record(int64_t frame_id, Clock::time_point captured) {
-    const Clock::time_point now = Clock::now();
-    const double ms = std::chrono::duration<double, std::milli>(now - captured).count();
+    const double ms = std::chrono::duration<double, std::milli>(Clock::now() - captured).count();
     latency.add(ms);
-    if (!latency_csv.is_open()) return;
-    latency_csv << frame_id << ',' << std::chrono::duration<double>(captured - started).count() << ',' << ms << '\n';
-    if (now - csv_flushed < std::chrono::seconds(1)) return;
-    latency_csv.flush();
-    csv_flushed = now;
+    if (latency_csv) latency_csv->row(frame_id, std::chrono::duration<double>(captured - started).count(), ms);
   }
 
   // True when fewer than in_flight sent frames are unacknowledged; waits (a

@@ -107,7 +107,7 @@ void finishAndWrite(ServiceContext& ctx, const Settings& settings, Mapper& mappe
   worker.finish(clean);
   mesh.finish(mapper, clean ? BlockCause::kFinalPass : BlockCause::kNewData);  // the last update: a subscriber's map now equals mesh.ply
   if (!ctx.outDir().empty()) {
-    writeMeshAndTables(mapper, worker.frameTiming(), worker.rounds(), ctx.outDir());
+    writeMesh(mapper, ctx.outDir());
     if (settings.baseline_wanted && !worker.baselineWritten()) writeUncorrectedMesh(mapper, ctx.outDir());
   }
   recordStats(ctx, mapper, settings.params, inbox.counts(), mesh.stats());

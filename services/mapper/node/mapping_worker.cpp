@@ -9,7 +9,7 @@
 namespace rekon::mapper {
 
 MappingWorker::MappingWorker(ServiceContext& ctx, Mapper& mapper, Inbox& inbox, MeshPublisher& mesh)
-    : ctx_(ctx), mapper_(mapper), inbox_(inbox), mesh_(mesh) {}
+    : ctx_(ctx), mapper_(mapper), inbox_(inbox), mesh_(mesh), tables_(ctx.outDir()) {}
 
 void MappingWorker::run() {
   while (true) {
@@ -52,7 +52,7 @@ BlockCause MappingWorker::process(const Work& w) {
     const GraphWork& g = std::get<GraphWork>(w);
     const ReintegrationRound round = mapper_.applyGraphUpdate(g.poses);
     last_graph_version_ = g.version;
-    rounds_.push_back({secondsSinceFirstFrame(), g.version, round, false, mapper_.counters().frames});
+    tables_.add(RoundRecord{secondsSinceFirstFrame(), g.version, round, false, mapper_.counters().frames});
     if (round.keyframes > 0) return BlockCause::kCorrection;
   }
   return BlockCause::kNewData;
@@ -61,7 +61,7 @@ BlockCause MappingWorker::process(const Work& w) {
 BlockCause MappingWorker::correct(bool idle) {
   const ReintegrationRound piece = mapper_.continueCorrection(idle);
   if (piece.keyframes == 0) return BlockCause::kNewData;
-  rounds_.push_back({secondsSinceFirstFrame(), last_graph_version_, piece, false, mapper_.counters().frames});
+  tables_.add(RoundRecord{secondsSinceFirstFrame(), last_graph_version_, piece, false, mapper_.counters().frames});
   if (idle) mesh_.tick(mapper_, BlockCause::kCorrection);
   return BlockCause::kCorrection;
 }
@@ -72,9 +72,9 @@ void MappingWorker::fuse(const FrameWork& f) {
   const MapperCounters before = mapper_.counters();
   mapper_.addFrame(f.frame, f.k, f.tracked.keyframe_id, f.tracked.pose_in_keyframe, f.tracked.lost);
   const MapperCounters& after = mapper_.counters();
-  frame_timing_.push_back({f.frame.id, std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count(),
-                           after.fuse_ms_total - before.fuse_ms_total,
-                           after.first_integration_ms_total - before.first_integration_ms_total});
+  tables_.add(FrameTiming{f.frame.id, std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count(),
+                          after.fuse_ms_total - before.fuse_ms_total,
+                          after.first_integration_ms_total - before.first_integration_ms_total});
 }
 
 void MappingWorker::finish(bool clean) {
@@ -82,7 +82,7 @@ void MappingWorker::finish(bool clean) {
     mapper_.flush();  // the last KF keyframe is new data; what the final pass changes after it is not
     mesh_.noteChanges(mapper_, BlockCause::kNewData);
     for (const ReintegrationRound& r : mapper_.finish())
-      rounds_.push_back({secondsSinceFirstFrame(), last_graph_version_, r, true, mapper_.counters().frames});
+      tables_.add(RoundRecord{secondsSinceFirstFrame(), last_graph_version_, r, true, mapper_.counters().frames});
   } else {
     mapper_.flush();
     spdlog::warn("mapper stopped before the end: no final pass; the keyframe store is kept (mapper.resume=true continues from it)");

@@ -29,8 +29,6 @@ class MappingWorker {
   // After run() returned, on the calling thread: the final pass after a clean
   // end (its rounds recorded), else only the open KF keyframe integrated.
   void finish(bool clean);
-  const std::vector<FrameTiming>& frameTiming() const { return frame_timing_; }
-  const std::vector<RoundRecord>& rounds() const { return rounds_; }
   bool baselineWritten() const { return baseline_written_; }
 
  private:
@@ -45,8 +43,7 @@ class MappingWorker {
   Mapper& mapper_;
   Inbox& inbox_;
   MeshPublisher& mesh_;
-  std::vector<FrameTiming> frame_timing_;
-  std::vector<RoundRecord> rounds_;
+  TimingTables tables_;
   std::optional<std::chrono::steady_clock::time_point> first_frame_time_;
   int64_t last_graph_version_ = 0;
   bool baseline_written_ = false;

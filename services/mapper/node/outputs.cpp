@@ -15,25 +15,6 @@
 #include "rekon_msgs/done_t.hpp"
 
 namespace rekon::mapper {
-namespace {
-
-void writeFrameTiming(const std::vector<FrameTiming>& rows, const std::string& path) {
-  std::ofstream out(path);
-  out << "frame_id,ms,fuse_ms,integrate_ms\n";
-  for (const FrameTiming& r : rows) out << r.frame_id << ',' << r.ms << ',' << r.fuse_ms << ',' << r.integrate_ms << '\n';
-  if (!out) throw Error("cannot write " + path + "; check that the output folder is writable");
-}
-
-void writeRounds(const std::vector<RoundRecord>& rows, const std::string& path) {
-  std::ofstream out(path);
-  out << "time_s,graph_version,keyframes_reintegrated,ms,blocks_streamed,final_pass,frames_fused\n";
-  for (const RoundRecord& r : rows)
-    out << r.time_s << ',' << r.graph_version << ',' << r.round.keyframes << ',' << r.round.ms << ','
-        << r.round.blocks_streamed << ',' << (r.final_pass ? 1 : 0) << ',' << r.frames_fused << '\n';
-  if (!out) throw Error("cannot write " + path + "; check that the output folder is writable");
-}
-
-}  // namespace
 
 void writeUncorrectedMesh(const Mapper& mapper, const std::string& out_dir) {
   const auto t0 = std::chrono::steady_clock::now();
@@ -45,16 +26,27 @@ void writeUncorrectedMesh(const Mapper& mapper, const std::string& out_dir) {
                std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
 }
 
-void writeMeshAndTables(const Mapper& mapper, const std::vector<FrameTiming>& frames,
-                        const std::vector<RoundRecord>& rounds, const std::string& out_dir) {
-  const std::filesystem::path out(out_dir);
-  const std::string path = (out / "mesh.ply").string();
+void writeMesh(const Mapper& mapper, const std::string& out_dir) {
+  const std::string path = (std::filesystem::path(out_dir) / "mesh.ply").string();
   PlyWriter ply(path, true);  // in pieces: neither the mesh nor the blocks on disk are held at once
   mapper.extractMeshInPieces([&ply](const Mesh& piece) { ply.add(piece); });
   ply.finish();
   spdlog::info("wrote {} ({} vertices)", path, ply.vertices());
-  writeFrameTiming(frames, (out / "mapper_timing.csv").string());
-  writeRounds(rounds, (out / "mapper_reintegration.csv").string());
+}
+
+void TimingTables::add(const FrameTiming& r) {
+  if (dir_.empty()) return;
+  if (!frames_) frames_.emplace((std::filesystem::path(dir_) / "mapper_timing.csv").string(), "frame_id,ms,fuse_ms,integrate_ms");
+  frames_->row(r.frame_id, r.ms, r.fuse_ms, r.integrate_ms);
+}
+
+void TimingTables::add(const RoundRecord& r) {
+  if (dir_.empty()) return;
+  if (!rounds_)
+    rounds_.emplace((std::filesystem::path(dir_) / "mapper_reintegration.csv").string(),
+                    "time_s,graph_version,keyframes_reintegrated,ms,blocks_streamed,final_pass,frames_fused");
+  rounds_->row(r.time_s, r.graph_version, r.round.keyframes, r.round.ms, r.round.blocks_streamed, r.final_pass ? 1 : 0,
+               r.frames_fused);
 }
 
 void publishDone(ServiceContext& ctx, int64_t last_frame_id) {

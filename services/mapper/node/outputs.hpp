@@ -1,14 +1,17 @@
 #pragma once
-// What the mapper leaves at the end of a run: in the output folder mesh.ply,
-// mesh_uncorrected.ply (the paper's baseline), mapper_timing.csv and
-// mapper_reintegration.csv (tools/report/README.md reads them); done_t for
-// the services downstream; its stats and a summary line in the log.
+// What the mapper leaves in the output folder: mapper_timing.csv and
+// mapper_reintegration.csv as the run goes (tools/report/README.md reads
+// them); at the end mesh.ply and mesh_uncorrected.ply (the paper's
+// baseline), done_t for the services downstream, its stats and a summary
+// line in the log.
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "inbox.hpp"
 #include "mesh_publisher.hpp"
+#include "rekon/common/csv_log.hpp"
 #include "rekon/common/service.hpp"
 #include "rekon/mapper/mapper.hpp"
 
@@ -29,11 +32,25 @@ struct RoundRecord {
   int64_t frames_fused;  // by then: rounds against the scan's length
 };
 
+// mapper_timing.csv and mapper_reintegration.csv, a row as each frame or
+// round is done (common/csv_log.hpp: a killed mapper keeps its rows). Each
+// file is created at its first row, so a mapper restarted after its run
+// finished, which does no work, leaves that run's tables as they are.
+class TimingTables {
+ public:
+  explicit TimingTables(std::string out_dir) : dir_(std::move(out_dir)) {}  // "" = no files
+  void add(const FrameTiming& r);
+  void add(const RoundRecord& r);
+
+ private:
+  std::string dir_;
+  std::optional<CsvLog> frames_, rounds_;
+};
+
 // mesh_uncorrected.ply: every KF keyframe at the pose of its first integration.
 void writeUncorrectedMesh(const Mapper& mapper, const std::string& out_dir);
-// mesh.ply, mapper_timing.csv and mapper_reintegration.csv.
-void writeMeshAndTables(const Mapper& mapper, const std::vector<FrameTiming>& frames,
-                        const std::vector<RoundRecord>& rounds, const std::string& out_dir);
+// mesh.ply, in pieces.
+void writeMesh(const Mapper& mapper, const std::string& out_dir);
 // done_t after a clean end, so that the services downstream may finish.
 void publishDone(ServiceContext& ctx, int64_t last_frame_id);
 // ctx.stats() (written to <out>/mapper_stats.json at exit) and a summary in the log.
