@@ -112,6 +112,26 @@ TEST_F(LoopClosureTest, TheLoopsEndIsAcceptedAgainstItsStartWithTheTrueRelativeP
   EXPECT_TRUE(c.constraint->information.allFinite());
 }
 
+// While other checks wait (the worker is behind), a check aligns only the
+// candidates_when_behind nearest views; with nothing waiting, every candidate.
+TEST_F(LoopClosureTest, ACheckBehindOthersTakesOnlyItsNearestCandidates) {
+  params.loop.exclude_predecessors = 2;  // keyframes 0-2 are the loop end's candidates
+  params.loop.candidates_when_behind = 2;
+  LoopClosureDetector d(params);
+  addChain(d, 0, {0, 12, 24});
+  addChain(d, 3, {566, 578, 590}, drift());
+  LoopClosureStats alone, behind;
+  d.detect(5, alone);
+  d.detect(5, behind, /*behind=*/true);
+  EXPECT_EQ(alone.candidates, 3);
+  EXPECT_EQ(alone.candidates_skipped, 0);
+  EXPECT_EQ(alone.checks_behind, 0);
+  EXPECT_EQ(behind.candidates, 2);
+  EXPECT_EQ(behind.candidates_skipped, 1);
+  EXPECT_EQ(behind.checks_behind, 1);
+  EXPECT_GE(behind.accepted, 1) << "the nearest views are the ones kept: the loop is still found";
+}
+
 // Issue 26: the keyframes beyond tracker.keyframes_in_memory wait on disk
 // and are read back for a check; the check is the same, bit for bit (the
 // finest level is stored, the coarser levels and the reference rebuilt by

@@ -57,6 +57,7 @@ void writeOutputs(ServiceContext& ctx, const TrackingTotals& totals, int64_t fra
       .set("loop_closures_accepted", static_cast<long long>(loops.accepted))
       .set("loop_closures_rejected", static_cast<long long>(loops.rejected))
       .set("loop_candidates_skipped", static_cast<long long>(loops.candidates_skipped))
+      .set("loop_checks_behind", static_cast<long long>(loops.checks_behind))
       .set("loop_checks_dropped", static_cast<long long>(loops.checks_dropped))
       .set("loop_candidates_dropped", static_cast<long long>(loops.candidates_dropped))
       .set("loop_check_ms_per_keyframe",

@@ -331,12 +331,18 @@ std::vector<CandidateCheck> LoopClosureDetector::alignAll(const std::vector<Prep
   return out;
 }
 
-std::vector<LoopConstraint> LoopClosureDetector::detect(int64_t keyframe_id, LoopClosureStats& stats) {
+std::vector<LoopConstraint> LoopClosureDetector::detect(int64_t keyframe_id, LoopClosureStats& stats, bool behind) {
   std::vector<LoopConstraint> accepted;
   std::vector<int64_t> ids = candidates(keyframe_id);
-  if (params_.loop.max_candidates > 0 && ids.size() > static_cast<size_t>(params_.loop.max_candidates)) {
-    stats.candidates_skipped += static_cast<int64_t>(ids.size()) - params_.loop.max_candidates;
-    ids.resize(static_cast<size_t>(params_.loop.max_candidates));
+  const auto limit = [&](int most) {
+    if (most <= 0 || ids.size() <= static_cast<size_t>(most)) return;
+    stats.candidates_skipped += static_cast<int64_t>(ids.size()) - most;
+    ids.resize(static_cast<size_t>(most));
+  };
+  limit(params_.loop.max_candidates);
+  if (behind) {
+    ++stats.checks_behind;
+    limit(params_.loop.candidates_when_behind);
   }
   ++stats.keyframes_checked;
   if (ids.empty()) return accepted;
@@ -463,6 +469,7 @@ void LoopClosureWorker::run() {
     spdlog::debug("loop-closure worker keeps the default priority");
   for (;;) {
     Job job;
+    bool behind = false;  // kBehindWhenWaiting or more checks wait behind this one
     {
       std::unique_lock<std::mutex> lock(mutex_);
       wake_.wait(lock, [&] { return stop_ || (started_ && !queue_.empty()); });
@@ -470,6 +477,7 @@ void LoopClosureWorker::run() {
       job = std::move(queue_.front());
       queue_.pop_front();
       waiting_checks_ -= job.kind == Kind::kCheck;
+      behind = waiting_checks_ >= kBehindWhenWaiting;
       waiting_candidates_ -= job.kind == Kind::kCandidate;
       busy_ = true;
     }
@@ -478,7 +486,7 @@ void LoopClosureWorker::run() {
     try {  // an exception must not end the tracker (std::terminate): this keyframe's loops are lost, one line says why
       detector_.addKeyframe(job.keyframe, job.incoming);
       std::vector<LoopConstraint> accepted;
-      if (job.kind == Kind::kCheck) accepted = detector_.detect(job.keyframe->id, local);
+      if (job.kind == Kind::kCheck) accepted = detector_.detect(job.keyframe->id, local, behind);
       for (const LoopConstraint& c : accepted) on_accept_(c);
     } catch (...) {
       spdlog::error("loop closure check of keyframe {} failed, no loop edges from it: {}", job.keyframe->id,
@@ -494,6 +502,7 @@ void LoopClosureWorker::run() {
         stats_.accepted += local.accepted;
         stats_.rejected += local.rejected;
         stats_.candidates_skipped += local.candidates_skipped;
+        stats_.checks_behind += local.checks_behind;
         stats_.check_ms += ms;
       }
       busy_ = false;

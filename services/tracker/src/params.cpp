@@ -87,6 +87,7 @@ void LoopClosureParams::validate() const {
   require(std::isfinite(refine_photometric_weight) && refine_photometric_weight >= 0 && refine_photometric_weight <= 1,
           "loop_refine_photometric_weight", refine_photometric_weight, "in [0, 1] (1: no refinement)");
   require(max_candidates >= 0, "loop_max_candidates", max_candidates, "0 (all) or positive");
+  require(candidates_when_behind >= 0, "loop_candidates_when_behind", candidates_when_behind, "0 (no limit) or positive");
   require(queue_capacity >= 1, "loop_queue_capacity", queue_capacity, "at least 1");
 }
 
@@ -153,6 +154,7 @@ TrackerParams trackerParamsFromConfig(const Config& c) {
   p.loop.both_directions = c.getBool("tracker.loop_both_directions");
   p.loop.refine_photometric_weight = c.getDouble("tracker.loop_refine_photometric_weight");
   p.loop.max_candidates = c.getInt("tracker.loop_max_candidates");
+  p.loop.candidates_when_behind = c.getInt("tracker.loop_candidates_when_behind");
   p.loop.queue_capacity = c.getInt("tracker.loop_queue_capacity");
   p.validate();
   return p;

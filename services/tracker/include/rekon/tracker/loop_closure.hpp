@@ -79,7 +79,8 @@ struct LoopClosureStats {
   int64_t candidates = 0;  // candidates aligned
   int64_t accepted = 0;
   int64_t rejected = 0;
-  int64_t candidates_skipped = 0;  // beyond max_candidates
+  int64_t candidates_skipped = 0;  // beyond max_candidates, or candidates_when_behind
+  int64_t checks_behind = 0;       // checks made while others waited (candidates_when_behind applied)
   int64_t checks_dropped = 0;      // keyframes whose check the full queue dropped
   int64_t candidates_dropped = 0;  // keyframes whose check was dropped and that the full queue then left out as candidates
   double check_ms = 0.0;           // wall time of all checks
@@ -123,8 +124,9 @@ class LoopClosureDetector {
   // Ids of the keyframes added, ascending.
   std::vector<int64_t> ids() const;
 
-  // candidates() then check() for each (up to max_candidates); accumulates into `stats`.
-  std::vector<LoopConstraint> detect(int64_t keyframe_id, LoopClosureStats& stats);
+  // candidates() then check() for each (up to max_candidates, and with
+  // `behind` up to candidates_when_behind); accumulates into `stats`.
+  std::vector<LoopConstraint> detect(int64_t keyframe_id, LoopClosureStats& stats, bool behind = false);
   // Threads that detect()'s alignments run on from now on (1, the default:
   // the calling thread only). The outcome does not depend on it: each
   // candidate is checked on its own, the results taken in candidate order.
@@ -192,6 +194,10 @@ class LoopClosureDetector {
 class LoopClosureWorker {
  public:
   using AcceptFn = std::function<void(const LoopConstraint&)>;
+  // A check is behind (candidates_when_behind applies) when at least this
+  // many other checks wait: about 4 s of keyframes on the corridor at 30 Hz,
+  // a lag that lasts rather than a burst of keyframes.
+  static constexpr int kBehindWhenWaiting = 8;
 
   // `start` false: the worker waits for start() (tests fill the queue first).
   LoopClosureWorker(const TrackerParams& params, AcceptFn on_accept, bool start = true,

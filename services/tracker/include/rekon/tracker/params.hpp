@@ -142,6 +142,7 @@ struct LoopClosureParams {
   static constexpr double kDefaultMaxCrossCheck = 0.05;
   static constexpr int kDefaultMaxCandidates = 0;
   static constexpr int kDefaultQueueCapacity = 128;
+  static constexpr int kDefaultCandidatesWhenBehind = 4;
   static constexpr bool kDefaultBothDirections = true;
   static constexpr double kDefaultRefinePhotometricWeight = 0.2;
 
@@ -198,6 +199,12 @@ struct LoopClosureParams {
   double refine_photometric_weight = kDefaultRefinePhotometricWeight;
   // Candidates checked per keyframe, nearest views first (0 = all).
   int max_candidates = kDefaultMaxCandidates;
+  // While other keyframes wait for their checks (the worker is behind:
+  // LoopClosureWorker::kBehindWhenWaiting), a check takes at most this many
+  // candidates, nearest views first (0 = no such limit): the worker catches
+  // up instead of its queue, and the keyframes it holds, growing; otherwise
+  // every candidate is checked.
+  int candidates_when_behind = kDefaultCandidatesWhenBehind;
   // Keyframes waiting for their check; when full the oldest waiting check is
   // dropped (the keyframe stays a candidate for later keyframes).
   int queue_capacity = kDefaultQueueCapacity;
