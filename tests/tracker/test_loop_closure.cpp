@@ -355,6 +355,19 @@ TEST(LoopClosureWorker, AFullQueueDropsTheOldestChecks) {
 }
 
 
+// A check is behind while kBehindWhenWaiting or more others wait: of ten
+// queued before the worker starts, the first two (9 and 8 waiting).
+TEST(LoopClosureWorker, ChecksWithManyOthersWaitingAreBehind) {
+  TrackerParams params;
+  LoopClosureWorker worker(params, [](const LoopConstraint&) {}, /*start=*/false);
+  for (int64_t id = 0; id < 10; ++id) worker.submit(farApartKeyframe(id), std::nullopt);
+  worker.start();
+  ASSERT_TRUE(worker.waitUntilDrained(10000));
+  static_assert(LoopClosureWorker::kBehindWhenWaiting == 8);
+  EXPECT_EQ(worker.stats().checks_behind, 2);
+  EXPECT_EQ(worker.stats().keyframes_checked, 10);
+}
+
 // A stalled worker (never started here) while keyframes keep coming: before,
 // only the checks were capped and every keyframe stayed queued (a job each,
 // holding its images), without limit. Now at most queue_capacity checks and
