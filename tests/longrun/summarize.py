@@ -100,14 +100,15 @@ for n, (t, frames, blocks, active) in enumerate(progress):
 for s in services:
     peak = max(x[1] for x in memory[s])
     print(f"peak RSS {s}: {peak:.0f} MB")
-# All services together: the samples of one sweep (once a second) summed.
+# All services together: the samples of one sweep (once a second), in the
+# sweeps that caught every service.
 sweeps = {}
 for s in services:
     for t, rss, _, _ in memory[s]:
         sweeps.setdefault(round(t), {})[s] = rss
-full = [sum(v.values()) for v in sweeps.values() if len(v) == len(services)]
-if full:
-    print(f"peak RSS of all services together: {max(full):.0f} MB")
+by_sweep = sorted((t, v) for t, v in sweeps.items() if len(v) == len(services))
+if by_sweep:
+    print(f"peak RSS of all services together: {max(sum(v.values()) for _, v in by_sweep):.0f} MB")
 
 
 def quantile(values, q):
@@ -185,7 +186,6 @@ def frames_at(t):
     return at(progress, t)[1] if progress else 0
 
 
-by_sweep = sorted((t, v) for t, v in sweeps.items() if len(v) == len(services))
 memory_series = {s: [(frames_at(t), v[s]) for t, v in by_sweep] for s in services}
 memory_series["all services"] = [(frames_at(t), sum(v.values())) for t, v in by_sweep]
 svg_plot.write(os.path.join(run, "memory.svg"), "RSS per service", "frames fused", "MB", memory_series)
@@ -199,8 +199,5 @@ flat_ratio("KF integration", integrations)
 flat_ratio("correction round", rounds)
 svg_plot.write(os.path.join(run, "mapper.svg"), "mapper: mean per 500 frames", "frame", "ms",
                {"KF integration": binned(integrations), "correction round": binned(rounds)})
-try:
-    stats = json.load(open(os.path.join(run, "stats.json")))
-    print("stats.json: frames", stats.get("frames"), "wall_seconds", stats.get("wall_seconds"))
-except (OSError, ValueError):
-    print("no stats.json")
+stats = json_file("stats.json")
+print(f"stats.json: frames {stats.get('frames')} wall_seconds {stats.get('wall_seconds')}" if stats else "no stats.json")

@@ -6,7 +6,6 @@
 #include <chrono>
 #include <cstdint>
 #include <optional>
-#include <vector>
 
 #include "inbox.hpp"
 #include "mesh_publisher.hpp"

@@ -5,11 +5,9 @@
 #include <algorithm>
 #include <chrono>
 #include <filesystem>
-#include <fstream>
 #include <thread>
 
 #include "rekon/common/cpu_time.hpp"
-#include "rekon/common/error.hpp"
 #include "rekon/common/mesh.hpp"
 #include "rekon/common/messages.hpp"
 #include "rekon_msgs/done_t.hpp"

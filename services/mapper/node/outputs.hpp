@@ -7,7 +7,6 @@
 #include <cstdint>
 #include <optional>
 #include <string>
-#include <vector>
 
 #include "inbox.hpp"
 #include "mesh_publisher.hpp"
