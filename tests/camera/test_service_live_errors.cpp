@@ -15,7 +15,6 @@
 #include <fstream>
 #include <string>
 
-#include "rekon/common/config.hpp"
 #include "test_support.hpp"
 
 namespace {
@@ -89,10 +88,6 @@ TEST(LivePacing, PlayerLiveAtTwiceTheRecordedRateWithACpuHogDropsFramesAndStillM
   const double due = rekon::test::jsonNumber(player, "sequence_seconds") / 2.0;
   EXPECT_NEAR(wall, due, 0.4) << player;
   EXPECT_NE(readText(live + "/config.yaml").find("when_full: drop"), std::string::npos);
-  const rekon::Config used = rekon::Config::load(live + "/config.yaml");
-  EXPECT_GT(used.getDouble("mapper.round_budget_ms"), 0.0);
-  EXPECT_EQ(used.getDouble("mapper.round_budget_ms"), used.getDouble("mapper.live_round_budget_ms"))
-      << "live: rounds spread over frames";
   const double paced = ateOf(data, dir / "paced"), dropped_ate = ateOf(data, live);
   std::printf("ATE paced %.3f mm, live with hogs %.3f mm\n", 1e3 * paced, 1e3 * dropped_ate);
   // Measured: paced 0.265 mm; live at 60 Hz with the hog 0.263-0.267 mm in 5 runs (6-19 frames

@@ -130,15 +130,18 @@ TEST_F(MapperServiceRun, WritesWhatTheReportReads) {
   for (const auto& row : timing.rows) frames_that_integrated += row[integrate] > 0;
   EXPECT_EQ(frames_that_integrated, 5);  // frames 5, 10, ..., 25 close a KF keyframe; the sixth closes at the end
 
-  // mapper_reintegration.csv: a round per applied graph update, and the final pass's runs.
+  // mapper_reintegration.csv: a row per applied graph update, per piece of its round corrected later
+  // (mapper.round_budget_ms), and per run of the final pass.
   const std::string stats = readText(out("mapper_stats.json"));
   const rekon::report::CsvTable rounds =
       rekon::report::readCsvTable(out("mapper_reintegration.csv"), rekon::report::kReintegrationColumns);
-  const int final_pass = rounds.column("final_pass");
+  const int final_pass = rounds.column("final_pass"), piece = rounds.column("piece");
   ASSERT_GE(final_pass, 0);
+  ASSERT_GE(piece, 0);
   long long updates = 0, keyframes = 0;
   for (const auto& row : rounds.rows) {
-    updates += row[final_pass] == 0;
+    EXPECT_FALSE(row[final_pass] == 1 && row[piece] == 1);
+    updates += row[final_pass] == 0 && row[piece] == 0;
     keyframes += static_cast<long long>(row[2]);
   }
   EXPECT_EQ(updates, jsonInt(stats, "graph_updates"));

@@ -240,13 +240,8 @@ RunPlan planRun(const RunOptions& opt) {
   if (!opt.camera.empty()) configureCamera(config, opt);
   if (!opt.session.empty()) configureSession(config, opt);
   // Behind a source that cannot wait, a busy mapper drops frames rather than
-  // holding the tracker's next frames back, and corrects a few keyframes per
-  // frame rather than a whole round at once.
-  if (!opt.camera.empty() || config.getString("player.pacing") == "live") {
-    config.set("mapper.when_full", "drop");
-    if (config.getDouble("mapper.round_budget_ms") == 0.0)
-      config.set("mapper.round_budget_ms", config.getString("mapper.live_round_budget_ms"));
-  }
+  // holding the tracker's next frames back.
+  if (!opt.camera.empty() || config.getString("player.pacing") == "live") config.set("mapper.when_full", "drop");
   // The frame source waits only for consumers that this run starts.
   std::string wait_for;
   for (const auto& s : config.getStringList(source + ".wait_for")) {

@@ -42,9 +42,9 @@ void TimingTables::add(const RoundRecord& r) {
   if (dir_.empty()) return;
   if (!rounds_)
     rounds_.emplace((std::filesystem::path(dir_) / "mapper_reintegration.csv").string(),
-                    "time_s,graph_version,keyframes_reintegrated,ms,blocks_streamed,final_pass,frames_fused");
-  rounds_->row(r.time_s, r.graph_version, r.round.keyframes, r.round.ms, r.round.blocks_streamed, r.final_pass ? 1 : 0,
-               r.frames_fused);
+                    "time_s,graph_version,keyframes_reintegrated,ms,blocks_streamed,final_pass,frames_fused,piece");
+  rounds_->row(r.time_s, r.graph_version, r.round.keyframes, r.round.ms, r.round.blocks_streamed,
+               r.kind == RoundKind::kFinalPass ? 1 : 0, r.frames_fused, r.kind == RoundKind::kPiece ? 1 : 0);
 }
 
 void publishDone(ServiceContext& ctx, int64_t last_frame_id) {

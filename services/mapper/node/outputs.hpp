@@ -22,12 +22,16 @@ struct FrameTiming {
   int64_t frame_id;
   double ms, fuse_ms, integrate_ms;
 };
+// What a row of mapper_reintegration.csv records: a graph update applied (its
+// round at once, or with mapper.round_budget_ms only queued), a piece of the
+// queued round corrected later, or a run of the final pass.
+enum class RoundKind { kGraphUpdate, kPiece, kFinalPass };
 // One row of mapper_reintegration.csv.
 struct RoundRecord {
   double time_s;
   int64_t graph_version;
   ReintegrationRound round;
-  bool final_pass;
+  RoundKind kind;
   int64_t frames_fused;  // by then: rounds against the scan's length
 };
 

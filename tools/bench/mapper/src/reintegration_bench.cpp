@@ -245,8 +245,11 @@ int benchReintegrationCommand(int argc, char** argv) {
   mapper::MapperParams base = mapper::MapperParams::fromConfig(config);
   base.cpu_time_counters = !args.flagSet("wall");
   // The paper's memory model (Figure 7's streaming): only the sphere stays
-  // active, whatever mapper.active_mb says; the host tier as configured.
+  // active, whatever mapper.active_mb says; the host tier as configured. And
+  // its rounds: each graph update's keyframes corrected at once, whatever
+  // mapper.round_budget_ms says.
   base.volume.active_max_blocks = 0;
+  base.round_budget_ms = 0.0;
   const BenchFrames data = loadFrames(dataset.string(), target_file, args.getInt("frames"), args.getInt("step"));
   const Trajectory source = readTumTrajectory(source_file), target = readTumTrajectory(target_file);
   const double tracking_ms =
