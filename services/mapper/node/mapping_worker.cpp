@@ -52,7 +52,7 @@ BlockCause MappingWorker::process(const Work& w) {
     const GraphWork& g = std::get<GraphWork>(w);
     const ReintegrationRound round = mapper_.applyGraphUpdate(g.poses);
     last_graph_version_ = g.version;
-    tables_.add(RoundRecord{secondsSinceFirstFrame(), g.version, round, RoundKind::kGraphUpdate, mapper_.counters().frames});
+    recordRound(g.version, round, RoundKind::kGraphUpdate);
     if (round.keyframes > 0) return BlockCause::kCorrection;
   }
   return BlockCause::kNewData;
@@ -61,7 +61,7 @@ BlockCause MappingWorker::process(const Work& w) {
 BlockCause MappingWorker::correct(bool idle) {
   const ReintegrationRound piece = mapper_.continueCorrection(idle);
   if (piece.keyframes == 0) return BlockCause::kNewData;
-  tables_.add(RoundRecord{secondsSinceFirstFrame(), last_graph_version_, piece, RoundKind::kPiece, mapper_.counters().frames});
+  recordRound(last_graph_version_, piece, RoundKind::kPiece);
   if (idle) mesh_.tick(mapper_, BlockCause::kCorrection);
   return BlockCause::kCorrection;
 }
@@ -81,12 +81,15 @@ void MappingWorker::finish(bool clean) {
   if (clean) {
     mapper_.flush();  // the last KF keyframe is new data; what the final pass changes after it is not
     mesh_.noteChanges(mapper_, BlockCause::kNewData);
-    for (const ReintegrationRound& r : mapper_.finish())
-      tables_.add(RoundRecord{secondsSinceFirstFrame(), last_graph_version_, r, RoundKind::kFinalPass, mapper_.counters().frames});
+    for (const ReintegrationRound& r : mapper_.finish()) recordRound(last_graph_version_, r, RoundKind::kFinalPass);
   } else {
     mapper_.flush();
     spdlog::warn("mapper stopped before the end: no final pass; the keyframe store is kept (mapper.resume=true continues from it)");
   }
+}
+
+void MappingWorker::recordRound(int64_t graph_version, const ReintegrationRound& round, RoundKind kind) {
+  tables_.add(RoundRecord{secondsSinceFirstFrame(), graph_version, round, kind, mapper_.counters().frames});
 }
 
 double MappingWorker::secondsSinceFirstFrame() const {

@@ -37,6 +37,7 @@ class MappingWorker {
   // mapper.round_budget_ms: corrects queued keyframes (Mapper::continueCorrection), records the piece.
   BlockCause correct(bool idle);
   double secondsSinceFirstFrame() const;
+  void recordRound(int64_t graph_version, const ReintegrationRound& round, RoundKind kind);  // a row of mapper_reintegration.csv
 
   ServiceContext& ctx_;
   Mapper& mapper_;
