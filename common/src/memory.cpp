@@ -2,6 +2,10 @@
 
 #include <malloc.h>
 
+#include <fstream>
+#include <limits>
+#include <string>
+
 namespace rekon {
 
 void keepFreedMemory() {
@@ -13,6 +17,29 @@ void keepFreedMemory() {
   mallopt(M_ARENA_MAX, 1);
   mallopt(M_MMAP_THRESHOLD, 64 << 20);
   mallopt(M_TRIM_THRESHOLD, 1 << 30);
+}
+
+size_t residentAnonymousBytes() {
+  std::ifstream status("/proc/self/status");
+  std::string key;
+  size_t kb = 0;
+  while (status >> key) {
+    if (key == "RssAnon:") {
+      status >> kb;
+      return kb * 1024;
+    }
+    status.ignore(std::numeric_limits<std::streamsize>::max(), '\n');
+  }
+  return 0;
+}
+
+bool releaseFreedMemoryBeyond(size_t slack_bytes) {
+  const struct mallinfo2 info = mallinfo2();
+  const size_t in_use = info.uordblks + info.hblkhd;
+  const size_t resident = residentAnonymousBytes();
+  if (resident <= in_use + slack_bytes) return false;
+  malloc_trim(0);
+  return true;
 }
 
 }  // namespace rekon

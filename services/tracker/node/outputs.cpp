@@ -59,6 +59,7 @@ void writeOutputs(ServiceContext& ctx, const TrackingTotals& totals, int64_t fra
       .set("loop_candidates_skipped", static_cast<long long>(loops.candidates_skipped))
       .set("loop_checks_behind", static_cast<long long>(loops.checks_behind))
       .set("loop_checks_dropped", static_cast<long long>(loops.checks_dropped))
+      .set("heap_trims", static_cast<long long>(loops.heap_trims))
       .set("loop_candidates_dropped", static_cast<long long>(loops.candidates_dropped))
       .set("loop_check_ms_per_keyframe",
            loops.check_ms / static_cast<double>(std::max<int64_t>(loops.keyframes_checked, 1)))

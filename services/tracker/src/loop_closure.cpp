@@ -14,6 +14,7 @@
 #include <thread>
 
 #include "rekon/common/error.hpp"
+#include "rekon/common/memory.hpp"
 
 namespace rekon::tracker {
 namespace {
@@ -371,7 +372,9 @@ std::vector<LoopConstraint> LoopClosureDetector::detect(int64_t keyframe_id, Loo
 
 LoopClosureWorker::LoopClosureWorker(const TrackerParams& params, AcceptFn on_accept, bool start,
                                      std::shared_ptr<KeyframeCache> cache)
-    : detector_(params, std::move(cache)), on_accept_(std::move(on_accept)) {
+    : detector_(params, std::move(cache)),
+      on_accept_(std::move(on_accept)),
+      heap_slack_bytes_(static_cast<size_t>(params.memory.heap_slack_mb * 1024 * 1024)) {
   thread_ = std::thread([this] { run(); });
   if (start) this->start();
 }
@@ -492,11 +495,17 @@ void LoopClosureWorker::run() {
       spdlog::error("loop closure check of keyframe {} failed, no loop edges from it: {}", job.keyframe->id,
                     currentExceptionLine());
     }
+    // What the check read back and the cache evicted is freed by now (unless
+    // the tracking thread still holds it): past the slack its pages go back,
+    // so that the tracker's memory follows what it keeps.
+    const int64_t id = job.keyframe->id;
+    job.keyframe.reset();
+    const bool trimmed = heap_slack_bytes_ > 0 && releaseFreedMemoryBeyond(heap_slack_bytes_);
     const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     {
       std::lock_guard<std::mutex> lock(mutex_);
       if (job.kind == Kind::kCheck) {
-        checked_.push_back(job.keyframe->id);
+        checked_.push_back(id);
         stats_.keyframes_checked += local.keyframes_checked;
         stats_.candidates += local.candidates;
         stats_.accepted += local.accepted;
@@ -505,6 +514,7 @@ void LoopClosureWorker::run() {
         stats_.checks_behind += local.checks_behind;
         stats_.check_ms += ms;
       }
+      stats_.heap_trims += trimmed;
       busy_ = false;
       if (queue_.empty()) drained_.notify_all();
     }

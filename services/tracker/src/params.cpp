@@ -100,6 +100,7 @@ int AlignerParams::builtCoarsestLevel(int width, int height) const {
 void KeyframeMemoryParams::validate() const {
   require(keyframes_in_memory == 0 || keyframes_in_memory >= 2, "keyframes_in_memory", keyframes_in_memory,
           "0 (all) or at least 2 (a check aligns two keyframes)");
+  require(heap_slack_mb >= 0.0, "heap_slack_mb", heap_slack_mb, ">= 0 (0: never hand freed memory back)");
   if (spill_dir.empty()) throw Error("tracker.keyframe_spill_dir is empty; it must be \"auto\" or a folder");
 }
 
@@ -144,6 +145,7 @@ TrackerParams trackerParamsFromConfig(const Config& c) {
   p.lost.relocalise_budget_ms = c.getDouble("tracker.lost_relocalise_budget_ms");
   p.memory.keyframes_in_memory = c.getInt("tracker.keyframes_in_memory");
   p.memory.spill_dir = c.getString("tracker.keyframe_spill_dir");
+  p.memory.heap_slack_mb = c.getDouble("tracker.heap_slack_mb");
   p.loop.enabled = c.getBool("tracker.loop_closure");
   p.loop.search_radius = c.getDouble("tracker.loop_search_radius");
   p.loop.exclude_predecessors = c.getInt("tracker.loop_exclude_predecessors");

@@ -83,7 +83,8 @@ struct LoopClosureStats {
   int64_t checks_behind = 0;       // checks made while others waited (candidates_when_behind applied)
   int64_t checks_dropped = 0;      // keyframes whose check the full queue dropped
   int64_t candidates_dropped = 0;  // keyframes whose check was dropped and that the full queue then left out as candidates
-  double check_ms = 0.0;           // wall time of all checks
+  double check_ms = 0.0;           // wall time of all checks (with their memory hand-backs)
+  int64_t heap_trims = 0;          // freed memory handed back after a check (KeyframeMemoryParams::heap_slack_mb)
 };
 
 // The synchronous core: a database of keyframes with their odometry
@@ -245,6 +246,7 @@ class LoopClosureWorker {
 
   LoopClosureDetector detector_;
   AcceptFn on_accept_;
+  const size_t heap_slack_bytes_;  // 0: never hand freed memory back
   mutable std::mutex mutex_;
   std::condition_variable wake_, drained_;
   std::deque<Job> queue_;

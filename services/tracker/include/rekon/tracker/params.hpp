@@ -219,6 +219,9 @@ struct KeyframeMemoryParams {
   int keyframes_in_memory = 0;
   // "auto": $TMPDIR (else /tmp)/rekon_tracker_<pid>.spill; else a folder.
   std::string spill_dir = kAutoSpillDir;
+  // Freed heap memory kept resident at most (MB) before the loop-closure
+  // worker hands its pages back (releaseFreedMemoryBeyond); 0: never.
+  double heap_slack_mb = 0.0;
 
   void validate() const;
 };
