@@ -3,9 +3,10 @@
 # tracker and the optimiser (no mapper: the optimiser's recovery is what is
 # measured), once uninterrupted and once with the optimiser killed (SIGKILL)
 # in the last quarter of the stream. rekon run restarts it; the new instance
-# rebuilds its graph from the tracker's replay, batch by batch. Checks, and
-# prints as one markdown row per run:
-#   - the restart came in the last quarter (its replay held >= 75 % of the frames);
+# rebuilds its graph from its journal (optimiser_journal.txt) and asks the
+# tracker only for what came after, batch by batch. Checks, and prints as one
+# markdown row per run:
+#   - the restart came in the last quarter (its journal held >= 75 % of the frames);
 #   - the rebuilt graph holds every keyframe and constraint the tracker
 #     published (optimiser_stats.json against tracker_stats.json);
 #   - the trajectory has every tracked frame, and its ATE against the ground
@@ -63,8 +64,9 @@ else
   echo "uninterrupted: $(run_clean) s"
 fi
 run_killed
-replayed=$(sed -n 's/.*rebuilt from its replay ([0-9]* keyframes, [0-9]* constraints, \([0-9]*\) tracked frames).*/\1/p' \
+replayed=$(sed -n 's/.*rebuilt from optimiser_journal.txt: [0-9]* keyframes, [0-9]* constraints, \([0-9]*\) tracked frames.*/\1/p' \
   "$out/killed/optimiser.log" | tail -1)
+grep -h "this optimiser is a restart" "$out/killed/optimiser.log" | sed 's/^.*\] //' >&2 || true
 echo "| run | frames | restart at frame | tracker keyframes / constraints | optimiser keyframes / constraints (kept + removed) | trajectory frames | ATE mm | vs uninterrupted ATE mm |"
 echo "|---|---|---|---|---|---|---|---|"
 status=0
@@ -84,7 +86,7 @@ for r in uninterrupted killed; do
     { echo "$r: the optimiser holds $ok keyframes / $oc constraints, the tracker published $tk / $tc" >&2; status=1; }
 done
 if [ -z "$replayed" ] || [ "$replayed" -lt $(( frames * 3 / 4 )) ]; then
-  echo "the restart did not come in the last quarter (replay of ${replayed:-no} frames of $frames); raise KILL_AT" >&2
+  echo "the restart did not come in the last quarter (journal of ${replayed:-no} frames of $frames); raise KILL_AT" >&2
   status=1
 fi
 exit $status

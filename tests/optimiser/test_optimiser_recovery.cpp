@@ -6,14 +6,21 @@
 // that are only ever improved. Each test re-runs itself inside a private
 // network namespace (tests/support/in_netns.sh).
 #include <gtest/gtest.h>
+#include <signal.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
+#include <cstdio>
 #include <fstream>
 #include <functional>
+#include <map>
+#include <set>
+#include <variant>
 #include <string>
 
 #include "history.hpp"
+#include "journal.hpp"
 #include "rekon/common/bus.hpp"
 #include "rekon/common/pose.hpp"
 #include "rekon/common/service.hpp"
@@ -36,11 +43,11 @@ Pose shiftedX(double x) {
   return p;
 }
 
-// The tracker's history of a straight walk: `frames` tracked frames, a
-// keyframe every kFramesPerKeyframe with its odometry edge. Published live
-// before the optimiser starts (nobody hears it), kept for the replays.
-void trackWalk(tracker::History& history, int frames) {
-  for (int f = 0; f < frames; ++f) {
+// Frames [first, last) of a straight walk, a keyframe every
+// kFramesPerKeyframe with its odometry edge: published live and kept in the
+// tracker's history for the replays.
+void walk(tracker::History& history, int first, int last) {
+  for (int f = first; f < last; ++f) {
     tracker::TrackResult r;
     r.frame_id = f;
     r.timestamp = f / 30.0;
@@ -60,6 +67,12 @@ void trackWalk(tracker::History& history, int frames) {
     }
     history.publishResult(r);
   }
+}
+
+// The tracker's history of a whole walk of `frames` tracked frames, published
+// before the optimiser starts (nobody hears it), kept for the replays.
+void trackWalk(tracker::History& history, int frames) {
+  walk(history, 0, frames);
   history.noteGraphVersion(7);  // the killed optimiser's last update: this one is a restart
   history.markDone();
 }
@@ -70,6 +83,7 @@ struct Seen {
   int optimiser_pid = 0;
   int replay_requests = 0;
   int optimiser_dones = 0;
+  std::map<int, rekon_msgs::replay_request_t> first_request;  // by the requester's pid
 };
 
 class StandIn {
@@ -80,6 +94,7 @@ class StandIn {
     });
     bus_.subscribe<rekon_msgs::replay_request_t>(channel::kReplayRequest, [this](const rekon_msgs::replay_request_t& m) {
       ++seen_.replay_requests;
+      seen_.first_request.emplace(m.pid, m);
       history_.addReplayRequest(m);
     });
     bus_.subscribe<rekon_msgs::done_t>(channel::kDone, [this](const rekon_msgs::done_t& m) {
@@ -119,11 +134,13 @@ class StandIn {
   Seen seen_;
 };
 
-pid_t spawnRestartedOptimiser(const test::TempDir& dir) {
+pid_t spawnOptimiser(const test::TempDir& dir, bool restarted, const std::string& log = "optimiser.log") {
   return test::spawnShell("exec " + test::binDir() + "/rekon-optimiser --out " + dir.path() +
-                          " --set optimiser.restarted=true --set log.level=debug > " + dir.path() +
-                          "/optimiser.log 2>&1");
+                          " --set optimiser.restarted=" + (restarted ? "true" : "false") +
+                          " --set log.level=debug > " + (dir / log) + " 2>&1");
 }
+
+pid_t spawnRestartedOptimiser(const test::TempDir& dir) { return spawnOptimiser(dir, true); }
 
 size_t posesIn(const std::string& path) { return readTumTrajectory(path).size(); }
 
@@ -146,6 +163,65 @@ TEST(OptimiserRecovery, ARestartRebuildsALongScanFromBatchesAskedForOneByOne) {
   // 6 000 frames, 300 keyframes and 299 constraints: at least 33 batches.
   EXPECT_GE(tracker.seen().replay_requests, (kFrames + 300 + 299) / 200) << test::readText(dir / "optimiser.log");
   EXPECT_NE(test::readText(dir / "optimiser.log").find("this optimiser is a restart"), std::string::npos);
+}
+
+// Frames [first, last) of the walk published live a keyframe's frames at a
+// time, as a tracker sends them, while the stand-in serves replays.
+void walkLive(StandIn& tracker, int first, int last) {
+  for (int f = first; f < last; f += kFramesPerKeyframe) {
+    walk(tracker.history(), f, std::min(last, f + kFramesPerKeyframe));
+    tracker.runUntil([] { return false; }, 0.01);
+  }
+}
+
+// An optimiser killed in the middle of a scan (SIGKILL, once its journal
+// holds the first half) is restarted while the scan goes on: it rebuilds the
+// first half from optimiser_journal.txt and asks the tracker only for what
+// came after it: its first replay request starts where the journal ends, not
+// after the newest frame it has heard live by then (which left the frames
+// in between to a full replay at the end), and its trajectory holds every frame.
+TEST(OptimiserRecovery, ARestartRebuildsFromItsJournalAndAsksOnlyForWhatCameAfter) {
+  if (!test::insideNetns()) return;
+  test::TempDir dir;
+  StandIn tracker(true);
+  constexpr int kFrames = 2000, kHalf = 1000;
+  const pid_t first = spawnOptimiser(dir, false, "first.log");
+  ASSERT_GT(first, 0);
+  ASSERT_TRUE(tracker.runUntil([&] { return tracker.seen().optimiser_running; }, 20)) << test::readText(dir / "first.log");
+  walkLive(tracker, 0, kHalf);
+  const std::string journal = dir / optimiser::kJournalFile;
+  const bool whole_half = tracker.runUntil(
+      [&] { return optimiser::readJournal(journal).frames.size() == static_cast<size_t>(kHalf); }, 10);
+  kill(first, SIGKILL);
+  test::waitForExit(first, 10);
+  const optimiser::JournalContents kept = optimiser::readJournal(journal);
+  ASSERT_GT(kept.frames.size(), 0u) << test::readText(dir / "first.log");
+  EXPECT_TRUE(whole_half) << "the journal holds " << kept.frames.size() << " of " << kHalf << " frames";
+
+  tracker.history().noteGraphVersion(7);  // the killed instance's last update
+  const pid_t pid = spawnRestartedOptimiser(dir);
+  ASSERT_GT(pid, 0);
+  walkLive(tracker, kHalf, kFrames);  // heard, or not, while the restart starts
+  tracker.history().markDone();
+  for (int i = 0; i < 3; ++i) tracker.bus().publish(channel::kDone, doneMessage("tracker", kFrames - 1));
+  ASSERT_TRUE(tracker.runUntil([&] { return tracker.seen().optimiser_dones > 0; }, 60))
+      << test::readText(dir / "optimiser.log");
+  EXPECT_EQ(test::waitForExit(pid, 30), 0) << test::readText(dir / "optimiser.log");
+  EXPECT_EQ(posesIn(dir / "trajectory.txt"), static_cast<size_t>(kFrames)) << test::readText(dir / "optimiser.log");
+  const auto request = tracker.seen().first_request.find(pid);
+  ASSERT_NE(request, tracker.seen().first_request.end()) << test::readText(dir / "optimiser.log");
+  int64_t newest = -1;
+  std::set<int64_t> keyframes, constraints;  // distinct, as the optimiser counts them (by id; by target here)
+  for (const auto& f : kept.frames) newest = std::max(newest, f.frame_id);
+  for (const auto& item : kept.items) {
+    if (const auto* kf = std::get_if<optimiser::KeyframeIn>(&item)) keyframes.insert(kf->id);
+    else constraints.insert(std::get<optimiser::Constraint>(item).to_id);
+  }
+  EXPECT_EQ(request->second.next_frame_id, newest + 1);
+  EXPECT_EQ(request->second.next_keyframe, static_cast<int64_t>(keyframes.size()));
+  EXPECT_EQ(request->second.next_constraint, static_cast<int64_t>(constraints.size()));
+  EXPECT_NE(test::readText(dir / "optimiser.log").find("rebuilt from optimiser_journal.txt"), std::string::npos)
+      << test::readText(dir / "optimiser.log");
 }
 
 // An answer to request 1 of another instance (a killed optimiser's, still
@@ -181,8 +257,8 @@ TEST(OptimiserRecovery, AStaleReplayEndOfAnotherInstanceIsNotTakenForTheAnswer) 
 }
 
 // A restart that can rebuild less than its predecessor wrote (here the
-// tracker holds 100 frames, the trajectory on disk 400) keeps the earlier
-// trajectory.txt and says so.
+// tracker holds 100 frames, the trajectory on disk 400, and the journal is
+// gone) keeps the earlier trajectory.txt and says so.
 TEST(OptimiserRecovery, ARestartThatRebuildsLessKeepsTheEarlierTrajectory) {
   if (!test::insideNetns()) return;
   test::TempDir dir;
@@ -194,6 +270,7 @@ TEST(OptimiserRecovery, ARestartThatRebuildsLessKeepsTheEarlierTrajectory) {
     ASSERT_EQ(test::waitForExit(first, 30), 0) << test::readText(dir / "optimiser.log");
   }
   ASSERT_EQ(posesIn(dir / "trajectory.txt"), 400u);
+  ASSERT_EQ(std::remove((dir / optimiser::kJournalFile).c_str()), 0);
   StandIn partial(true);
   trackWalk(partial.history(), 100);
   const pid_t pid = spawnRestartedOptimiser(dir);

@@ -132,6 +132,12 @@ bool GraphWorker::apply(const std::vector<GraphItem>& items) {
   return addWaitingExternals() || new_edges;
 }
 
+bool GraphWorker::seen(const GraphItem& item) const {
+  if (const auto* kf = std::get_if<KeyframeIn>(&item)) return keyframes_.count(kf->id) > 0;
+  const Constraint& c = std::get<Constraint>(item);
+  return constraints_.count({static_cast<int>(c.kind), c.from_id, c.to_id}) > 0;
+}
+
 void GraphWorker::load(const G2oGraph& g2o) { apply(inLoadOrder(g2o)); }
 
 rekon_msgs::graph_update_t GraphWorker::optimise(bool final, int64_t last_frame_id) {

@@ -50,6 +50,8 @@ class GraphWorker {
   void countRejected(int64_t n) { rejected_ += n; }
 
   const PoseGraph& graph() const { return graph_; }
+  // The keyframe or constraint has been applied before (a duplicate now).
+  bool seen(const GraphItem& item) const;
   size_t keyframesSeen() const { return keyframes_.size(); }
   size_t constraintsSeen() const { return constraints_.size(); }
   size_t constraintsWaiting() const { return waiting_.size() + external_waiting_.size(); }

@@ -99,7 +99,7 @@ void Inbox::onTrackedFrame(const rekon_msgs::tracked_frame_t& m) {
   try {
     TrackedFrame f = trackedFrameFromMsg(m);
     std::lock_guard<std::mutex> lock(mutex_);
-    frames_.emplace(f.frame_id, f);
+    if (frames_.emplace(f.frame_id, f).second) new_frames_.push_back(f);
     last_frame_id_ = std::max(last_frame_id_, f.frame_id);
   } catch (const Error& e) {
     reject(e);
@@ -139,6 +139,21 @@ std::optional<rekon_msgs::replay_end_t> Inbox::waitForReplayEnd(int64_t request_
 void Inbox::setUpstreamDone() {
   std::lock_guard<std::mutex> lock(mutex_);
   upstream_done_ = true;
+}
+
+std::vector<TrackedFrame> Inbox::takeNewFrames() {
+  std::vector<TrackedFrame> out;
+  std::lock_guard<std::mutex> lock(mutex_);
+  out.swap(new_frames_);
+  return out;
+}
+
+void Inbox::restoreFrames(const std::vector<TrackedFrame>& frames) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (const TrackedFrame& f : frames) {
+    frames_.emplace(f.frame_id, f);
+    last_frame_id_ = std::max(last_frame_id_, f.frame_id);
+  }
 }
 
 size_t Inbox::trackedFrameCount() const {

@@ -49,6 +49,13 @@ class Inbox {
   // The upstream finished before we could hear its done_t (a replay says so).
   void setUpstreamDone();
 
+  // Tracked frames first heard since the last call (live or replayed), in
+  // arrival order: the journal's.
+  std::vector<TrackedFrame> takeNewFrames();
+  // An earlier instance's frames (its journal), as if they had arrived, but
+  // not new: they are in the journal already.
+  void restoreFrames(const std::vector<TrackedFrame>& frames);
+
   size_t trackedFrameCount() const;
   int64_t lastFrameId() const;
   // True once per mapper restart noted since the last call.
@@ -75,6 +82,7 @@ class Inbox {
   std::vector<GraphItem> graph_items_;          // in arrival order
   std::vector<ExternalConstraint> externals_;   // in arrival order
   std::map<int64_t, TrackedFrame> frames_;      // live and replayed, once each
+  std::vector<TrackedFrame> new_frames_;        // of frames_, not yet taken by takeNewFrames
   bool upstream_done_ = false;
   int64_t last_frame_id_ = -1;
   int64_t rejected_ = 0;

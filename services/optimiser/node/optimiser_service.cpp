@@ -8,6 +8,7 @@
 
 #include "graph_worker.hpp"
 #include "inbox.hpp"
+#include "journal.hpp"
 #include "outputs.hpp"
 #include "recovery.hpp"
 #include "rekon/optimiser/g2o.hpp"
@@ -49,10 +50,10 @@ void continueSession(ServiceContext& ctx, const Inbox& inbox, GraphWorker& worke
 // A tracker that falls silent for good before its done_t sends nothing more:
 // the final step goes on with what arrived.
 void optimiseWhileStreaming(ServiceContext& ctx, const PeerWatch& peers, Inbox& inbox, GraphWorker& worker,
-                            SessionGraph& session) {
+                            SessionGraph& session, Journal& journal) {
   for (;;) {
     bool done = false;
-    bool new_edges = worker.apply(inbox.waitForGraphItems(kIdleWait, &done));
+    bool new_edges = applyArrived(inbox.waitForGraphItems(kIdleWait, &done), inbox, worker, journal);
     new_edges |= worker.applyExternal(inbox.takeExternalConstraints());
     if (done || ctx.stopRequested()) return;
     if (peers.gone(kUpstreamService)) {
@@ -109,16 +110,19 @@ void runOptimiserService(ServiceContext& ctx) {
   GraphWorker worker(params.graph);
   SessionGraph session(ctx.config());
   continueSession(ctx, inbox, worker, session);
+  Journal journal(ctx.outDir(), ctx.config().getBool("optimiser.restarted"));
+  const ReplayCursor from = rebuildFromJournal(journal.contents(), inbox, worker);
   ReplayClient replays(ctx, peers, inbox);
-  if (!recoverAtStart(ctx, peers, replays, inbox, worker)) {
+  if (!recoverAtStart(ctx, peers, replays, inbox, worker, from)) {
     // Nothing to add, but a mapper may wait for the optimiser's current instance.
     publishFinal(ctx.bus(), std::nullopt, doneMessage(ctx.name(), -1), params);
     return;
   }
-  optimiseWhileStreaming(ctx, peers, inbox, worker, session);
+  optimiseWhileStreaming(ctx, peers, inbox, worker, session, journal);
 
   ctx.setState("finishing");
-  fillWhatWasLost(ctx, replays, inbox, worker);
+  fillWhatWasLost(ctx, replays, inbox, worker, journal);
+  applyArrived(inbox.takeGraphItems(), inbox, worker, journal);
   worker.applyExternal(inbox.takeExternalConstraints());
   const rekon_msgs::graph_update_t final_update = worker.optimise(true, inbox.lastFrameId());
   session.afterOptimisation(worker.graph(), true);

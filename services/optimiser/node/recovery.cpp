@@ -3,6 +3,7 @@
 #include <spdlog/spdlog.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <limits>
 #include <thread>
@@ -70,8 +71,24 @@ std::optional<rekon_msgs::replay_end_t> ReplayClient::replay(ReplayCursor from) 
   }
 }
 
+ReplayCursor rebuildFromJournal(const JournalContents& journal, Inbox& inbox, GraphWorker& worker) {
+  const size_t keyframes_before = worker.keyframesSeen(), constraints_before = worker.constraintsSeen();
+  worker.apply(journal.items);
+  inbox.restoreFrames(journal.frames);
+  // The journal's newest frame, not the inbox's: live frames heard since this
+  // instance subscribed may have left a gap after the journal.
+  int64_t newest = -1;
+  for (const TrackedFrame& f : journal.frames) newest = std::max(newest, f.frame_id);
+  const ReplayCursor from{static_cast<int64_t>(worker.keyframesSeen() - keyframes_before),
+                          static_cast<int64_t>(worker.constraintsSeen() - constraints_before), newest + 1};
+  if (journal.lines_read > 0)
+    spdlog::info("rebuilt from {}: {} keyframes, {} constraints, {} tracked frames; the tracker's replay starts after them",
+                 kJournalFile, from.keyframe, from.constraint, journal.frames.size());
+  return from;
+}
+
 bool recoverAtStart(ServiceContext& ctx, const PeerWatch& peers, ReplayClient& replays, Inbox& inbox,
-                    GraphWorker& worker) {
+                    GraphWorker& worker, const ReplayCursor& from) {
   const bool restarted = ctx.config().getBool("optimiser.restarted");
   const auto wait_until = secondsFromNow(ctx.lifecycle().peer_seen_s);
   while (!peers.peer(kUpstreamService) && Clock::now() < wait_until && !ctx.stopRequested())
@@ -84,15 +101,17 @@ bool recoverAtStart(ServiceContext& ctx, const PeerWatch& peers, ReplayClient& r
     return false;
   }
   if (!tracker || tracker->instances == 0) return true;
-  const auto end = replays.replay({});
+  const auto end = replays.replay(from);
   if (!end) return true;
   // A version the tracker saw from us (the previous run's graph, published at
   // once with session.continue) does not make this optimiser a restart.
   if (end->graph_version > worker.version()) {
     worker.continueVersionsAfter(end->graph_version + kRestartVersionGap);
-    spdlog::warn("the tracker has seen graph version {}: this optimiser is a restart; rebuilt from its replay "
-                 "({} keyframes, {} constraints, {} tracked frames)",
-                 end->graph_version, end->keyframes, end->constraints, end->tracked_frames);
+    spdlog::warn("the tracker has seen graph version {}: this optimiser is a restart; rebuilt from its journal and "
+                 "the tracker's replay from keyframe {}, constraint {}, frame {} (the tracker has {} keyframes, {} "
+                 "constraints, {} tracked frames)",
+                 end->graph_version, from.keyframe, from.constraint, from.frame_id, end->keyframes, end->constraints,
+                 end->tracked_frames);
   }
   // Its done_t may have gone out before we subscribed: the replay says so.
   if (end->done) {
@@ -102,7 +121,7 @@ bool recoverAtStart(ServiceContext& ctx, const PeerWatch& peers, ReplayClient& r
   return true;
 }
 
-void fillWhatWasLost(ServiceContext& ctx, ReplayClient& replays, Inbox& inbox, GraphWorker& worker) {
+void fillWhatWasLost(ServiceContext& ctx, ReplayClient& replays, Inbox& inbox, GraphWorker& worker, Journal& journal) {
   auto totals = replays.totals();
   while (totals && !ctx.stopRequested()) {
     const Have now = have(inbox, worker);
@@ -118,7 +137,7 @@ void fillWhatWasLost(ServiceContext& ctx, ReplayClient& replays, Inbox& inbox, G
                             missing.constraints > 0 ? 0 : totals->constraints,
                             missing.frames > 0 ? 0 : totals->last_frame_id + 1};
     totals = replays.replay(from);
-    worker.apply(inbox.takeGraphItems());
+    applyArrived(inbox.takeGraphItems(), inbox, worker, journal);
     const Have after = have(inbox, worker);
     if (after.keyframes == now.keyframes && after.constraints == now.constraints && after.frames == now.frames) {
       spdlog::error("a whole replay brought nothing new; optimising what arrived");

@@ -9,6 +9,7 @@
 
 #include "graph_worker.hpp"
 #include "inbox.hpp"
+#include "journal.hpp"
 #include "rekon/common/service.hpp"
 #include "rekon_msgs/replay_end_t.hpp"
 
@@ -39,7 +40,14 @@ class ReplayClient {
   int64_t request_id_ = 0;
 };
 
-// A restarted optimiser finds the tracker's history in a replay: its updates
+// An earlier instance's journal, applied as if it had arrived; returns where
+// the tracker's replay goes on: after the keyframes, constraints (distinct
+// ones, as the worker counts them) and the newest frame the journal holds.
+// What the journal missed in between (a message lost on its way) is found by
+// fillWhatWasLost, which compares with the tracker's totals.
+ReplayCursor rebuildFromJournal(const JournalContents& journal, Inbox& inbox, GraphWorker& worker);
+
+// A restarted optimiser finds the rest of the tracker's history (from `from`) in a replay: its updates
 // continue past the newest graph version the tracker saw, and when the
 // tracker has already finished, the final optimisation follows the replay. A
 // tracker still starting has no history; without a tracker (another
@@ -48,11 +56,11 @@ class ReplayClient {
 // was restarted (optimiser.restarted) and no tracker is there to rebuild
 // from: it has nothing to add.
 bool recoverAtStart(ServiceContext& ctx, const PeerWatch& peers, ReplayClient& replays, Inbox& inbox,
-                    GraphWorker& worker);
+                    GraphWorker& worker, const ReplayCursor& from);
 
 // After the stream: the tracker's totals tell whether anything is missing,
 // and a replay supplies it (each item is taken once), until nothing is
 // missing, the tracker is gone, or a replay brought nothing new.
-void fillWhatWasLost(ServiceContext& ctx, ReplayClient& replays, Inbox& inbox, GraphWorker& worker);
+void fillWhatWasLost(ServiceContext& ctx, ReplayClient& replays, Inbox& inbox, GraphWorker& worker, Journal& journal);
 
 }  // namespace rekon::optimiser
