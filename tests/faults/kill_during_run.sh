@@ -5,13 +5,19 @@
 # would, but with the page cache kept.
 #
 # The kill lands at the count, even at the last KF keyframe (which the mapper
-# stores in its final pass, 0.6 s before it exits on the 90-frame room):
-# once the store is one short, the service runs only between checks (20 ms
-# apart), and each check reads the count with the service stopped (SIGSTOP),
-# so the SIGKILL meets a live process holding what was counted.
+# stores in its final pass, 0.3-0.6 s before it exits on the 90-frame room):
+# each check reads the count with the service stopped (SIGSTOP), so the
+# service runs only between checks (0.1 s apart) and the SIGKILL meets a live
+# process holding what was counted. The service was once stopped only from one
+# short on, and ran during the counts before that: under load a count took
+# 1 s, the mapper went from 3 stored to 5 and exited during one, and nothing
+# was killed (evidence /tmp/rekon_test_ORgdxx, 2026-12-04).
 #
 # Every check holds the player stopped (SIGSTOP) while it counts, so the
 # stream advances only between checks, however slow a check is.
+#
+# Each check's time, count and outcome go to OUT/kill_checks.log (the
+# evidence when a kill is missed).
 #
 # Prints "killed rekon-SERVICE ..." ("killed all ...") only when the kill
 # landed (for a service: rekon run reported it killed by signal 9) and exits
@@ -51,9 +57,8 @@ stopped() {
 }
 
 # One check: once the store holds MIN_KEYFRAMES, kills the service (or the
-# session) and sets `killed`; returns 1 while it has not. From one short on
-# (`near`) the service runs only between checks.
-near=""
+# session) and sets `killed`; returns 1 while it has not.
+note() { echo "$(date +%T.%N | cut -c1-12) $*" >> "$out/kill_checks.log"; }
 tryKill() {
   local n pid
   if [ "$service" = all ]; then
@@ -63,11 +68,10 @@ tryKill() {
     pkill -9 -s "$run" && killed="all (session $run) with $n KF keyframes stored"
     return 0
   fi
-  [ -n "$near" ] || [ "$(stored)" -ge $((min - 1)) ] || return 1
-  near=1
   pid=$(pidOf "$service")
-  [ -n "$pid" ] && kill -STOP "$pid" 2> /dev/null && stopped "$pid" || { kill -CONT "$pid" 2> /dev/null; return 1; }
+  [ -n "$pid" ] && kill -STOP "$pid" 2> /dev/null && stopped "$pid" || { note "rekon-$service (pid ${pid:-none}) not stopped"; kill -CONT "$pid" 2> /dev/null; return 1; }
   n=$(stored)
+  note "stored $n with rekon-$service (pid $pid) stopped"
   if [ "$n" -ge "$min" ]; then
     kill -9 "$pid" && killed="rekon-$service (pid $pid) with $n KF keyframes stored"
     return 0
