@@ -49,11 +49,10 @@ double corrOf(const std::string& data, const std::string& run) {
   return valueAfter(out, "corr_m");
 }
 
-// Measured: frame 300 is not placed (12 frames past the first run's last
-// keyframe, outside the coarse level's basin from every guess), frame 301 is,
-// against that keyframe. The exported session (both runs, one alignment for
-// all frames) has ATE 0.304 mm and CORR 0.933 mm; the single run 0.287 and
-// 0.925 mm (1.06x and 1.01x). Bounds: 1.5x each, and at most 10 frames lost
+// Measured: frame 300 is placed against the first run's last keyframe (12
+// frames past it) or, when its search ran out of time, frame 301 is. The
+// exported session (both runs, one alignment for all frames) has ATE 0.304
+// mm and CORR 0.933 mm; the single run 0.287 and 0.925 mm (1.06x and 1.01x). Bounds: 1.5x each, and at most 10 frames lost
 // to relocalisation (1 measured).
 TEST(SessionContinue, TwoRunsMakeOneTrajectoryAndOneMapAsGoodAsOneRun) {
   rekon::test::TempDir dir;
@@ -70,9 +69,16 @@ TEST(SessionContinue, TwoRunsMakeOneTrajectoryAndOneMapAsGoodAsOneRun) {
 
   const std::string tracker = readText(dir / "second/tracker_stats.json");
   EXPECT_GE(jsonInt(tracker, "relocalisations"), 1) << tracker;
-  EXPECT_NE(tracker.find(R"("first_frame":300,)"), std::string::npos) << tracker;
-  EXPECT_NE(tracker.find(R"("ended":"relocalised")"), std::string::npos) << tracker;
   const long long lost = jsonInt(tracker, "lost_frames");
+  // Frame 300 is placed by itself when its search over the session's 16
+  // keyframes fits tracker.lost_relocalise_budget_ms (100 ms; it did on the
+  // 2-core VM of 2026-12-04, against keyframe 15), else a later frame goes on
+  // with the search: then the frames before it form one lost interval from
+  // frame 300 that ended in the relocalisation.
+  if (lost > 0) {
+    EXPECT_NE(tracker.find(R"("first_frame":300,)"), std::string::npos) << tracker;
+    EXPECT_NE(tracker.find(R"("ended":"relocalised")"), std::string::npos) << tracker;
+  }
   EXPECT_LE(lost, 10) << tracker;
   // One trajectory: every frame of both runs but those lost before the relocalisation.
   EXPECT_EQ(rekon::readTumTrajectory(dir / "export/trajectory.txt").size(), static_cast<size_t>(kFrames - lost));
