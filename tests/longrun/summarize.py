@@ -111,6 +111,26 @@ if by_sweep:
     print(f"peak RSS of all services together: {max(sum(v.values()) for _, v in by_sweep):.0f} MB")
 
 
+def frames_at(t):
+    return at(progress, t)[1] if progress else 0
+
+
+# The corridor's laps (run_corridor.sh: 4 841 frames, then 5 484 a lap):
+# each service's RSS when lap 1 ends against its highest in the last lap
+# while the stream lasts (issue 26's goal: within 1.2x). The end of the run
+# (final pass, meshes) comes after and is in the peaks above.
+LAP1, LAP = 4841, 5484
+total = progress[-1][1] if progress else 0
+if total >= LAP1 + LAP:
+    last_lap = LAP1 + (total - LAP1 - 1) // LAP * LAP
+    for s in services:
+        lap1 = [x[1] for x in memory[s] if frames_at(x[0]) <= LAP1]
+        last = [x[1] for x in memory[s] if last_lap <= frames_at(x[0]) < total]
+        if lap1 and last:
+            print(f"RSS {s}: {lap1[-1]:.0f} MB at the end of lap 1 (frame {LAP1}), at most {max(last):.0f} MB in the "
+                  f"last lap (frames {last_lap}-{total}): {max(last) / lap1[-1]:.2f}x")
+
+
 def quantile(values, q):
     values = sorted(values)
     return values[min(len(values) - 1, int(q * (len(values) - 1)))] if values else float("nan")
@@ -182,9 +202,6 @@ def flat_ratio(label, points):
 
 # Plots against frames: memory (memory.svg), throughput (fps.svg), and the
 # mapper's KF integrations and correction rounds (mapper.svg).
-def frames_at(t):
-    return at(progress, t)[1] if progress else 0
-
 
 memory_series = {s: [(frames_at(t), v[s]) for t, v in by_sweep] for s in services}
 memory_series["all services"] = [(frames_at(t), sum(v.values())) for t, v in by_sweep]
