@@ -24,8 +24,9 @@ void keepFreedMemory();
 // tracker's DVO keyframes (3.3 MB each) are evicted and read back by
 // distance from the camera, and with keepFreedMemory the holes were neither
 // reused nor returned (corridor, frame 5 600: 249 MB held for 207 MB in
-// use, growing). A trim costs tens of ms and the pages fault in again when
-// reused, so it runs only past the slack, not at every call.
+// use, growing). The pages of a trim fault in again when reused (trimming
+// after every loop check doubled the tracker's time per frame), so it runs
+// only past the slack, not at every call.
 bool releaseFreedMemoryBeyond(size_t slack_bytes);
 
 // This process's resident anonymous memory (RssAnon of /proc/self/status),
