@@ -19,18 +19,23 @@ void keepFreedMemory() {
   mallopt(M_TRIM_THRESHOLD, 1 << 30);
 }
 
-size_t residentAnonymousBytes() {
+long long procStatusKb(std::string_view field) {
   std::ifstream status("/proc/self/status");
   std::string key;
-  size_t kb = 0;
+  long long kb = -1;
   while (status >> key) {
-    if (key == "RssAnon:") {
+    if (key.size() == field.size() + 1 && key.back() == ':' && key.compare(0, field.size(), field) == 0) {
       status >> kb;
-      return kb * 1024;
+      return kb;
     }
     status.ignore(std::numeric_limits<std::streamsize>::max(), '\n');
   }
-  return 0;
+  return -1;
+}
+
+size_t residentAnonymousBytes() {
+  const long long kb = procStatusKb("RssAnon");
+  return kb < 0 ? 0 : static_cast<size_t>(kb) * 1024;
 }
 
 bool releaseFreedMemoryBeyond(size_t slack_bytes) {

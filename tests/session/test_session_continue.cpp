@@ -52,8 +52,8 @@ double corrOf(const std::string& data, const std::string& run) {
 // Measured: frame 300 is placed against the first run's last keyframe (12
 // frames past it) or, when its search ran out of time, frame 301 is. The
 // exported session (both runs, one alignment for all frames) has ATE 0.304
-// mm and CORR 0.933 mm; the single run 0.287 and 0.925 mm (1.06x and 1.01x). Bounds: 1.5x each, and at most 10 frames lost
-// to relocalisation (1 measured).
+// mm and CORR 0.933 mm; the single run 0.287 and 0.925 mm (1.06x and 1.01x).
+// Bounds: 1.5x each, and at most 10 frames lost to relocalisation (1 measured).
 TEST(SessionContinue, TwoRunsMakeOneTrajectoryAndOneMapAsGoodAsOneRun) {
   rekon::test::TempDir dir;
   const std::string room = dir / "room", session = dir / "session";

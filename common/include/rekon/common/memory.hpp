@@ -1,6 +1,7 @@
 #pragma once
 
 #include <cstddef>
+#include <string_view>
 
 namespace rekon {
 
@@ -29,8 +30,12 @@ void keepFreedMemory();
 // only past the slack, not at every call.
 bool releaseFreedMemoryBeyond(size_t slack_bytes);
 
-// This process's resident anonymous memory (RssAnon of /proc/self/status),
-// in bytes; 0 when it cannot be read.
+// A field of this process's /proc/self/status in kB ("VmHWM", "RssAnon",
+// ...); -1 when it cannot be read.
+long long procStatusKb(std::string_view field);
+
+// This process's resident anonymous memory (RssAnon), in bytes; 0 when it
+// cannot be read.
 size_t residentAnonymousBytes();
 
 }  // namespace rekon

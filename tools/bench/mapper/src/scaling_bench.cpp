@@ -21,6 +21,7 @@
 #include "rekon/common/error.hpp"
 #include "rekon/common/json.hpp"
 #include "rekon/common/logging.hpp"
+#include "rekon/common/memory.hpp"
 #include "rekon/common/service.hpp"
 #include "rekon/mapper/mapper.hpp"
 #include "rekon/mapper_bench/bench_command.hpp"
@@ -134,13 +135,9 @@ void writeCurve(const std::vector<ScalingPoint>& points, const std::string& dir,
 // Linux's peak resident memory of this process (VmHWM) in MiB, reset to now
 // by the call, or -1 where /proc does not say.
 double peakRssSinceLastCallMb() {
-  std::ifstream status("/proc/self/status");
-  double peak = -1.0;
-  for (std::string line; std::getline(status, line);) {
-    if (line.rfind("VmHWM:", 0) == 0) peak = std::stod(line.substr(6)) / 1024.0;
-  }
+  const long long kb = procStatusKb("VmHWM");
   std::ofstream("/proc/self/clear_refs") << "5";
-  return peak;
+  return kb < 0 ? -1.0 : static_cast<double>(kb) / 1024.0;
 }
 
 // What the end of a run costs in memory beyond the map: the mesh written in
