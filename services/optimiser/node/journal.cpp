@@ -114,6 +114,7 @@ JournalContents readJournal(const std::string& path) {
       break;
     }
     ++contents.lines_read;
+    contents.bytes_read += line.size() + 1;
   }
   return contents;
 }
@@ -121,19 +122,14 @@ JournalContents readJournal(const std::string& path) {
 Journal::Journal(const std::string& out_dir, bool restarted) {
   if (out_dir.empty()) return;
   path_ = (std::filesystem::path(out_dir) / kJournalFile).string();
-  if (restarted) contents_ = readJournal(path_);
-  // A restart appends after the last complete line: a torn one is cut off.
+  std::error_code ec;
   if (restarted && std::filesystem::exists(path_)) {
-    std::ifstream in(path_);
-    std::string kept, line;
-    for (size_t i = 0; i < contents_.lines_read && std::getline(in, line); ++i) kept += line + '\n';
-    out_.open(path_, std::ios::trunc);
-    out_ << kept;
-  } else {
-    out_.open(path_, std::ios::trunc);
+    contents_ = readJournal(path_);
+    // A restart appends after the last readable line: a torn one is cut off.
+    std::filesystem::resize_file(path_, contents_.bytes_read, ec);
   }
-  out_.flush();
-  if (!out_) throw Error("cannot write the optimiser's journal " + path_ + "; check that the folder is writable");
+  out_.open(path_, restarted ? std::ios::app : std::ios::trunc);
+  if (ec || !out_) throw Error("cannot write the optimiser's journal " + path_ + "; check that the folder is writable");
 }
 
 void Journal::append(const std::vector<GraphItem>& items, const std::vector<TrackedFrame>& frames) {

@@ -27,6 +27,7 @@ struct JournalContents {
   std::vector<GraphItem> items;      // in arrival order
   std::vector<TrackedFrame> frames;  // in arrival order
   size_t lines_read = 0;
+  size_t bytes_read = 0;  // of those lines, newlines included
 };
 
 // What the journal at `path` holds (empty when there is none).
