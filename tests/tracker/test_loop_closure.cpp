@@ -356,16 +356,26 @@ TEST(LoopClosureWorker, AFullQueueDropsTheOldestChecks) {
 
 
 // A check is behind while kBehindWhenWaiting or more others wait: of ten
-// queued before the worker starts, the first two (9 and 8 waiting).
+// queued before the worker starts, the first two (9 and 8 waiting). With
+// when_behind kFewer they take candidates_when_behind; with kHold (the
+// service holds the frames back instead) every candidate.
 TEST(LoopClosureWorker, ChecksWithManyOthersWaitingAreBehind) {
-  TrackerParams params;
-  LoopClosureWorker worker(params, [](const LoopConstraint&) {}, /*start=*/false);
-  for (int64_t id = 0; id < 10; ++id) worker.submit(farApartKeyframe(id), std::nullopt);
-  worker.start();
-  ASSERT_TRUE(worker.waitUntilDrained(10000));
-  static_assert(LoopClosureWorker::kBehindWhenWaiting == 8);
-  EXPECT_EQ(worker.stats().checks_behind, 2);
-  EXPECT_EQ(worker.stats().keyframes_checked, 10);
+  for (const auto mode : {LoopClosureParams::WhenBehind::kFewer, LoopClosureParams::WhenBehind::kHold}) {
+    TrackerParams params;
+    params.loop.when_behind = mode;
+    LoopClosureWorker worker(params, [](const LoopConstraint&) {}, /*start=*/false);
+    for (int64_t id = 0; id < 10; ++id) {
+      EXPECT_EQ(worker.behind(), id >= LoopClosureWorker::kBehindWhenWaiting);
+      worker.submit(farApartKeyframe(id), std::nullopt);
+    }
+    EXPECT_TRUE(worker.behind());
+    worker.start();
+    ASSERT_TRUE(worker.waitUntilDrained(10000));
+    EXPECT_FALSE(worker.behind());
+    static_assert(LoopClosureWorker::kBehindWhenWaiting == 8);
+    EXPECT_EQ(worker.stats().checks_behind, mode == LoopClosureParams::WhenBehind::kFewer ? 2 : 0);
+    EXPECT_EQ(worker.stats().keyframes_checked, 10);
+  }
 }
 
 // A stalled worker (never started here) while keyframes keep coming: before,

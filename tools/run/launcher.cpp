@@ -240,8 +240,12 @@ RunPlan planRun(const RunOptions& opt) {
   if (!opt.camera.empty()) configureCamera(config, opt);
   if (!opt.session.empty()) configureSession(config, opt);
   // Behind a source that cannot wait, a busy mapper drops frames rather than
-  // holding the tracker's next frames back.
-  if (!opt.camera.empty() || config.getString("player.pacing") == "live") config.set("mapper.when_full", "drop");
+  // holding the tracker's next frames back, and loop checks that fall behind
+  // take fewer candidates rather than holding the frames back.
+  if (!opt.camera.empty() || config.getString("player.pacing") == "live") {
+    config.set("mapper.when_full", "drop");
+    config.set("tracker.loop_when_behind", "fewer");
+  }
   // The frame source waits only for consumers that this run starts.
   std::string wait_for;
   for (const auto& s : config.getStringList(source + ".wait_for")) {

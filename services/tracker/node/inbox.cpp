@@ -2,6 +2,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <string>
 #include <unordered_map>
 #include <utility>
@@ -16,8 +17,9 @@
 
 namespace rekon::tracker {
 
-Inbox::Inbox(ServiceContext& ctx, TrackingWorker& worker, History& history, LoopClosureWorker& loops)
-    : ctx_(ctx), worker_(worker), history_(history), loops_(loops) {}
+Inbox::Inbox(ServiceContext& ctx, TrackingWorker& worker, History& history, LoopClosureWorker& loops,
+             bool hold_when_behind)
+    : ctx_(ctx), worker_(worker), history_(history), loops_(loops), hold_when_behind_(hold_when_behind) {}
 
 void Inbox::subscribe() {
   Bus& bus = ctx_.bus();
@@ -61,13 +63,39 @@ void Inbox::onFrame(const rekon_msgs::frame_t& msg) {
     tracked = worker_.track(msg);  // a frame that does not decode is acknowledged all the same: the source goes on
     publishLive();
   }
-  publishFrameAck(ctx_, msg.frame_id);
+  acknowledge(msg.frame_id);
   // Only a tracked frame moves the mark: a rejected one with a huge id would
   // make every later frame a duplicate and end the stream early.
   if (tracked && msg.frame_id > last_handled_.load()) {
     ctx_.setLastFrame(msg.frame_id);
     last_handled_.store(msg.frame_id);
   }
+}
+
+void Inbox::acknowledge(int64_t frame_id) {
+  std::lock_guard<std::mutex> lock(ack_mutex_);
+  if (!hold_when_behind_ || !loops_.behind()) return sendAckLocked(frame_id);
+  if (held_ack_ < 0) held_since_ = Clock::now();
+  held_ack_ = std::max(held_ack_, frame_id);
+}
+
+void Inbox::releaseHeldAck() {
+  std::lock_guard<std::mutex> lock(ack_mutex_);
+  if (held_ack_ >= 0 && !loops_.behind()) sendAckLocked(held_ack_);
+}
+
+void Inbox::sendAckLocked(int64_t frame_id) {
+  if (held_ack_ >= 0) {
+    held_s_ += std::chrono::duration<double>(Clock::now() - held_since_).count();
+    frame_id = std::max(frame_id, held_ack_);  // acknowledgements are cumulative
+    held_ack_ = -1;
+  }
+  publishFrameAck(ctx_, frame_id);
+}
+
+double Inbox::ackHeldSeconds() const {
+  std::lock_guard<std::mutex> lock(ack_mutex_);
+  return held_s_;
 }
 
 void Inbox::publishLive() {

@@ -6,6 +6,7 @@
 #include <atomic>
 #include <chrono>
 #include <cstdint>
+#include <mutex>
 
 #include "history.hpp"
 #include "rekon/common/service.hpp"
@@ -21,7 +22,10 @@ class Inbox {
  public:
   static constexpr int64_t kNoEndYet = -2;
 
-  Inbox(ServiceContext& ctx, TrackingWorker& worker, History& history, LoopClosureWorker& loops);
+  // `hold_when_behind` (tracker.loop_when_behind: hold): while the loop
+  // checks are behind, frame acknowledgements are held back, so that a
+  // source that waits for them (a recording at rate max) waits for the checks.
+  Inbox(ServiceContext& ctx, TrackingWorker& worker, History& history, LoopClosureWorker& loops, bool hold_when_behind);
   // Call after the StopThreadsOnExit that guards everything the handlers use.
   void subscribe();
 
@@ -31,6 +35,11 @@ class Inbox {
   int64_t lastTracked() const { return last_handled_.load(); }
   double secondsSinceLastFrame() const;
   int64_t framesSentAgain() const { return duplicates_.load(); }
+  // Sends the acknowledgement held back once the loop checks are no longer
+  // behind; the main thread calls it every few milliseconds.
+  void releaseHeldAck();
+  // How long acknowledgements were held back, in all.
+  double ackHeldSeconds() const;
 
  private:
   using Clock = std::chrono::steady_clock;
@@ -38,6 +47,10 @@ class Inbox {
   void publishLive();  // the tracking counts (ServiceContext::setLive)
   void onGraphUpdate(const rekon_msgs::graph_update_t& m);
   void onEndOfStream(const rekon_msgs::end_of_stream_t& m);
+  // Acknowledges every frame up to `frame_id` now, or later (releaseHeldAck).
+  void acknowledge(int64_t frame_id);
+  // Under ack_mutex_: sends the held acknowledgement (and `frame_id`'s when newer).
+  void sendAckLocked(int64_t frame_id);
 
   ServiceContext& ctx_;
   TrackingWorker& worker_;
@@ -47,6 +60,11 @@ class Inbox {
   std::atomic<int64_t> end_frame_{kNoEndYet};
   std::atomic<int64_t> duplicates_{0};
   std::atomic<Clock::rep> last_frame_at_{Clock::now().time_since_epoch().count()};
+  const bool hold_when_behind_;
+  mutable std::mutex ack_mutex_;
+  int64_t held_ack_ = -1;  // the newest frame whose acknowledgement is held back; -1: none
+  Clock::time_point held_since_;
+  double held_s_ = 0.0;
 };
 
 }  // namespace rekon::tracker

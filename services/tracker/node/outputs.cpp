@@ -33,7 +33,7 @@ void writeTiming(const std::vector<std::pair<int64_t, double>>& frame_ms, const 
 
 }  // namespace
 
-void writeOutputs(ServiceContext& ctx, const TrackingTotals& totals, int64_t frames_sent_again,
+void writeOutputs(ServiceContext& ctx, const TrackingTotals& totals, int64_t frames_sent_again, double ack_held_s,
                   const LoopClosureStats& loops, const KeyframeCacheStats& keyframes, bool localise_only) {
   std::vector<double> ms;
   double ms_sum = 0.0;
@@ -59,6 +59,8 @@ void writeOutputs(ServiceContext& ctx, const TrackingTotals& totals, int64_t fra
       .set("loop_candidates_skipped", static_cast<long long>(loops.candidates_skipped))
       .set("loop_checks_behind", static_cast<long long>(loops.checks_behind))
       .set("loop_checks_dropped", static_cast<long long>(loops.checks_dropped))
+      // tracker.loop_when_behind: hold: how long frame acknowledgements waited for the loop checks.
+      .set("loop_acks_held_s", ack_held_s)
       .set("heap_trims", static_cast<long long>(loops.heap_trims))
       .set("loop_candidates_dropped", static_cast<long long>(loops.candidates_dropped))
       .set("loop_check_ms_per_keyframe",

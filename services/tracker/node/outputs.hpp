@@ -12,7 +12,7 @@
 
 namespace rekon::tracker {
 
-void writeOutputs(ServiceContext& ctx, const TrackingTotals& totals, int64_t frames_sent_again,
+void writeOutputs(ServiceContext& ctx, const TrackingTotals& totals, int64_t frames_sent_again, double ack_held_s,
                   const LoopClosureStats& loops, const KeyframeCacheStats& keyframes, bool localise_only);
 
 }  // namespace rekon::tracker

@@ -33,10 +33,11 @@ constexpr auto kPoll = std::chrono::milliseconds(10);
 // Serves replays while the bus thread tracks, until every frame up to the
 // end of stream is tracked or the missing ones are given up as lost; false
 // at a stop request or when the worker cannot go on.
-bool trackUntilEndOfStream(ServiceContext& ctx, const Inbox& inbox, const TrackingWorker& worker, History& history) {
+bool trackUntilEndOfStream(ServiceContext& ctx, Inbox& inbox, const TrackingWorker& worker, History& history) {
   while (!ctx.stopRequested()) {
     if (worker.failure()) return false;
     history.serveReplays();
+    inbox.releaseHeldAck();
     const int64_t end = inbox.endFrame();
     if (end != Inbox::kNoEndYet && inbox.lastTracked() >= end) return true;
     if (end != Inbox::kNoEndYet && inbox.secondsSinceLastFrame() > kLastFrameGraceS) {
@@ -54,12 +55,16 @@ bool trackUntilEndOfStream(ServiceContext& ctx, const Inbox& inbox, const Tracki
 // for a replay to fill what it lost, and a restarted one rebuilds from one; a
 // restarted mapper gets its frames again, whose results go out again from
 // here.
-void finish(ServiceContext& ctx, const Inbox& inbox, History& history, LoopClosureWorker& loops, const PeerWatch& peers) {
+void finish(ServiceContext& ctx, Inbox& inbox, History& history, LoopClosureWorker& loops, const PeerWatch& peers) {
   spdlog::debug("end of stream: waiting for the loop-closure checks");  // the inbox logged the end once
   // Tracking is idle now: the checks left over (the stream kept both cores
   // busy, and they run below tracking's priority) get every core.
   loops.useThreads(static_cast<int>(std::max(1u, std::thread::hardware_concurrency())));
-  while (!loops.waitUntilDrained(kDrainPollMs) && !ctx.stopRequested()) history.serveReplays();
+  while (!loops.waitUntilDrained(kDrainPollMs) && !ctx.stopRequested()) {
+    history.serveReplays();
+    inbox.releaseHeldAck();
+  }
+  inbox.releaseHeldAck();
   history.markDone();
   const rekon_msgs::done_t done = doneMessage("tracker", inbox.endFrame());
   for (int i = 0; i < kDoneRepeats; ++i) {
@@ -85,7 +90,7 @@ void runTrackerService(ServiceContext& ctx) {
   const TrackerSession session = TrackerSession::fromConfig(ctx.config());
   TrackingWorker worker(params, session, history, loops, keyframes);
   PeerWatch peers(ctx.bus(), ctx.lifecycle());
-  Inbox inbox(ctx, worker, history, loops);
+  Inbox inbox(ctx, worker, history, loops, params.loop.when_behind == LoopClosureParams::WhenBehind::kHold);
   StopThreadsOnExit stop_threads(ctx);  // before the state above dies: the bus handlers use it
   inbox.subscribe();
   ctx.setState("running");
@@ -97,7 +102,8 @@ void runTrackerService(ServiceContext& ctx) {
   ctx.setState("finishing");
   if (ended) finish(ctx, inbox, history, loops, peers);
   ctx.stopThreads();  // no handler runs after this
-  writeOutputs(ctx, worker.totals(), inbox.framesSentAgain(), loops.stats(), keyframes->stats(), session.localise_only);
+  writeOutputs(ctx, worker.totals(), inbox.framesSentAgain(), inbox.ackHeldSeconds(), loops.stats(), keyframes->stats(),
+               session.localise_only);
   if (const auto failure = worker.failure()) throw Error(*failure);  // after the outputs: what was tracked is kept
 }
 

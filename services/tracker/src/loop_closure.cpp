@@ -455,6 +455,11 @@ bool LoopClosureWorker::waitUntilDrained(int timeout_ms) {
   return drained_.wait_for(lock, std::chrono::milliseconds(timeout_ms), done);
 }
 
+bool LoopClosureWorker::behind() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return waiting_checks_ >= kBehindWhenWaiting;
+}
+
 LoopClosureStats LoopClosureWorker::stats() const {
   std::lock_guard<std::mutex> lock(mutex_);
   return stats_;
@@ -472,7 +477,7 @@ void LoopClosureWorker::run() {
     spdlog::debug("loop-closure worker keeps the default priority");
   for (;;) {
     Job job;
-    bool behind = false;  // kBehindWhenWaiting or more checks wait behind this one
+    bool fewer = false;  // kBehindWhenWaiting or more checks wait behind this one, and when_behind is kFewer
     {
       std::unique_lock<std::mutex> lock(mutex_);
       wake_.wait(lock, [&] { return stop_ || (started_ && !queue_.empty()); });
@@ -480,7 +485,8 @@ void LoopClosureWorker::run() {
       job = std::move(queue_.front());
       queue_.pop_front();
       waiting_checks_ -= job.kind == Kind::kCheck;
-      behind = waiting_checks_ >= kBehindWhenWaiting;
+      fewer = waiting_checks_ >= kBehindWhenWaiting &&
+              detector_.params().when_behind == LoopClosureParams::WhenBehind::kFewer;
       waiting_candidates_ -= job.kind == Kind::kCandidate;
       busy_ = true;
     }
@@ -489,7 +495,7 @@ void LoopClosureWorker::run() {
     try {  // an exception must not end the tracker (std::terminate): this keyframe's loops are lost, one line says why
       detector_.addKeyframe(job.keyframe, job.incoming);
       std::vector<LoopConstraint> accepted;
-      if (job.kind == Kind::kCheck) accepted = detector_.detect(job.keyframe->id, local, behind);
+      if (job.kind == Kind::kCheck) accepted = detector_.detect(job.keyframe->id, local, fewer);
       for (const LoopConstraint& c : accepted) on_accept_(c);
     } catch (...) {
       spdlog::error("loop closure check of keyframe {} failed, no loop edges from it: {}", job.keyframe->id,

@@ -156,6 +156,10 @@ TrackerParams trackerParamsFromConfig(const Config& c) {
   p.loop.both_directions = c.getBool("tracker.loop_both_directions");
   p.loop.refine_photometric_weight = c.getDouble("tracker.loop_refine_photometric_weight");
   p.loop.max_candidates = c.getInt("tracker.loop_max_candidates");
+  const std::string when_behind = c.getString("tracker.loop_when_behind");
+  if (when_behind != "hold" && when_behind != "fewer")
+    throw Error("tracker.loop_when_behind = '" + when_behind + "' is unknown; use hold or fewer");
+  p.loop.when_behind = when_behind == "hold" ? LoopClosureParams::WhenBehind::kHold : LoopClosureParams::WhenBehind::kFewer;
   p.loop.candidates_when_behind = c.getInt("tracker.loop_candidates_when_behind");
   p.loop.queue_capacity = c.getInt("tracker.loop_queue_capacity");
   p.validate();

@@ -195,9 +195,9 @@ class LoopClosureDetector {
 class LoopClosureWorker {
  public:
   using AcceptFn = std::function<void(const LoopConstraint&)>;
-  // A check is behind (candidates_when_behind applies) when at least this
-  // many other checks wait: about 4 s of keyframes on the corridor at 30 Hz,
-  // a lag that lasts rather than a burst of keyframes.
+  // The worker is behind (LoopClosureParams::when_behind applies) when at
+  // least this many checks wait: about 4 s of keyframes on the corridor at
+  // 30 Hz, a lag that lasts rather than a burst of keyframes.
   static constexpr int kBehindWhenWaiting = 8;
 
   // `start` false: the worker waits for start() (tests fill the queue first).
@@ -221,6 +221,8 @@ class LoopClosureWorker {
   // true when drained (false at once when not started and not empty).
   bool waitUntilDrained(int timeout_ms);
   LoopClosureStats stats() const;
+  // kBehindWhenWaiting or more checks wait.
+  bool behind() const;
   // The DVO keyframes' tiers (memory, disk).
   KeyframeCacheStats keyframeCacheStats() const { return detector_.keyframeCacheStats(); }
   // Ids of the keyframes whose check ran, in order.
