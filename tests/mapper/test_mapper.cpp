@@ -12,6 +12,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <map>
+#include <optional>
 
 #include "commands.hpp"
 #include "rekon/common/error.hpp"
@@ -230,6 +231,58 @@ TEST(Mapper, WithoutCorrectionTheVolumeDiffersFromTheFinalPoses) {
   }
   const Difference d = compare(snapshot(mapper.volume()), snapshot(corrected));
   EXPECT_GT(d.weight_or_sdf, d.observed / 10);  // centimetres of drift change most voxels
+}
+
+// Issue 26: a KF keyframe's frames are placed relative to it with the poses
+// of one graph. Frames 0-3 belong to DVO keyframe 0, frames 4-7 to DVO
+// keyframe 1, which the graph does not have yet; a graph update moves
+// keyframe 0 by 5 cm before frame `at`. The open KF keyframe moves with it,
+// and keyframe 1 is placed by odometry from it, so the fused keyframe is the
+// one fused without the update. Before, the frames after the update (at 2)
+// or those of keyframe 1 (at 0: its odometry pose was taken as it came)
+// landed 5 cm from the others.
+TEST(Mapper, AGraphUpdateWhileAKeyframeIsOpenMovesItsFramesWithIt) {
+  const Scenario& s = scenario();
+  MapperParams p = testParams();
+  p.fusion.kappa = 8;
+  Pose shift = Pose::Identity();
+  shift.translation() = Eigen::Vector3d(0.05, 0.0, 0.0);
+  const auto fuse = [&](std::optional<int> update_at) {
+    Mapper mapper(p);
+    const Pose k0 = s.ground_truth[0].pose, k1 = s.ground_truth[4].pose;
+    mapper.setKeyframeEstimate(0, k0);
+    for (int i = 0; i < 8; ++i) {
+      if (update_at == i) mapper.applyGraphUpdate({{0, shift * k0}});
+      if (i == 4) mapper.setKeyframeEstimate(1, k1);
+      const Pose& odometry = i < 4 ? k0 : k1;
+      EXPECT_TRUE(mapper.addFrame(s.frames[i], testCamera(), i < 4 ? 0 : 1, odometry.inverse() * s.ground_truth[i].pose, false));
+    }
+    mapper.flush();
+    EXPECT_EQ(mapper.keyframes().size(), 1u);
+    return mapper.images(mapper.keyframes().front());
+  };
+  const fusion::FusedKeyframe still = fuse(std::nullopt);
+  for (const int at : {0, 2}) {
+    SCOPED_TRACE("graph update before frame " + std::to_string(at));
+    const fusion::FusedKeyframe moved = fuse(at);
+    int both = 0, one = 0;
+    double max_depth_diff = 0.0;
+    for (int y = 0; y < still.depth.rows; ++y) {
+      for (int x = 0; x < still.depth.cols; ++x) {
+        const bool a = still.weight.at<float>(y, x) > 0, b = moved.weight.at<float>(y, x) > 0;
+        if (a && b) {
+          ++both;
+          max_depth_diff = std::max<double>(max_depth_diff, std::abs(still.depth.at<float>(y, x) - moved.depth.at<float>(y, x)));
+        } else if (a || b) {
+          ++one;
+        }
+      }
+    }
+    std::printf("update before frame %d: %d pixels in both, %d in one, depth up to %.2e m apart\n", at, both, one, max_depth_diff);
+    EXPECT_GT(both, 30000);
+    EXPECT_EQ(one, 0);
+    EXPECT_LT(max_depth_diff, 1e-5);
+  }
 }
 
 // Vertex positions in a canonical order: extraction visits active and host

@@ -244,8 +244,19 @@ void Mapper::setKeyframeEstimate(int64_t keyframe_id, const Pose& world) {
 
 std::optional<Pose> Mapper::keyframePose(int64_t keyframe_id) const {
   if (auto it = graph_poses_.find(keyframe_id); it != graph_poses_.end()) return it->second;
-  if (auto it = estimates_.find(keyframe_id); it != estimates_.end()) return it->second;
-  return std::nullopt;
+  const auto odometry = estimates_.find(keyframe_id);
+  if (odometry == estimates_.end()) return std::nullopt;
+  // Newer than the graph: its odometry from the newest earlier keyframe the
+  // graph has, on top of that keyframe's graph pose (as the tracker's loop
+  // checks estimate it). Its odometry pose alone would sit where the drift
+  // the graph has since corrected put it: frames of one KF keyframe on both
+  // sides of a DVO keyframe would be fused that far apart.
+  auto earlier = graph_poses_.lower_bound(keyframe_id);
+  if (earlier == graph_poses_.begin()) return odometry->second;
+  --earlier;
+  const auto earlier_odometry = estimates_.find(earlier->first);
+  if (earlier_odometry == estimates_.end()) return odometry->second;
+  return orthonormalised(earlier->second * earlier_odometry->second.inverse() * odometry->second);
 }
 
 std::optional<Pose> Mapper::currentPose(const fusion::FusedKeyframe& kf) const {
@@ -276,6 +287,12 @@ bool Mapper::addFrame(const RgbdFrame& frame, const Intrinsics& k, int64_t keyfr
   const Pose world = orthonormalised(*anchor * pose_in_keyframe);
   if (session_) session_->addFrame({frame.id, frame.timestamp, keyframe_id, pose_in_keyframe});
   double t0 = clockMs();
+  // A graph update since the open KF keyframe's first frame moved it: its
+  // frames are placed relative to it with the poses of one graph.
+  if (fuser_->active()) {
+    if (const auto open = keyframePose(fuser_->anchorKeyframeId()))
+      fuser_->moveTo(orthonormalised(*open * fuser_->poseInAnchor()));
+  }
   if (fuser_->startsNewKeyframe(keyframe_id, world)) {
     counters_.fuse_ms_total += clockMs() - t0;
     closeKeyframe();
