@@ -103,9 +103,12 @@ TEST(HostileBus, ServicesDropEveryHostileMessageAndThenMapAValidSequence) {
       }
     }
   } kill_on_exit{&services};
+  // Segments of their own: other tests run players and mappers beside this one.
+  const std::string segments = " --set transport.segment=rekon_hostile_fr_" + std::to_string(getpid()) +
+                               " --set mapper.store_segment=rekon_hostile_kf_" + std::to_string(getpid());
   for (const char* s : {"tracker", "optimiser", "mapper"}) {
-    services[s] = spawnShell("exec timeout -k 5 200 " + test::binDir() + "/rekon-" + s + " --out " + (dir / "out") + " > " +
-                        (dir / (std::string(s) + ".log")) + " 2>&1");
+    services[s] = spawnShell("exec timeout -k 5 200 " + test::binDir() + "/rekon-" + s + " --out " + (dir / "out") +
+                             segments + " > " + (dir / (std::string(s) + ".log")) + " 2>&1");
     ASSERT_GT(services[s], 0);
   }
   // "running" is announced after a service has subscribed to its inputs.
@@ -230,7 +233,7 @@ TEST(HostileBus, ServicesDropEveryHostileMessageAndThenMapAValidSequence) {
   // frames before first_frame that it never sent (rate max). A tenth of the
   // recorded rate leaves each service 0.3 s per frame on a loaded machine.
       spawnShell("exec " + test::binDir() + "/rekon-player --dataset " + (dir / "room") + " --rate 0.1 --set player.first_frame=" +
-            std::to_string(kFirstValid) + " > " + (dir / "player.log") + " 2>&1"),
+            std::to_string(kFirstValid) + segments + " > " + (dir / "player.log") + " 2>&1"),
       120);
   EXPECT_EQ(player_status, 0) << readText(dir / "player.log");
   for (const auto& [name, pid] : services) {
