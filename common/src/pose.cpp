@@ -47,6 +47,10 @@ Pose orthonormalised(const Pose& pose) {
   return out;
 }
 
+Pose movedWithGraph(const Pose& anchor_graph, const Pose& anchor_odometry, const Pose& odometry) {
+  return orthonormalised(anchor_graph * anchor_odometry.inverse() * odometry);
+}
+
 double translationDistance(const Pose& a, const Pose& b) { return (a.translation() - b.translation()).norm(); }
 
 double rotationAngle(const Pose& a, const Pose& b) {

@@ -256,7 +256,7 @@ std::optional<Pose> Mapper::keyframePose(int64_t keyframe_id) const {
   --earlier;
   const auto earlier_odometry = estimates_.find(earlier->first);
   if (earlier_odometry == estimates_.end()) return odometry->second;
-  return orthonormalised(earlier->second * earlier_odometry->second.inverse() * odometry->second);
+  return movedWithGraph(earlier->second, earlier_odometry->second, odometry->second);
 }
 
 std::optional<Pose> Mapper::currentPose(const fusion::FusedKeyframe& kf) const {

@@ -118,7 +118,7 @@ Pose LoopClosureDetector::estimate(int64_t keyframe_id) const {
   // earlier keyframe the graph has, on top of that keyframe's graph pose.
   for (auto a = std::make_reverse_iterator(it); a != entries_.rend(); ++a) {
     if (const auto g = graph_.find(a->first); g != graph_.end())
-      return orthonormalised(g->second * a->second.pose_world.inverse() * odometry);
+      return movedWithGraph(g->second, a->second.pose_world, odometry);
   }
   return odometry;
 }

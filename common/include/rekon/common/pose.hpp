@@ -17,6 +17,10 @@ void requireValidPose(const Pose& pose, const std::string& what);
 Pose poseFromQuatTrans(const Eigen::Quaterniond& q, const Eigen::Vector3d& t);
 // Re-orthonormalises a rotation drifted by float rounding (nearest rotation).
 Pose orthonormalised(const Pose& pose);
+// The world pose of a keyframe newer than the pose graph: its odometry pose
+// `odometry` moved as the graph moved the newest earlier keyframe it has
+// (graph pose `anchor_graph`, odometry pose `anchor_odometry`).
+Pose movedWithGraph(const Pose& anchor_graph, const Pose& anchor_odometry, const Pose& odometry);
 
 // Translation distance and rotation angle (radians) between two poses.
 double translationDistance(const Pose& a, const Pose& b);
