@@ -28,8 +28,10 @@ segment=rekon_longrun_$$
 data=$out/corridor_${laps}laps
 run=$out/run_${laps}laps
 mkdir -p "$out"
+# The corridor's laps: 4 841 frames, then 5 484 each (rekon synth --scene corridor).
+first_lap=4841 lap=5484
 if [ ! -f "$data/rgb.txt" ]; then
-  frames=$(( 4841 + (laps - 1) * 5484 ))
+  frames=$(( first_lap + (laps - 1) * lap ))
   need_kb=$(( frames * 800 ))
   avail_kb=$(df -Pk "$out" | awk 'NR==2 {print $4}')
   if [ "$avail_kb" -lt $(( need_kb + 2 * 1024 * 1024 )) ]; then
@@ -52,5 +54,5 @@ store_sets=(--set mapper.store_segment="$segment")
 "$here/../support/in_netns.sh" "$bin/rekon" run --dataset "$data" --out "$run" "${store_sets[@]}" "$@" || status=$?
 echo "rekon run exited $status after $(( $(date +%s) - start )) s"
 kill $sampler 2>/dev/null || true
-python3 "$here/summarize.py" "$run"
+python3 "$here/summarize.py" "$run" "$first_lap" "$lap"
 exit $status

@@ -6,7 +6,9 @@ progress lines; the peak of all services' RSS together; and for a live run
 (player.pacing: live) the capture-to-pose latency per minute of capture
 (player_latency.csv) and the share of frames fused; issue 26's flat ratios of
 KF integration and correction rounds; and plots into RUN_DIR (memory.svg,
-fps.svg, mapper.svg, latency.svg for a live run). Usage: summarize.py RUN_DIR"""
+fps.svg, mapper.svg, latency.svg for a live run). Usage: summarize.py RUN_DIR
+[FIRST_LAP_FRAMES LAP_FRAMES] (the corridor's laps, which run_corridor.sh passes;
+without them no per-lap ratios)"""
 import bisect
 import csv
 import datetime
@@ -18,6 +20,7 @@ import sys
 import svg_plot
 
 run = sys.argv[1]
+LAP1, LAP = (int(sys.argv[2]), int(sys.argv[3])) if len(sys.argv) > 3 else (0, 0)
 kappa = 20
 try:
     for line in open(os.path.join(run, "config.yaml")):
@@ -115,13 +118,12 @@ def frames_at(t):
     return at(progress, t)[1] if progress else 0
 
 
-# The corridor's laps (run_corridor.sh: 4 841 frames, then 5 484 a lap):
-# each service's RSS when lap 1 ends against its highest in the last lap
-# while the stream lasts (issue 26's goal: within 1.2x). The end of the run
-# (final pass, meshes) comes after and is in the peaks above.
-LAP1, LAP = 4841, 5484
+# The corridor's laps (given by run_corridor.sh): each service's RSS when
+# lap 1 ends against its highest in the last lap while the stream lasts
+# (issue 26's goal: within 1.2x). The end of the run (final pass, meshes)
+# comes after and is in the peaks above.
 total = progress[-1][1] if progress else 0
-if total >= LAP1 + LAP:
+if LAP > 0 and total >= LAP1 + LAP:
     last_lap = LAP1 + (total - LAP1 - 1) // LAP * LAP
     for s in services:
         lap1 = [x[1] for x in memory[s] if frames_at(x[0]) <= LAP1]
