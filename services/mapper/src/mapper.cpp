@@ -290,8 +290,7 @@ bool Mapper::addFrame(const RgbdFrame& frame, const Intrinsics& k, int64_t keyfr
   // A graph update since the open KF keyframe's first frame moved it: its
   // frames are placed relative to it with the poses of one graph.
   if (fuser_->active()) {
-    if (const auto open = keyframePose(fuser_->anchorKeyframeId()))
-      fuser_->moveTo(orthonormalised(*open * fuser_->poseInAnchor()));
+    if (const auto open = currentPose(fuser_->openKeyframe())) fuser_->moveTo(*open);
   }
   if (fuser_->startsNewKeyframe(keyframe_id, world)) {
     counters_.fuse_ms_total += clockMs() - t0;

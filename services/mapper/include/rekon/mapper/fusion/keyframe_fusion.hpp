@@ -113,9 +113,8 @@ class KeyframeFuser {
   bool startsNewKeyframe(int64_t dvo_keyframe_id, const Pose& camera_to_world) const;
   // Opens a KF keyframe at this frame; its pose is the frame's pose.
   void begin(int64_t kf_id, int64_t anchor_keyframe_id, const Pose& pose_in_anchor, const Pose& camera_to_world);
-  // The open KF keyframe's DVO keyframe and its pose in it.
-  int64_t anchorKeyframeId() const { return kf_.anchor_keyframe_id; }
-  const Pose& poseInAnchor() const { return kf_.pose_in_anchor; }
+  // The open KF keyframe as fused so far (its anchor and pose in it set by begin()).
+  const FusedKeyframe& openKeyframe() const { return kf_; }
   // The open KF keyframe's world pose now (a graph update moved its DVO
   // keyframe): the next frames' world poses are taken relative to it.
   void moveTo(const Pose& camera_to_world) { kf_world_ = camera_to_world; }
