@@ -5,7 +5,6 @@
 // with no external constraint, once with `rekon constrain --prior` on a few
 // keyframes at their true poses, plus one contradictory prior a metre off.
 #include <gtest/gtest.h>
-#include <unistd.h>
 
 #include <cstdio>
 #include <string>
@@ -51,15 +50,13 @@ struct PipelineRun {
 PipelineRun pipeline(const rekon::test::TempDir& dir, const std::string& name, const std::string& constraints) {
   const std::string out = dir / name, data = dir / "data";
   const std::string t = "timeout 120 " + bin();
-  // Segments of their own: other tests run players and mappers beside this one.
-  const std::string id = std::to_string(getpid()) + "_" + name;
+  const std::string segments = rekon::test::ownSegments("pob_" + name);
   const std::string script =
-      "mkdir -p " + out + "; " + t + "/rekon-mapper --out " + out + " --set mapper.kappa=5 --set mapper.store_segment=rekon_pob_kf_" +
-      id + " > " + out +
+      "mkdir -p " + out + "; " + t + "/rekon-mapper --out " + out + " --set mapper.kappa=5" + segments + " > " + out +
       "/mapper.log 2>&1 & m=$!; " + t + "/rekon-optimiser --out " + out + " --set optimiser.information_scale=1 > " + out + "/optimiser.log 2>&1 & o=$!; " +
       t + "/rekon-replay --trajectory " + data + "/drifted_trajectory.txt --odometry-sigma 0.005,0.005 > " + out +
       "/replay.log 2>&1 & r=$!; " + constraints + t + "/rekon-player --dataset " + data +
-      " --set player.wait_for=[replay,mapper] --set transport.segment=rekon_pob_" + id + " > " + out + "/player.log 2>&1; p=$?; wait $r; rr=$?; wait $o; oo=$?; " +
+      " --set player.wait_for=[replay,mapper]" + segments + " > " + out + "/player.log 2>&1; p=$?; wait $r; rr=$?; wait $o; oo=$?; " +
       "wait $m; mm=$?; echo $p $rr $oo $mm; [ $p$rr$oo$mm = 0000 ]";
   PipelineRun run;
   run.rc = runCommand(rekon::test::inNetns() + " bash -c '" + script + "'", &run.log);

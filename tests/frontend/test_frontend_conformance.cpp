@@ -3,7 +3,6 @@
 // and optimiser of `rekon run`, and rekon-replay beside player and mapper. It
 // listens live, and judges the lcm-logger log of the same run the same way.
 #include <gtest/gtest.h>
-#include <unistd.h>
 
 #include <string>
 
@@ -64,14 +63,13 @@ TEST(FrontendConformance, RekonReplayPasses) {
                        &out),
             0)
       << out;
-  // Segments of their own: other tests run players and mappers beside this one.
-  const std::string id = std::to_string(getpid());
+  const std::string segments = rekon::test::ownSegments("fcr");
   const std::string frontend =
-      "timeout 120 " + bin() + "/rekon-mapper --out " + (dir / "out") + " --set mapper.kappa=5 --set mapper.store_segment=rekon_fcr_kf_" +
-      id + " > " + (dir / "mapper.log") +
+      "timeout 120 " + bin() + "/rekon-mapper --out " + (dir / "out") + " --set mapper.kappa=5" + segments + " > " +
+      (dir / "mapper.log") +
       " 2>&1 & m=$!; timeout 120 " + bin() + "/rekon-replay --trajectory " + (dir / "data/drifted_trajectory.txt") +
       " --target " + (dir / "data/groundtruth.txt") + " > " + (dir / "replay.log") + " 2>&1 & r=$!; timeout 120 " +
-      bin() + "/rekon-player --dataset " + (dir / "data") + " --set player.wait_for=[replay,mapper] --set transport.segment=rekon_fcr_" + id + " > " +
+      bin() + "/rekon-player --dataset " + (dir / "data") + " --set player.wait_for=[replay,mapper]" + segments + " > " +
       (dir / "player.log") + " 2>&1; p=$?; wait $r; rr=$?; wait $m; mm=$?; [ $p$rr$mm = 000 ]";
   const int rc =
       runCommand(rekon::test::inNetns() + " bash -c '" + withChecker(dir, "--ack-name replay", frontend) + "'", &out);

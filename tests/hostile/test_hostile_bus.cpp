@@ -103,9 +103,7 @@ TEST(HostileBus, ServicesDropEveryHostileMessageAndThenMapAValidSequence) {
       }
     }
   } kill_on_exit{&services};
-  // Segments of their own: other tests run players and mappers beside this one.
-  const std::string segments = " --set transport.segment=rekon_hostile_fr_" + std::to_string(getpid()) +
-                               " --set mapper.store_segment=rekon_hostile_kf_" + std::to_string(getpid());
+  const std::string segments = test::ownSegments("hostile");
   for (const char* s : {"tracker", "optimiser", "mapper"}) {
     services[s] = spawnShell("exec timeout -k 5 200 " + test::binDir() + "/rekon-" + s + " --out " + (dir / "out") +
                              segments + " > " + (dir / (std::string(s) + ".log")) + " 2>&1");

@@ -123,6 +123,11 @@ double jsonNumber(const std::string& json, const std::string& key) {
   }
 }
 
+std::string ownSegments(const std::string& tag) {
+  const std::string id = tag + "_" + std::to_string(getpid());
+  return " --set transport.segment=rekon_fr_" + id + " --set mapper.store_segment=rekon_kf_" + id;
+}
+
 std::vector<std::string> leftoverSegments(const std::string& run_dir) {
   std::vector<std::string> left;
   const std::string config = readText(run_dir + "/config.yaml");

@@ -54,6 +54,11 @@ double jsonNumber(const std::string& json, const std::string& key);
 // The shared-memory segments of a `rekon run` folder (frame ring, keyframe
 // store, named in its config.yaml) still in /dev/shm.
 std::vector<std::string> leftoverSegments(const std::string& run_dir);
+// `--set` options that give a test's services a frame ring and a keyframe
+// store of their own (named by `tag` and this process), for services started
+// without `rekon run` (which appends its pid): tests run side by side, and
+// rekon's default segment names would collide.
+std::string ownSegments(const std::string& tag);
 
 // tests/support/in_netns.sh: prefix a command with it to run it in a private
 // network namespace (loopback multicast only).
