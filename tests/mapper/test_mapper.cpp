@@ -279,6 +279,9 @@ TEST(Mapper, AGraphUpdateWhileAKeyframeIsOpenMovesItsFramesWithIt) {
       }
     }
     std::printf("update before frame %d: %d pixels in both, %d in one, depth up to %.2e m apart\n", at, both, one, max_depth_diff);
+    // Measured: 72 015 of the 76 800 pixels in both, none in one only, 0 m
+    // apart (the same poses to rounding); without the fix 2 640-3 477 in one
+    // only and up to 2.2 m. 30 000 pixels only says a real keyframe was fused.
     EXPECT_GT(both, 30000);
     EXPECT_EQ(one, 0);
     EXPECT_LT(max_depth_diff, 1e-5);
