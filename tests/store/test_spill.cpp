@@ -2,8 +2,12 @@
 // files, farthest from the camera first, and reads them back on demand; bad
 // spill files and folders are one-line errors.
 #include <gtest/gtest.h>
+#include <fcntl.h>
 #include <signal.h>
+#include <spawn.h>
 #include <sys/resource.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <filesystem>
@@ -157,6 +161,45 @@ TEST(KeyframeStoreSpill, RekonKeyframesExportsSpilledKeyframes) {
   EXPECT_NE(out.find("2 spilled"), std::string::npos) << out;
   for (int id = 0; id < 6; ++id)
     EXPECT_TRUE(fs::exists(s.dir / ("export/kf_00000" + std::to_string(id) + "_depth.png"))) << id;
+}
+
+// A process killed while it holds the store's lock leaves the store usable
+// (a restarted mapper must not find it locked for good). The holder here is
+// `rekon keyframes --export` reading a spilled keyframe whose file was
+// swapped for a FIFO: it waits inside the lock until the FIFO gets data,
+// and is killed there. Then every keyframe reads back and adding still
+// allocates and spills.
+TEST(KeyframeStoreSpill, AReaderKilledInsideTheLockLeavesTheStoreUsable) {
+  SpillingStore s("killed");
+  for (int id = 0; id < 6; ++id) s.add(id, id);
+  const std::string file = s.file(s.spilledIds().front()), aside = file + ".aside";
+  fs::rename(file, aside);
+  ASSERT_EQ(mkfifo(file.c_str(), 0600), 0);
+  const std::string tool = test::binDir() + "/rekon";
+  const std::string export_dir = s.dir / "export";
+  const char* argv[] = {tool.c_str(), "keyframes", "--export", export_dir.c_str(), "--segment", s.options.segment.c_str(), nullptr};
+  pid_t reader = 0;
+  ASSERT_EQ(posix_spawn(&reader, tool.c_str(), nullptr, nullptr, const_cast<char* const*>(argv), environ), 0);
+  // A FIFO opens for writing without blocking only once a reader has it
+  // open: then the reader is inside load(), inside the lock, waiting for data.
+  int fifo = -1;
+  for (int i = 0; i < 6000 && fifo < 0; ++i) {  // 60 s: the tool started in 0.1 s here
+    fifo = open(file.c_str(), O_WRONLY | O_NONBLOCK);
+    if (fifo < 0) usleep(10000);
+  }
+  ASSERT_GE(fifo, 0) << "rekon keyframes never opened the spill file";
+  ASSERT_EQ(kill(reader, SIGKILL), 0);
+  int status = 0;
+  ASSERT_EQ(waitpid(reader, &status, 0), reader);
+  ASSERT_TRUE(WIFSIGNALED(status) && WTERMSIG(status) == SIGKILL) << status;
+  close(fifo);
+  fs::remove(file);
+  fs::rename(aside, file);
+  ASSERT_EQ(s.store->size(), 6u);
+  for (size_t i = 0; i < 6; ++i) EXPECT_TRUE(sameImages(s.store->load(i), keyframe(static_cast<int64_t>(i)))) << i;
+  s.add(6, 6);
+  EXPECT_EQ(s.store->usage().spilled, 7u - kResidentIn1MiB);
+  EXPECT_TRUE(sameImages(s.store->loadById(6), keyframe(6)));
 }
 
 TEST(KeyframeStoreSpill, RemovingTheStoreRemovesItsSpillFiles) {

@@ -3,20 +3,20 @@
 #include <boost/interprocess/allocators/allocator.hpp>
 #include <boost/interprocess/containers/vector.hpp>
 #include <boost/interprocess/managed_shared_memory.hpp>
-#include <boost/interprocess/sync/interprocess_mutex.hpp>
-#include <boost/interprocess/sync/scoped_lock.hpp>
 #include <spdlog/spdlog.h>
+#include <unistd.h>
 
+#include <atomic>
 #include <cerrno>
 #include <chrono>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <limits>
-#include <thread>
 
 #include "rekon/common/error.hpp"
 #include "rekon/common/files.hpp"
+#include "shm_mutex.hpp"
 #include "spill_file.hpp"
 
 namespace rekon::store {
@@ -25,7 +25,8 @@ namespace bip = boost::interprocess;
 namespace {
 
 constexpr uint32_t kMagic = 0x524b4653;  // "RKFS"
-constexpr uint32_t kLayoutVersion = 3;  // 2: spill folder, spilled flag; 3: the run's end
+constexpr uint32_t kLayoutVersion = 4;  // 2: spill folder, spilled flag; 3: the run's end; 4: robust lock
+constexpr std::chrono::seconds kLockPatience{30};  // for a live holder (a read holds it for milliseconds)
 constexpr size_t kMaxSpillDirChars = 1023;
 
 struct ShmPose {
@@ -53,6 +54,8 @@ struct ShmKeyframe {
 struct ShmAnchor {
   int64_t id;
   ShmPose pose;
+  int32_t being_written;  // 1 while pose changes: a holder that died then left it torn (unknown)
+  int32_t reserved;
 };
 using SegmentManager = bip::managed_shared_memory::segment_manager;
 using KeyframeVector = bip::vector<ShmKeyframe, bip::allocator<ShmKeyframe, SegmentManager>>;
@@ -66,8 +69,13 @@ struct Header {
   uint64_t spilled_bytes = 0;
   int32_t run_finished = 0;  // 1 once the mapper's run finished (outputs written)
   int64_t run_end_frame = 0;  // then: the stream's last frame, as its done_t says it
-  bip::interprocess_mutex mutex;
+  ShmMutex mutex;
+  int32_t allocator_pid = 0;  // the holder while it is inside the segment's allocator, else 0
 };
+
+// Orders the stores before it before those after it, as a process killed
+// between them leaves them (the compiler may not move stores across it).
+void ordered() { std::atomic_signal_fence(std::memory_order_seq_cst); }
 
 size_t imageBytes(int w, int h) { return keyframeImageBytes(w, h); }
 
@@ -134,17 +142,37 @@ struct KeyframeStore::Impl {
   KeyframeVector* keyframes = nullptr;
   AnchorVector* anchors = nullptr;
 
-  // A crashed writer could leave the mutex locked; waiting forever would hang
-  // the restart that is supposed to recover, so give up with an error.
-  bip::scoped_lock<bip::interprocess_mutex> lock() const {
-    bip::scoped_lock<bip::interprocess_mutex> l(header->mutex, bip::defer_lock);
-    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(5);
-    while (!l.try_lock()) {
-      if (std::chrono::steady_clock::now() > deadline)
-        throw Error("keyframe store '" + name + "' stays locked (a writer died holding it?); remove it with rekon keyframes --remove");
-      std::this_thread::sleep_for(std::chrono::milliseconds(5));
-    }
+  // A process killed while holding the lock (a mapper under SIGKILL, a
+  // reader) leaves nothing half-written: every change below is ordered so
+  // that any prefix of it is a valid store. Only the segment's allocator is
+  // not: a death inside it makes the store an error (it stays one for every
+  // later process: the lock is left unrecoverable).
+  ShmLock lock() const {
+    ShmLock l(header->mutex, "keyframe store '" + name + "'", kLockPatience);
+    if (!l.ownerDied()) return l;
+    if (header->allocator_pid != 0)
+      throw Error("keyframe store '" + name + "' is broken: process " + std::to_string(header->allocator_pid) +
+                  " died inside its allocator; remove it (rekon keyframes --remove) and start without mapper.resume");
+    spdlog::warn("keyframe store '{}': process {} died holding its lock; nothing was half-written, carrying on", name,
+                 l.deadPid());
+    l.markConsistent();
     return l;
+  }
+  // Runs f (a call into the segment's allocator) marked, so that a death inside it is known.
+  template <typename F>
+  auto inAllocator(F&& f) {
+    struct Mark {
+      Header* h;
+      explicit Mark(Header* header) : h(header) {
+        h->allocator_pid = getpid();
+        ordered();
+      }
+      ~Mark() {
+        ordered();
+        h->allocator_pid = 0;
+      }
+    } mark(header);
+    return f();
   }
   ShmKeyframe* find(int64_t id) const {
     for (ShmKeyframe& k : *keyframes)
@@ -160,7 +188,7 @@ struct KeyframeStore::Impl {
 
   std::optional<Pose> anchorPose(int64_t id) const {
     for (const ShmAnchor& a : *anchors)
-      if (a.id == id) return fromShm(a.pose);
+      if (a.id == id && a.being_written == 0) return fromShm(a.pose);
     return std::nullopt;
   }
   // Where a keyframe was seen from: its integrated pose, else its anchor's
@@ -208,10 +236,13 @@ struct KeyframeStore::Impl {
     std::error_code ec;
     std::filesystem::create_directories(dir, ec);  // removed behind our back: recreate rather than fail
     writeSpillFile(spillFilePath(dir, name, victim->id), victim->id, header->width, header->height, victim->data.get(), bytes);
-    segment.deallocate(victim->data.get());
+    uint8_t* images = victim->data.get();
+    victim->spilled = 1;  // the file is whole (renamed into place): either state reads the same images
+    ordered();
     victim->data = nullptr;
-    victim->spilled = 1;
     header->spilled_bytes += spillFileBytes(bytes);
+    ordered();
+    inAllocator([&] { segment.deallocate(images); });  // a death before this only leaks the block
     spdlog::debug("keyframe store '{}': spilled keyframe {} ({:.1f} m from the camera) to {}", name, victim->id,
                   victim_distance, dir);
     return true;
@@ -220,7 +251,7 @@ struct KeyframeStore::Impl {
   uint8_t* allocate(size_t bytes, const std::string& what, const std::optional<Eigen::Vector3d>& camera) {
     for (;;) {
       try {
-        return static_cast<uint8_t*>(segment.allocate(bytes));
+        return static_cast<uint8_t*>(inAllocator([&] { return segment.allocate(bytes); }));
       } catch (const bip::bad_alloc&) {
         if (!spillOne(camera)) full(what);
       }
@@ -230,7 +261,7 @@ struct KeyframeStore::Impl {
   void pushBack(Vector& v, const Value& value, const std::string& what, const std::optional<Eigen::Vector3d>& camera) {
     for (;;) {
       try {
-        v.push_back(value);
+        inAllocator([&] { v.push_back(value); });  // it may grow v
         return;
       } catch (const bip::bad_alloc&) {
         if (!spillOne(camera)) full(what);
@@ -414,7 +445,7 @@ void KeyframeStore::add(const fusion::FusedKeyframe& kf) {
   try {
     impl_->pushBack(*impl_->keyframes, rec, "the index entry of " + what, camera);
   } catch (...) {
-    impl_->segment.deallocate(data);
+    impl_->inAllocator([&] { impl_->segment.deallocate(data); });
     throw;
   }
 }
@@ -423,7 +454,10 @@ void KeyframeStore::setIntegratedPose(int64_t id, const Pose& pose) {
   auto l = impl_->lock();
   ShmKeyframe* k = impl_->find(id);
   if (k == nullptr) throw Error("keyframe store: no keyframe " + std::to_string(id) + " to set the pose of");
+  k->integrated = 0;  // a death while the pose is torn leaves "never integrated": integrated again at its pose
+  ordered();
   k->integrated_pose = toShm(pose);
+  ordered();
   k->integrated = 1;
 }
 
@@ -431,17 +465,22 @@ void KeyframeStore::setAnchorPose(int64_t keyframe_id, const Pose& pose) {
   auto l = impl_->lock();
   for (ShmAnchor& a : *impl_->anchors) {
     if (a.id == keyframe_id) {
+      a.being_written = 1;
+      ordered();
       a.pose = toShm(pose);
+      ordered();
+      a.being_written = 0;
       return;
     }
   }
-  impl_->pushBack(*impl_->anchors, ShmAnchor{keyframe_id, toShm(pose)},
+  impl_->pushBack(*impl_->anchors, ShmAnchor{keyframe_id, toShm(pose), 0, 0},
                   "the pose of DVO keyframe " + std::to_string(keyframe_id), pose.translation().eval());
 }
 
 void KeyframeStore::markRunFinished(int64_t end_frame) {
   auto l = impl_->lock();
   impl_->header->run_end_frame = end_frame;
+  ordered();
   impl_->header->run_finished = 1;
 }
 
@@ -454,7 +493,8 @@ std::optional<int64_t> KeyframeStore::runEndFrame() const {
 std::vector<std::pair<int64_t, Pose>> KeyframeStore::anchorPoses() const {
   auto l = impl_->lock();
   std::vector<std::pair<int64_t, Pose>> out;
-  for (const ShmAnchor& a : *impl_->anchors) out.emplace_back(a.id, fromShm(a.pose));
+  for (const ShmAnchor& a : *impl_->anchors)
+    if (a.being_written == 0) out.emplace_back(a.id, fromShm(a.pose));
   return out;
 }
 
