@@ -26,7 +26,7 @@ namespace {
 
 constexpr uint32_t kMagic = 0x524b4653;  // "RKFS"
 constexpr uint32_t kLayoutVersion = 4;  // 2: spill folder, spilled flag; 3: the run's end; 4: robust lock
-constexpr std::chrono::seconds kLockPatience{30};  // for a live holder (a read holds it for milliseconds)
+constexpr std::chrono::seconds kLockPatience{5};  // for a live holder (a read or a spill holds it for milliseconds)
 constexpr size_t kMaxSpillDirChars = 1023;
 
 struct ShmPose {
