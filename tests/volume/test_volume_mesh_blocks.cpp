@@ -89,6 +89,22 @@ TEST_F(VolumeMeshBlocks, BlockMeshesHoldExactlyTheVerticesAndTrianglesOfExtractM
   EXPECT_EQ(block_triangles, whole_triangles);
 }
 
+// The run's last update meshes on every worker: block for block the same
+// meshes, in the same order, as the calling thread alone makes them.
+TEST_F(VolumeMeshBlocks, MeshingOnEveryWorkerGivesTheSameMeshes) {
+  TsdfVolume vol(params());
+  integrate(vol, 0);
+  integrate(vol, 25);
+  const std::vector<BlockMesh> alone = vol.meshBlocks(vol.blockCoords(), 1);
+  const std::vector<BlockMesh> all = vol.meshBlocks(vol.blockCoords(), 0);
+  ASSERT_GT(alone.size(), 100u);
+  ASSERT_EQ(all.size(), alone.size());
+  for (size_t i = 0; i < all.size(); ++i) {
+    EXPECT_TRUE(std::tie(all[i].x, all[i].y, all[i].z) == std::tie(alone[i].x, alone[i].y, alone[i].z)) << i;
+    EXPECT_TRUE(sameMesh(all[i], alone[i])) << i;
+  }
+}
+
 TEST_F(VolumeMeshBlocks, MeshChangesNameEveryBlockWhoseMeshChangedAfterIntegration) {
   TsdfVolume vol(params());
   integrate(vol, 0);

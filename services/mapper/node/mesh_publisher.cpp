@@ -110,7 +110,10 @@ void MeshPublisher::update(Mapper& mapper, BlockCause cause) {
 
 void MeshPublisher::finish(Mapper& mapper, BlockCause cause) {
   if (!settings_.enabled) return;
-  const double cpu0 = threadCpuMs();
+  // The mapping is over: the last update meshes on every core (the whole map
+  // after the final pass; it is the run's tail), and its CPU is the process's.
+  mesh_workers_ = 0;
+  const double cpu0 = processCpuMs();
   try {
     noteChanges(mapper, cause);
     if (full_requested_) {
@@ -121,7 +124,7 @@ void MeshPublisher::finish(Mapper& mapper, BlockCause cause) {
   } catch (const Error& e) {
     spdlog::error("mapper: the last mesh update failed: {}", e.what());
   }
-  stats_.cpu_ms += threadCpuMs() - cpu0;
+  stats_.cpu_ms += processCpuMs() - cpu0;
   spdlog::info("mapper: mesh on the bus: {} updates ({} full), {} blocks and {} coarse ones first, {:.1f} MB, {:.0f} ms CPU",
                stats_.updates, stats_.full_snapshots, stats_.blocks_sent, stats_.coarse_sent,
                static_cast<double>(stats_.bytes) / 1e6, stats_.cpu_ms);
@@ -222,7 +225,7 @@ void MeshPublisher::publishFull(Mapper& mapper) {
 
 int64_t MeshPublisher::publish(Mapper& mapper, const std::vector<volume::BlockCoord>& coords, bool full_snapshot,
                                bool coarse, std::vector<volume::BlockCoord>* empty_coarse) {
-  std::vector<BlockMesh> meshes = coarse ? coarseMeshes(mapper, coords) : mapper.volume().meshBlocks(coords);
+  std::vector<BlockMesh> meshes = coarse ? coarseMeshes(mapper, coords) : mapper.volume().meshBlocks(coords, mesh_workers_);
   if (coarse) {
     const auto empty = std::stable_partition(meshes.begin(), meshes.end(), [](const BlockMesh& m) { return !m.triangles.empty(); });
     for (auto it = empty; it != meshes.end(); ++it) empty_coarse->push_back({it->x, it->y, it->z});

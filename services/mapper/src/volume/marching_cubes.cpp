@@ -428,12 +428,10 @@ Mesh MeshPieces::next(const std::vector<BlockCoord>& coords, const std::vector<c
 }
 
 std::vector<BlockMesh> marchingCubesPerBlock(const std::vector<BlockCoord>& coords, const std::vector<const Voxel*>& blocks,
-                                             int wanted, float voxel_size, float truncation) {
-  // On the calling thread only: mesh updates never take a core from the
-  // integration, and the caller's thread CPU clock measures all they cost.
-  const Lattice lattice = buildLattice(coords, blocks, voxel_size, truncation, 1);
+                                             int wanted, float voxel_size, float truncation, int max_workers) {
+  const Lattice lattice = buildLattice(coords, blocks, voxel_size, truncation, max_workers);
   std::vector<BlockMesh> out(wanted);
-  forEachBlockTriangles(lattice, coords, blocks, wanted, truncation, 1,
+  forEachBlockTriangles(lattice, coords, blocks, wanted, truncation, max_workers,
                         [&](int b, const TriangleRefs& refs) { out[b] = blockMesh(lattice, coords, b, refs); });
   return out;
 }

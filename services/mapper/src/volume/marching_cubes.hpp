@@ -53,8 +53,9 @@ class MeshPieces {
 // (as marchingCubes makes them, bit for bit) and then copies of the
 // neighbours' vertices those triangles use. coords must hold the +x/+y/+z
 // neighbours of the wanted blocks that exist (after them); versions are 0.
+// On up to max_workers of the pool's threads (1: the calling thread only).
 std::vector<BlockMesh> marchingCubesPerBlock(const std::vector<BlockCoord>& coords, const std::vector<const Voxel*>& blocks,
-                                             int wanted, float voxel_size, float truncation);
+                                             int wanted, float voxel_size, float truncation, int max_workers);
 
 // The meshes of the first `wanted` blocks of coords at half resolution:
 // marching cubes over every 2nd voxel, about a quarter of the triangles, the

@@ -405,7 +405,7 @@ std::vector<BlockCoord> TsdfVolume::withUpperNeighbours(std::vector<BlockCoord> 
 
 bool TsdfVolume::exists(const BlockCoord& c) const { return tableFind(c) != kEmptySlot || host_->contains(c); }
 
-std::vector<BlockMesh> TsdfVolume::meshBlocks(const std::vector<BlockCoord>& wanted) const {
+std::vector<BlockMesh> TsdfVolume::meshBlocks(const std::vector<BlockCoord>& wanted, int max_workers) const {
   std::vector<BlockCoord> present;
   std::unordered_set<BlockCoord, CoordHash> listed;
   for (const BlockCoord& c : wanted) {
@@ -417,7 +417,7 @@ std::vector<BlockMesh> TsdfVolume::meshBlocks(const std::vector<BlockCoord>& wan
   std::vector<Voxel> copied;
   voxelPointers(coords, data, copied);
   std::vector<BlockMesh> meshes = marchingCubesPerBlock(coords, data, count, static_cast<float>(params_.voxel_size),
-                                                        static_cast<float>(params_.truncation));
+                                                        static_cast<float>(params_.truncation), max_workers);
   for (const BlockCoord& c : wanted) {
     if (!listed.count(c)) meshes.push_back(BlockMesh{c.x, c.y, c.z, 0, {}, {}, {}});
   }

@@ -137,7 +137,7 @@ class ViewerState {
     double position_sum = 0;
   };
   std::map<BlockKey, BlockSize> block_sizes_;
-  size_t vertices_ = 0, triangles_ = 0, coarse_blocks_ = 0;
+  size_t vertices_ = 0, triangles_ = 0, coarse_blocks_ = 0, shown_blocks_ = 0;  // shown: blocks_ with a message
   double position_sum_ = 0;
   MeshMap mesh_map_;  // the same blocks, for the PLY download
   std::optional<std::set<BlockKey>> unconfirmed_;  // during a full snapshot: held blocks it has not named yet

@@ -129,8 +129,10 @@ class TsdfVolume {
   std::vector<BlockCoord> takeMeshChanges();
   // Each block's mesh on its own (marchingCubesPerBlock: its vertices equal
   // extractMesh()'s); a block that is not allocated gets an empty mesh.
-  // Versions are left 0 for the caller.
-  std::vector<BlockMesh> meshBlocks(const std::vector<BlockCoord>& coords) const;
+  // Versions are left 0 for the caller. On max_workers of the pool's
+  // threads (0: all; 1: the calling thread only, as mid-run updates use it,
+  // so that they never take a core from the integration).
+  std::vector<BlockMesh> meshBlocks(const std::vector<BlockCoord>& coords, int max_workers = 1) const;
   // Ray casts the active blocks (stream around the camera first).
   RaycastImages raycast(const Intrinsics& k, const Pose& camera_to_world) const;
 
