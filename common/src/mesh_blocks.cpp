@@ -7,6 +7,8 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <future>
+#include <iterator>
 #include <set>
 #include <string>
 #include <unordered_map>
@@ -21,6 +23,7 @@ constexpr int kMaxBlockVertices = 65535;  // indices travel as uint16
 constexpr size_t kVertexBytes = 3 * 2 + 3;  // uint16 x, y, z and RGB
 constexpr size_t kTriangleBytes = 3 * 2;
 constexpr double kExpectedMeshCompression = 1.5;  // zlib level 1 on 7-Scenes' block meshes: 1.53
+constexpr size_t kMinBlocksPerThread = 1000;  // ~1 MB raw: fewer are not worth a thread
 
 std::string coordText(int32_t x, int32_t y, int32_t z) { return fmt::format("({}, {}, {})", x, y, z); }
 
@@ -137,6 +140,29 @@ double compressionOf(const std::vector<rekon_msgs::mesh_blocks_t>& out, size_t f
   return payload > 0.0 ? std::max(1.0, raw / payload) : 1.0;
 }
 
+// Blocks [begin, end) in runs whose raw bytes should compress to 90 % of
+// the limit at the ratio the last run got (a run that does not fit is halved
+// and each half compressed again, so the runs must fit the first time: zlib
+// got 1.53:1 on 7-Scenes' meshes, where runs sized for 2:1 were all halved
+// and the final update spent 320 ms compressing 9.3 MB twice).
+void encodeSlice(const std::vector<BlockMesh>& blocks, size_t begin, size_t end, const MeshBlocksParams& params,
+                 std::vector<rekon_msgs::mesh_blocks_t>& out) {
+  double ratio = kExpectedMeshCompression;
+  size_t run_begin = begin, run_bytes = 0;
+  for (size_t i = begin; i < end; ++i) {
+    const size_t bytes = rawBytes(blocks[i]) + sizeof(rekon_msgs::mesh_block_t);
+    if (i > run_begin && static_cast<double>(run_bytes + bytes) > 0.9 * ratio * static_cast<double>(params.max_message_bytes)) {
+      const size_t first = out.size();
+      encodeRun(blocks, run_begin, i, params, out);
+      ratio = compressionOf(out, first);
+      run_begin = i;
+      run_bytes = 0;
+    }
+    run_bytes += bytes;
+  }
+  if (run_begin < end) encodeRun(blocks, run_begin, end, params, out);
+}
+
 void checkParams(const MeshBlocksParams& p) {
   if (!(p.voxel_size > 0.0) || p.block_voxels < 1 || p.quanta_per_voxel < 1 ||
       2LL * p.block_voxels * p.quanta_per_voxel > 0xffff + 1) {
@@ -149,29 +175,24 @@ void checkParams(const MeshBlocksParams& p) {
 }  // namespace
 
 std::vector<rekon_msgs::mesh_blocks_t> encodeMeshBlocks(const std::vector<BlockMesh>& blocks,
-                                                        const MeshBlocksParams& params, int64_t sequence, bool full) {
+                                                        const MeshBlocksParams& params, int64_t sequence, bool full,
+                                                        int threads) {
   checkParams(params);
   for (const BlockMesh& b : blocks) checkEncodable(b);
-  // Runs of blocks whose raw bytes should compress to 90 % of the limit at
-  // the ratio the last run got (a run that does not fit is halved and each
-  // half compressed again, so the runs must fit the first time: zlib got
-  // 1.53:1 on 7-Scenes' meshes, where runs sized for 2:1 were all halved and
-  // the final update spent 320 ms compressing 9.3 MB twice).
+  // Contiguous slices, one a thread (the caller's the first), so the parts keep the blocks' order.
+  const size_t slices = std::clamp<size_t>(static_cast<size_t>(std::max(threads, 1)), 1,
+                                           std::max<size_t>(1, blocks.size() / kMinBlocksPerThread));
+  std::vector<std::vector<rekon_msgs::mesh_blocks_t>> sliced(slices);
+  auto encode = [&](size_t s) {
+    encodeSlice(blocks, blocks.size() * s / slices, blocks.size() * (s + 1) / slices, params, sliced[s]);
+  };
+  std::vector<std::future<void>> helpers;
+  for (size_t s = 1; s < slices; ++s) helpers.push_back(std::async(std::launch::async, encode, s));
+  encode(0);
+  for (auto& h : helpers) h.get();  // a helper's error is thrown here
   std::vector<rekon_msgs::mesh_blocks_t> out;
-  double ratio = kExpectedMeshCompression;
-  size_t begin = 0, run_bytes = 0;
-  for (size_t i = 0; i < blocks.size(); ++i) {
-    const size_t bytes = rawBytes(blocks[i]) + sizeof(rekon_msgs::mesh_block_t);
-    if (i > begin && static_cast<double>(run_bytes + bytes) > 0.9 * ratio * static_cast<double>(params.max_message_bytes)) {
-      const size_t first = out.size();
-      encodeRun(blocks, begin, i, params, out);
-      ratio = compressionOf(out, first);
-      begin = i;
-      run_bytes = 0;
-    }
-    run_bytes += bytes;
-  }
-  if (begin < blocks.size() || out.empty()) encodeRun(blocks, begin, blocks.size(), params, out);
+  for (auto& part : sliced) std::move(part.begin(), part.end(), std::back_inserter(out));
+  if (out.empty()) encodeRun(blocks, 0, 0, params, out);  // nothing to send still says so (an empty map's snapshot)
   for (size_t i = 0; i < out.size(); ++i) {
     out[i].sequence = sequence;
     out[i].part = static_cast<int32_t>(i);

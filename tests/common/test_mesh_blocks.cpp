@@ -117,6 +117,39 @@ TEST(MeshBlocks, LargeUpdatesAreSplitIntoPartsThatFitAndShareTheSequence) {
   EXPECT_EQ(total_blocks, 40u);
 }
 
+// The run's last update is encoded on every core: the same blocks in the
+// same order, parts numbered across the threads' slices, and an error in a
+// helper thread's slice thrown to the caller.
+TEST(MeshBlocks, EncodingOnSeveralThreadsKeepsTheBlocksAndTheirOrder) {
+  std::mt19937 rng(2);
+  std::vector<rekon::BlockMesh> blocks;
+  for (int i = 0; i < 2500; ++i) blocks.push_back(randomBlock(i, -i, 7, 20, rng));
+  const size_t limit = 16 * 1024;
+  auto decodeAll = [](const std::vector<rekon_msgs::mesh_blocks_t>& msgs) {
+    std::vector<rekon::BlockMesh> out;
+    for (const auto& m : msgs)
+      for (auto& b : rekon::decodeMeshBlocks(m)) out.push_back(std::move(b));
+    return out;
+  };
+  const auto alone = rekon::encodeMeshBlocks(blocks, params(limit), 5, false, 1);
+  const auto shared = rekon::encodeMeshBlocks(blocks, params(limit), 5, false, 2);
+  for (size_t i = 0; i < shared.size(); ++i) {
+    EXPECT_LE(static_cast<size_t>(shared[i].getEncodedSize()), limit);
+    EXPECT_EQ(shared[i].part, static_cast<int32_t>(i));
+    EXPECT_EQ(shared[i].parts, static_cast<int32_t>(shared.size()));
+  }
+  const auto a = decodeAll(alone), b = decodeAll(shared);
+  ASSERT_EQ(a.size(), blocks.size());
+  ASSERT_EQ(b.size(), blocks.size());
+  for (size_t i = 0; i < a.size(); ++i) {
+    EXPECT_EQ(std::tie(a[i].x, a[i].y, a[i].z), std::tie(b[i].x, b[i].y, b[i].z)) << i;
+    EXPECT_EQ(a[i].vertices, b[i].vertices) << i;
+    EXPECT_EQ(a[i].triangles, b[i].triangles) << i;
+  }
+  blocks.push_back(randomBlock(0, 0, 0, 3000, rng));  // in the second thread's slice, too big for a message
+  EXPECT_THROW(rekon::encodeMeshBlocks(blocks, params(limit), 6, false, 2), rekon::Error);
+}
+
 TEST(MeshBlocks, ABlockTooBigForOneMessageIsAClearError) {
   std::mt19937 rng(2);
   EXPECT_THROW(rekon::encodeMeshBlocks({randomBlock(0, 0, 0, 3000, rng)}, params(4096), 1, false), rekon::Error);

@@ -110,9 +110,10 @@ void MeshPublisher::update(Mapper& mapper, BlockCause cause) {
 
 void MeshPublisher::finish(Mapper& mapper, BlockCause cause) {
   if (!settings_.enabled) return;
-  // The mapping is over: the last update meshes on every core (the whole map
-  // after the final pass; it is the run's tail), and its CPU is the process's.
-  mesh_workers_ = 0;
+  // The mapping is over: the last update meshes and encodes on every core
+  // (the whole map after the final pass; it is the run's tail), and its CPU
+  // is the process's.
+  every_core_ = true;
   const double cpu0 = processCpuMs();
   try {
     noteChanges(mapper, cause);
@@ -225,7 +226,7 @@ void MeshPublisher::publishFull(Mapper& mapper) {
 
 int64_t MeshPublisher::publish(Mapper& mapper, const std::vector<volume::BlockCoord>& coords, bool full_snapshot,
                                bool coarse, std::vector<volume::BlockCoord>* empty_coarse) {
-  std::vector<BlockMesh> meshes = coarse ? coarseMeshes(mapper, coords) : mapper.volume().meshBlocks(coords, mesh_workers_);
+  std::vector<BlockMesh> meshes = coarse ? coarseMeshes(mapper, coords) : mapper.volume().meshBlocks(coords, every_core_ ? 0 : 1);
   if (coarse) {
     const auto empty = std::stable_partition(meshes.begin(), meshes.end(), [](const BlockMesh& m) { return !m.triangles.empty(); });
     for (auto it = empty; it != meshes.end(); ++it) empty_coarse->push_back({it->x, it->y, it->z});
@@ -238,7 +239,8 @@ int64_t MeshPublisher::publish(Mapper& mapper, const std::vector<volume::BlockCo
     stamp.seen = true;
   }
   if (coarse && meshes.empty()) return 0;
-  const std::vector<rekon_msgs::mesh_blocks_t> msgs = encodeMeshBlocks(meshes, codec_, ++sequence_, full_snapshot);
+  const int threads = every_core_ ? static_cast<int>(std::max(1u, std::thread::hardware_concurrency())) : 1;
+  const std::vector<rekon_msgs::mesh_blocks_t> msgs = encodeMeshBlocks(meshes, codec_, ++sequence_, full_snapshot, threads);
   int64_t bytes = 0;
   for (size_t i = 0; i < msgs.size(); ++i) {
     // A pause between parts: one part nearly fills a receiver's default UDP

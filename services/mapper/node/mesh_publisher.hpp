@@ -120,7 +120,7 @@ class MeshPublisher {
   int64_t newVersion();
   int64_t last_version_ = 0;
   int64_t sequence_ = 0;
-  int mesh_workers_ = 1;  // meshBlocks' workers: the calling thread only until finish()
+  bool every_core_ = false;  // meshing and encoding on the calling thread only until finish()
   double tokens_ = 0.0;  // bytes the budget allows now (negative after a large update)
   double bytes_per_block_ = 300.0;  // running estimates, to mesh only what the budget can send
   double bytes_per_coarse_block_ = 100.0;
