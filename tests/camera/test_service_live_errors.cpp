@@ -89,6 +89,7 @@ TEST(LivePacing, PlayerLiveAtTwiceTheRecordedRateWithACpuHogDropsFramesAndStillM
   EXPECT_NEAR(wall, due, 0.4) << player;
   EXPECT_NE(readText(live + "/config.yaml").find("when_full: drop"), std::string::npos);
   EXPECT_NE(readText(live + "/config.yaml").find("loop_when_behind: fewer"), std::string::npos);
+  EXPECT_NE(readText(live + "/config.yaml").find("nice: 10"), std::string::npos);
   const double paced = ateOf(data, dir / "paced"), dropped_ate = ateOf(data, live);
   std::printf("ATE paced %.3f mm, live with hogs %.3f mm\n", 1e3 * paced, 1e3 * dropped_ate);
   // Measured: paced 0.265 mm; live at 60 Hz with the hog 0.263-0.267 mm in 5 runs (6-19 frames

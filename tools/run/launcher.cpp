@@ -240,11 +240,13 @@ RunPlan planRun(const RunOptions& opt) {
   if (!opt.camera.empty()) configureCamera(config, opt);
   if (!opt.session.empty()) configureSession(config, opt);
   // Behind a source that cannot wait, a busy mapper drops frames rather than
-  // holding the tracker's next frames back, and loop checks that fall behind
-  // take fewer candidates rather than holding the frames back.
+  // holding the tracker's next frames back, loop checks that fall behind
+  // take fewer candidates rather than holding the frames back, and the
+  // mapping threads yield the cores to the source and to tracking.
   if (!opt.camera.empty() || config.getString("player.pacing") == "live") {
     config.set("mapper.when_full", "drop");
     config.set("tracker.loop_when_behind", "fewer");
+    config.set("mapper.nice", "10");
   }
   // The frame source waits only for consumers that this run starts.
   std::string wait_for;

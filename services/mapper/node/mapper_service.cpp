@@ -15,6 +15,7 @@
 #include "outputs.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/common/messages.hpp"
+#include "rekon/common/priority.hpp"
 #include "rekon/mapper/mapper.hpp"
 #include "rekon_msgs/resume_point_t.hpp"
 
@@ -35,6 +36,9 @@ struct Settings {
   // has exited (rekon run does), so that one restarted after its done_t
   // finds the store marked finished and only says done again.
   bool remove_store_at_end;
+  // The mapping threads' nice value (mapper.nice): above 0 they yield to
+  // tracking and to the frame source on a busy machine.
+  int nice;
 };
 
 bool contains(const std::vector<std::string>& list, const std::string& s) {
@@ -51,9 +55,11 @@ Settings readSettings(const ServiceContext& ctx) {
   const auto progress_every = std::chrono::duration<double>(config.getDouble("mapper.progress_interval_s"));
   const bool wait_for_optimiser =
       config.getBool("mapper.wait_for_optimiser") && contains(config.getStringList("run.services"), "optimiser");
+  const int nice = config.getInt("mapper.nice");
+  if (nice < 0 || nice > 19) throw Error("mapper.nice " + std::to_string(nice) + " must be between 0 and 19");
   return {params, max_queued, when_full == "drop", progress_every, wait_for_optimiser,
           write_uncorrected && params.mode != ReintegrationMode::kNone && !ctx.outDir().empty(),
-          MeshPublisherSettings::fromConfig(config), config.getBool("mapper.remove_store_at_end")};
+          MeshPublisherSettings::fromConfig(config), config.getBool("mapper.remove_store_at_end"), nice};
 }
 
 // Where the frame source resumes for this instance: after the frames of the
@@ -140,6 +146,9 @@ void sayTheEndAgain(ServiceContext& ctx, const Settings& settings, Mapper& mappe
 
 void runMapperService(ServiceContext& ctx) {
   const Settings settings = readSettings(ctx);
+  // This thread and every thread it starts (the bus thread, started before, keeps its priority).
+  if (settings.nice > 0 && !setThisThreadsNice(settings.nice))
+    spdlog::warn("mapper.nice {}: the system refused; the mapper keeps its priority", settings.nice);
   Mapper mapper(settings.params);
   if (const auto end = mapper.finishedRunEnd()) return sayTheEndAgain(ctx, settings, mapper, *end);
   Inbox inbox(ctx, settings.max_queued_frames, settings.drop_when_full);

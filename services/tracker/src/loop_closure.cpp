@@ -1,9 +1,6 @@
 #include "rekon/tracker/loop_closure.hpp"
 
 #include <spdlog/spdlog.h>
-#include <sys/resource.h>
-#include <sys/syscall.h>
-#include <unistd.h>
 
 #include <algorithm>
 #include <chrono>
@@ -15,6 +12,7 @@
 
 #include "rekon/common/error.hpp"
 #include "rekon/common/memory.hpp"
+#include "rekon/common/priority.hpp"
 
 namespace rekon::tracker {
 namespace {
@@ -473,7 +471,7 @@ std::vector<int64_t> LoopClosureWorker::checkedKeyframes() const {
 void LoopClosureWorker::run() {
   // Below the tracking thread's priority (Linux: a thread id takes a nice
   // value of its own), so that on a busy machine checks yield to tracking.
-  if (setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), 10) != 0)
+  if (!setThisThreadsNice(10))
     spdlog::debug("loop-closure worker keeps the default priority");
   for (;;) {
     Job job;

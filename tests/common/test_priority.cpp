@@ -1,0 +1,62 @@
+// setThisThreadsNice (common/priority.hpp): the calling thread's nice value,
+// inherited by the threads it starts afterwards (how the mapper lowers all of
+// its mapping threads at once), and not by the threads started before.
+#include <gtest/gtest.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
+#include <condition_variable>
+#include <fstream>
+#include <mutex>
+#include <sstream>
+#include <string>
+#include <thread>
+
+#include "rekon/common/priority.hpp"
+
+namespace rekon {
+namespace {
+
+long threadId() { return static_cast<long>(syscall(SYS_gettid)); }
+
+// Field 19 of /proc/self/task/TID/stat (after the parenthesised name).
+int niceOf(long tid) {
+  std::ifstream in("/proc/self/task/" + std::to_string(tid) + "/stat");
+  std::string line;
+  std::getline(in, line);
+  std::istringstream rest(line.substr(line.rfind(')') + 2));
+  std::string field;
+  for (int i = 3; i <= 19; ++i) rest >> field;
+  return std::stoi(field);
+}
+
+TEST(ThreadNice, ThreadsStartedAfterwardsShareItThoseBeforeDoNot) {
+  std::thread([] {
+    long before = 0, after = 0;
+    bool go = false;
+    std::mutex m;
+    std::condition_variable cv;
+    std::thread earlier([&] {
+      before = threadId();
+      std::unique_lock<std::mutex> lock(m);
+      cv.wait(lock, [&] { return go; });
+      EXPECT_EQ(niceOf(before), 0) << "a thread started before keeps its nice value";
+    });
+    ASSERT_TRUE(setThisThreadsNice(7));
+    EXPECT_EQ(niceOf(threadId()), 7);
+    std::thread([&] {
+      after = threadId();
+      EXPECT_EQ(niceOf(after), 7) << "a thread started afterwards shares it";
+    }).join();
+    {
+      std::lock_guard<std::mutex> lock(m);
+      go = true;
+    }
+    cv.notify_one();
+    earlier.join();
+  }).join();
+  EXPECT_EQ(niceOf(threadId()), 0) << "the test's own thread is untouched";
+}
+
+}  // namespace
+}  // namespace rekon
