@@ -11,6 +11,7 @@
 // whole group is moved rigidly so that the edge holds, and then optimised.
 #include <Eigen/Core>
 #include <cstdint>
+#include <deque>
 #include <map>
 #include <memory>
 #include <optional>
@@ -138,7 +139,10 @@ class PoseGraph {
 
   PoseGraphParams params_;
   std::map<int64_t, Node> nodes_;
-  std::vector<Edge> edges_;
+  // A deque, not a vector: an edge is ~800 bytes and a long scan has thousands
+  // (3-lap corridor: 6 853), so a vector's doubling kept up to half its
+  // capacity unused and briefly held both copies while growing.
+  std::deque<Edge> edges_;
   std::optional<int64_t> anchor_;
   size_t loop_edges_removed_ = 0;
   std::unique_ptr<ceres::Manifold> pose_manifold_;
