@@ -8,6 +8,10 @@ find_package(yaml-cpp REQUIRED)
 find_package(GTest REQUIRED)
 find_package(Threads REQUIRED)
 find_package(ZLIB REQUIRED)  # PNG chunk checksums in image_io (zlib1g-dev comes with libpng-dev)
+# PNG and JPEG in image_io, on the libraries themselves: OpenCV's imgcodecs as
+# Debian builds it loads 141 shared libraries (only tests still link it).
+find_package(PNG REQUIRED)
+find_package(JPEG REQUIRED)
 
 find_program(LCM_GEN lcm-gen REQUIRED)
 find_path(LCM_INCLUDE_DIR lcm/lcm-cpp.hpp REQUIRED)

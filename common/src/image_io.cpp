@@ -1,6 +1,5 @@
 #include "rekon/common/image_io.hpp"
 
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include <zlib.h>
@@ -12,6 +11,7 @@
 #include <fstream>
 #include <limits>
 
+#include "png_jpeg.hpp"
 #include "rekon/common/error.hpp"
 
 namespace rekon {
@@ -167,19 +167,6 @@ void requireDeclaredSize(const ImageHeader& h, int width, int height, const std:
   }
 }
 
-cv::Mat decode(const uint8_t* data, size_t size, int flags, const std::string& what) {
-  if (size == 0) throw Error(what + ": empty image data; the file or message is truncated");
-  if (size > static_cast<size_t>(std::numeric_limits<int>::max())) throw Error(what + ": image data larger than 2 GiB");
-  cv::Mat m;
-  try {
-    m = cv::imdecode(cv::Mat(1, static_cast<int>(size), CV_8UC1, const_cast<uint8_t*>(data)), flags);
-  } catch (const cv::Exception&) {
-    m.release();
-  }
-  if (m.empty()) throw Error(what + ": not a decodable PNG/JPEG (corrupt or truncated); replace the file");
-  return m;
-}
-
 }  // namespace
 
 std::vector<uint8_t> readFileBytes(const std::string& path) {
@@ -201,11 +188,7 @@ cv::Mat decodeDepthPng(const uint8_t* data, size_t size, int width, int height, 
   if (!h.png) throw Error(what + ": depth must be a 16-bit single-channel PNG, found a JPEG; convert the depth image");
   requireDeclaredSize(h, width, height, what);
   requireCompletePng(data, size, what);
-  cv::Mat m = decode(data, size, cv::IMREAD_ANYDEPTH | cv::IMREAD_GRAYSCALE, what);
-  if (m.type() != CV_16UC1) {
-    throw Error(what + ": depth must be a 16-bit single-channel PNG, found " + std::to_string(m.elemSize1() * 8) +
-                "-bit with " + std::to_string(m.channels()) + " channel(s); convert the depth image");
-  }
+  cv::Mat m = detail::decodePngGray16(data, size, what);
   requireSize(m, width, height, what);
   return m;
 }
@@ -219,8 +202,7 @@ cv::Mat decodeColor(const uint8_t* data, size_t size, int width, int height, con
     return decodeNetpbm(data, h);
   }
   if (h.png) requireCompletePng(data, size, what);
-  cv::Mat m = decode(data, size, cv::IMREAD_COLOR, what);
-  if (m.type() != CV_8UC3) throw Error(what + ": color must be 8-bit; convert the color image");
+  cv::Mat m = h.png ? detail::decodePngBgr(data, size, what) : detail::decodeJpegBgr(data, size, what);
   requireSize(m, width, height, what);
   return m;
 }
@@ -235,27 +217,22 @@ cv::Mat readColorImage(const std::string& path, int width, int height) {
   return decodeColor(bytes.data(), bytes.size(), width, height, path);
 }
 
-std::vector<uint8_t> encodePng(const cv::Mat& image) {
-  std::vector<uint8_t> out;
-  // Level 1: the fastest zlib setting; frames are re-encoded on every publish.
-  if (!cv::imencode(".png", image, out, {cv::IMWRITE_PNG_COMPRESSION, 1})) throw Error("PNG encoding failed");
-  return out;
-}
+// Level 1: the fastest zlib setting; frames are re-encoded on every publish.
+std::vector<uint8_t> encodePng(const cv::Mat& image) { return detail::encodePngImage(image, 1); }
 
-std::vector<uint8_t> encodeJpeg(const cv::Mat& image, int quality) {
-  std::vector<uint8_t> out;
-  if (!cv::imencode(".jpg", image, out, {cv::IMWRITE_JPEG_QUALITY, quality})) throw Error("JPEG encoding failed");
-  return out;
-}
+std::vector<uint8_t> encodeJpeg(const cv::Mat& image, int quality) { return detail::encodeJpegImage(image, quality); }
 
 void writeImage(const std::string& path, const cv::Mat& image) {
-  bool ok = false;
-  try {
-    ok = cv::imwrite(path, image);
-  } catch (const cv::Exception&) {
-    ok = false;
-  }
-  if (!ok) throw Error(path + ": cannot write image; check the output folder and the file extension");
+  std::string ext = std::filesystem::path(path).extension().string();
+  for (char& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  if (ext == ".ppm" || ext == ".pgm") return writeNetpbm(path, image);
+  std::vector<uint8_t> bytes;
+  if (ext == ".png") bytes = encodePng(image);
+  else if (ext == ".jpg" || ext == ".jpeg") bytes = encodeJpeg(image);
+  else throw Error(path + ": cannot write an image with this extension; use .png, .jpg, .ppm or .pgm");
+  std::ofstream out(path, std::ios::binary);
+  out.write(reinterpret_cast<const char*>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
+  if (!out.flush()) throw Error(path + ": cannot write image; check the output folder");
 }
 
 void writeNetpbm(const std::string& path, const cv::Mat& image) {
