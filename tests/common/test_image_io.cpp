@@ -149,3 +149,62 @@ TEST(ImageIo, WrongSizeNamesBothSizes) {
   EXPECT_NE(e.find("32x23"), std::string::npos) << e;
   EXPECT_NE(e.find("32x24"), std::string::npos) << e;
 }
+
+// image_io decodes and encodes with libpng and libjpeg directly; OpenCV's
+// imgcodecs (linked into this test only) is the reference it must agree with.
+namespace {
+
+std::vector<uint8_t> openCvEncoded(const std::string& ext, const cv::Mat& image) {
+  std::vector<uint8_t> bytes;
+  EXPECT_TRUE(cv::imencode(ext, image, bytes));
+  return bytes;
+}
+
+cv::Mat decodedColor(const std::vector<uint8_t>& bytes) {
+  return rekon::decodeColor(bytes.data(), bytes.size(), kWidth, kHeight, "test");
+}
+
+bool same(const cv::Mat& a, const cv::Mat& b) {
+  return a.type() == b.type() && a.size() == b.size() && cv::norm(a, b, cv::NORM_INF) == 0;
+}
+
+}  // namespace
+
+TEST(ImageIo, DecodesEveryPngAndJpegKindAsOpenCvDoes) {
+  cv::Mat gray(kHeight, kWidth, CV_8UC1), bgra(kHeight, kWidth, CV_8UC4), color16(kHeight, kWidth, CV_16UC3);
+  cv::randu(gray, 0, 255);
+  cv::randu(bgra, 0, 255);
+  cv::randu(color16, 0, 65535);
+  const std::vector<std::pair<std::string, cv::Mat>> cases = {
+      {".png", colorImage()}, {".png", gray}, {".png", bgra}, {".png", color16}, {".jpg", colorImage()}, {".jpg", gray}};
+  for (const auto& [ext, image] : cases) {
+    const std::vector<uint8_t> bytes = openCvEncoded(ext, image);
+    const cv::Mat reference = cv::imdecode(bytes, cv::IMREAD_COLOR);
+    EXPECT_TRUE(same(decodedColor(bytes), reference)) << ext << " of type " << image.type();
+  }
+  const std::vector<uint8_t> depth = openCvEncoded(".png", depthImage());
+  const cv::Mat reference = cv::imdecode(depth, cv::IMREAD_ANYDEPTH);
+  EXPECT_TRUE(same(rekon::decodeDepthPng(depth.data(), depth.size(), kWidth, kHeight, "test"), reference));
+}
+
+TEST(ImageIo, EncodedImagesReadBackInOpenCvAsWritten) {
+  cv::Mat gray(kHeight, kWidth, CV_8UC1), bgra(kHeight, kWidth, CV_8UC4);
+  cv::randu(gray, 0, 255);
+  cv::randu(bgra, 0, 255);
+  for (const cv::Mat& image : {colorImage(), gray, bgra, depthImage()}) {
+    EXPECT_TRUE(same(cv::imdecode(rekon::encodePng(image), cv::IMREAD_UNCHANGED), image)) << image.type();
+  }
+  // JPEG is lossy: at OpenCV's default quality (95, rekon's too) ours is as close to the original as OpenCV's.
+  const cv::Mat smooth = [] {
+    cv::Mat m(kHeight, kWidth, CV_8UC3);
+    for (int y = 0; y < kHeight; ++y)
+      for (int x = 0; x < kWidth; ++x) m.at<cv::Vec3b>(y, x) = cv::Vec3b(x * 8, y * 10, (x + y) * 4);
+    return m;
+  }();
+  const cv::Mat ours = cv::imdecode(rekon::encodeJpeg(smooth), cv::IMREAD_COLOR);
+  const cv::Mat theirs = cv::imdecode(openCvEncoded(".jpg", smooth), cv::IMREAD_COLOR);
+  ASSERT_FALSE(ours.empty());
+  const double ours_error = cv::norm(ours, smooth, cv::NORM_L1) / static_cast<double>(smooth.total());
+  const double their_error = cv::norm(theirs, smooth, cv::NORM_L1) / static_cast<double>(smooth.total());
+  EXPECT_LE(ours_error, their_error + 0.5) << "mean absolute error per pixel (3 channels), ours against OpenCV's";
+}
