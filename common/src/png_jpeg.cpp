@@ -96,6 +96,11 @@ Error pngError(const std::string& what, const PngReader& r) {
   return Error(what + ": not a decodable PNG (" + r.message.text + "); replace the file");
 }
 
+void pngStart(PngReader& r, bool gray16, const std::string& what) {
+  if (!r.info) throw Error(what + ": cannot start the PNG decoder (out of memory?)");
+  if (!pngReadInfo(r, gray16)) throw pngError(what, r);
+}
+
 void pngReadInto(PngReader& r, cv::Mat& image, const std::string& what) {
   if (image.step[0] < r.rowbytes) throw pngError(what, r);
   std::vector<png_bytep> rows(static_cast<size_t>(image.rows));
@@ -116,6 +121,19 @@ void jpegFail(j_common_ptr c) {
 }
 
 void jpegIgnoreMessage(j_common_ptr) {}
+
+// The error manager to give a (de)compressor: errors return by longjmp to
+// f.jump with their text, warnings are dropped.
+jpeg_error_mgr* jpegErrors(JpegFailure& f) {
+  jpeg_std_error(&f.manager);
+  f.manager.error_exit = jpegFail;
+  f.manager.output_message = jpegIgnoreMessage;
+  return &f.manager;
+}
+
+Error jpegError(const std::string& what, const JpegFailure& f) {
+  return Error(what + ": not a decodable JPEG (" + f.text + "); replace the file");
+}
 
 bool jpegStart(jpeg_decompress_struct& d, JpegFailure& f, const uint8_t* data, size_t size) {
   if (setjmp(f.jump)) return false;
@@ -182,8 +200,7 @@ bool jpegWrite(jpeg_compress_struct& c, JpegFailure& f, const cv::Mat& image, in
 
 cv::Mat decodePngGray16(const uint8_t* data, size_t size, const std::string& what) {
   PngReader r(data, size);
-  if (!r.info) throw Error(what + ": cannot start the PNG decoder (out of memory?)");
-  if (!pngReadInfo(r, true)) throw pngError(what, r);
+  pngStart(r, true, what);
   if (r.bit_depth != 16 || r.channels != 1) {
     throw Error(what + ": depth must be a 16-bit single-channel PNG, found " + std::to_string(r.bit_depth) +
                 "-bit with " + std::to_string(r.channels) + " channel(s); convert the depth image");
@@ -195,8 +212,7 @@ cv::Mat decodePngGray16(const uint8_t* data, size_t size, const std::string& wha
 
 cv::Mat decodePngBgr(const uint8_t* data, size_t size, const std::string& what) {
   PngReader r(data, size);
-  if (!r.info) throw Error(what + ": cannot start the PNG decoder (out of memory?)");
-  if (!pngReadInfo(r, false)) throw pngError(what, r);
+  pngStart(r, false, what);
   cv::Mat image(static_cast<int>(r.height), static_cast<int>(r.width), CV_8UC3);
   pngReadInto(r, image, what);
   return image;
@@ -205,19 +221,16 @@ cv::Mat decodePngBgr(const uint8_t* data, size_t size, const std::string& what) 
 cv::Mat decodeJpegBgr(const uint8_t* data, size_t size, const std::string& what) {
   jpeg_decompress_struct d{};
   JpegFailure f{};
-  d.err = jpeg_std_error(&f.manager);
-  f.manager.error_exit = jpegFail;
-  f.manager.output_message = jpegIgnoreMessage;
+  d.err = jpegErrors(f);
   jpeg_create_decompress(&d);
   struct Destroy {
     jpeg_decompress_struct& d;
     ~Destroy() { jpeg_destroy_decompress(&d); }
   } destroy{d};
-  if (!jpegStart(d, f, data, size)) throw Error(what + ": not a decodable JPEG (" + f.text + "); replace the file");
+  if (!jpegStart(d, f, data, size)) throw jpegError(what, f);
   if (d.output_components != 3) throw Error(what + ": color must be 8-bit; convert the color image");
   cv::Mat image(static_cast<int>(d.output_height), static_cast<int>(d.output_width), CV_8UC3);
-  if (!jpegReadRows(d, f, image.data, image.step[0]))
-    throw Error(what + ": not a decodable JPEG (" + f.text + "); replace the file");
+  if (!jpegReadRows(d, f, image.data, image.step[0])) throw jpegError(what, f);
   return image;
 }
 
@@ -252,9 +265,7 @@ std::vector<uint8_t> encodeJpegImage(const cv::Mat& image, int quality) {
   if (image.type() != CV_8UC1 && image.type() != CV_8UC3) throw Error("JPEG encoding: only 8-bit grey or BGR images");
   jpeg_compress_struct c{};
   JpegFailure f{};
-  c.err = jpeg_std_error(&f.manager);
-  f.manager.error_exit = jpegFail;
-  f.manager.output_message = jpegIgnoreMessage;
+  c.err = jpegErrors(f);
   jpeg_create_compress(&c);
   unsigned char* buffer = nullptr;
   unsigned long size = 0;
