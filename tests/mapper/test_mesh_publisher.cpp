@@ -119,6 +119,7 @@ TEST_F(MeshPublisherTest, TheBudgetHoldsBlocksBackAndFinishSendsEveryOneSoTheSub
   EXPECT_LE(static_cast<double>(bytes_), bound);
   EXPECT_GT(publisher.stats().pending, 0);
   publisher.finish(mapper, BlockCause::kFinalPass);
+  publisher.waitUntilSent();
   receiveAll();
   EXPECT_EQ(publisher.stats().pending, 0);
   std::cout << "with the rest after the final update: " << bytes_ << " bytes\n";
@@ -179,6 +180,7 @@ TEST_F(MeshPublisherTest, UnaskedNothingGoesOutAndTheFirstRequestBringsTheWholeM
   EXPECT_EQ(quantaOf(map_.toMesh(), quantum), quantaOf(whole, quantum));
   play(mapper, publisher, kFrames / 2, kFrames);  // frames after the request: their changes go out as updates
   publisher.finish(mapper, BlockCause::kFinalPass);
+  publisher.waitUntilSent();
   receiveAll();
   EXPECT_GT(publisher.stats().updates, 1);
   EXPECT_EQ(quantaOf(map_.toMesh(), quantum), quantaOf(mapper.extractMesh(), quantum));
@@ -196,6 +198,7 @@ TEST_F(MeshPublisherTest, EveryBlockCarriesTheCauseOfItsChange) {
   MeshPublisher publisher(ctx_, settings, testParams().volume);
   play(mapper, publisher);
   publisher.finish(mapper, BlockCause::kNewData);  // the last KF keyframe, fused
+  publisher.waitUntilSent();
   receiveAll();
   const int64_t fused = causes_[0];
   EXPECT_GT(fused, 0);
@@ -271,6 +274,7 @@ TEST_F(MeshPublisherTest, NewBlocksGoCoarseAndNearestFirstAndTheFullMeshesReplac
   const int64_t coarse_bytes = bytes_;
 
   publisher.finish(mapper, BlockCause::kNewData);  // everything else, in full
+  publisher.waitUntilSent();
   receiveAll();
   std::map<std::tuple<int, int, int>, int64_t> last;  // each block's newest version received
   std::set<std::tuple<int, int, int>> sent_first;

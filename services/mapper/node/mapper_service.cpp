@@ -116,6 +116,7 @@ void finishAndWrite(ServiceContext& ctx, const Settings& settings, Mapper& mappe
     writeMesh(mapper, ctx.outDir());
     if (settings.baseline_wanted && !worker.baselineWritten()) writeUncorrectedMesh(mapper, ctx.outDir());
   }
+  mesh.waitUntilSent();
   recordStats(ctx, mapper, settings.params, inbox.counts(), mesh.stats());
 }
 

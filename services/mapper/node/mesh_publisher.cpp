@@ -70,6 +70,8 @@ MeshPublisher::MeshPublisher(ServiceContext& ctx, const MeshPublisherSettings& s
   tokens_ = settings.max_bytes_per_s / settings.rate_hz;
 }
 
+MeshPublisher::~MeshPublisher() { waitUntilSent(); }
+
 void MeshPublisher::subscribe() {
   if (!settings_.enabled) return;
   ctx_.bus().subscribe<rekon_msgs::mesh_request_t>(channel::kMeshRequest, [this](const rekon_msgs::mesh_request_t& m) {
@@ -125,7 +127,7 @@ void MeshPublisher::finish(Mapper& mapper, BlockCause cause) {
   } catch (const Error& e) {
     spdlog::error("mapper: the last mesh update failed: {}", e.what());
   }
-  stats_.cpu_ms += processCpuMs() - cpu0;
+  stats_.cpu_ms += processCpuMs() - cpu0;  // its sending apart (a few ms of the gaps' time)
   spdlog::info("mapper: mesh on the bus: {} updates ({} full), {} blocks and {} coarse ones first, {:.1f} MB, {:.0f} ms CPU",
                stats_.updates, stats_.full_snapshots, stats_.blocks_sent, stats_.coarse_sent,
                static_cast<double>(stats_.bytes) / 1e6, stats_.cpu_ms);
@@ -240,21 +242,34 @@ int64_t MeshPublisher::publish(Mapper& mapper, const std::vector<volume::BlockCo
   }
   if (coarse && meshes.empty()) return 0;
   const int threads = every_core_ ? static_cast<int>(std::max(1u, std::thread::hardware_concurrency())) : 1;
-  const std::vector<rekon_msgs::mesh_blocks_t> msgs = encodeMeshBlocks(meshes, codec_, ++sequence_, full_snapshot, threads);
+  std::vector<rekon_msgs::mesh_blocks_t> msgs = encodeMeshBlocks(meshes, codec_, ++sequence_, full_snapshot, threads);
   int64_t bytes = 0;
-  for (size_t i = 0; i < msgs.size(); ++i) {
-    // A pause between parts: one part nearly fills a receiver's default UDP
-    // buffer (208 KB), and a subscriber inflating the last one must keep up.
-    if (i > 0) std::this_thread::sleep_for(kPartGap);
-    ctx_.bus().publish(channel::kMeshBlocks, msgs[i]);
-    bytes += msgs[i].getEncodedSize();
-  }
-  last_update_ = Clock::now();
+  for (const rekon_msgs::mesh_blocks_t& m : msgs) bytes += m.getEncodedSize();
   ++stats_.updates;
   stats_.messages += static_cast<int64_t>(msgs.size());
+  send(std::move(msgs));
+  last_update_ = Clock::now();
   (coarse ? stats_.coarse_sent : stats_.blocks_sent) += static_cast<int64_t>(meshes.size());
   stats_.bytes += bytes;
   return bytes;
+}
+
+void MeshPublisher::send(std::vector<rekon_msgs::mesh_blocks_t> msgs) {
+  auto send_all = [this](const std::vector<rekon_msgs::mesh_blocks_t>& parts) {
+    for (size_t i = 0; i < parts.size(); ++i) {
+      // A pause between parts: one part nearly fills a receiver's default UDP
+      // buffer (208 KB), and a subscriber inflating the last one must keep up.
+      if (i > 0) std::this_thread::sleep_for(kPartGap);
+      ctx_.bus().publish(channel::kMeshBlocks, parts[i]);
+    }
+  };
+  waitUntilSent();  // updates go out in order
+  if (!every_core_) return send_all(msgs);
+  last_sender_ = std::thread([send_all, parts = std::move(msgs)] { send_all(parts); });
+}
+
+void MeshPublisher::waitUntilSent() {
+  if (last_sender_.joinable()) last_sender_.join();
 }
 
 std::vector<BlockMesh> MeshPublisher::coarseMeshes(const Mapper& mapper, const std::vector<volume::BlockCoord>& wanted) const {

@@ -20,6 +20,7 @@
 #include <atomic>
 #include <chrono>
 #include <cstdint>
+#include <thread>
 #include <unordered_map>
 #include <vector>
 
@@ -63,6 +64,9 @@ struct MeshPublisherStats {
 class MeshPublisher {
  public:
   MeshPublisher(ServiceContext& ctx, const MeshPublisherSettings& settings, const volume::VolumeParams& volume);
+  ~MeshPublisher();
+  MeshPublisher(const MeshPublisher&) = delete;
+  MeshPublisher& operator=(const MeshPublisher&) = delete;
   // MESH_REQUEST: before the bus threads start.
   void subscribe();
 
@@ -75,8 +79,12 @@ class MeshPublisher {
   // How long the worker may sleep before tick() has something to do.
   std::chrono::milliseconds idleWait() const;
   // After the final pass (`cause` of the changes not yet noted): every
-  // pending block, regardless of rate and budget, so that a subscriber's map equals mesh.ply.
+  // pending block, regardless of rate and budget, so that a subscriber's map
+  // equals mesh.ply. Meshed and encoded before it returns; its messages go
+  // out on a thread of their own (their gaps are idle time: the caller
+  // writes mesh.ply meanwhile) until waitUntilSent().
   void finish(Mapper& mapper, BlockCause cause);
+  void waitUntilSent();
 
   const MeshPublisherStats& stats() const { return stats_; }
   bool enabled() const { return settings_.enabled; }
@@ -101,6 +109,8 @@ class MeshPublisher {
   int64_t publish(Mapper& mapper, const std::vector<volume::BlockCoord>& coords, bool full_snapshot, bool coarse = false,
                   std::vector<volume::BlockCoord>* empty_coarse = nullptr);
   std::vector<BlockMesh> coarseMeshes(const Mapper& mapper, const std::vector<volume::BlockCoord>& coords) const;
+  // One update's messages, kPartGap apart; on last_sender_ once finishing.
+  void send(std::vector<rekon_msgs::mesh_blocks_t> msgs);
 
   ServiceContext& ctx_;
   MeshPublisherSettings settings_;
@@ -121,6 +131,7 @@ class MeshPublisher {
   int64_t last_version_ = 0;
   int64_t sequence_ = 0;
   bool every_core_ = false;  // meshing and encoding on the calling thread only until finish()
+  std::thread last_sender_;  // finish()'s messages
   double tokens_ = 0.0;  // bytes the budget allows now (negative after a large update)
   double bytes_per_block_ = 300.0;  // running estimates, to mesh only what the budget can send
   double bytes_per_coarse_block_ = 100.0;
