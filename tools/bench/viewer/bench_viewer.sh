@@ -9,7 +9,9 @@
 # (p50/p95, ms: of every block version; page_new_*: a block's first
 # appearance, coarse or full; page_full_*: full meshes only) and its own
 # time; OUT/browser_N/viewer.png is a screenshot of
-# the final map. Everything runs in a private network namespace
+# the final map. REKON_RUN_ARGS goes to every `rekon run` (with
+# "--set player.rate=1 --set player.pacing=live" the lines add the frames
+# fused and the capture-to-pose latency p50/p95). Everything runs in a private network namespace
 # (tests/support/in_netns.sh): loopback only.
 set -euo pipefail
 if [[ $# -lt 2 ]]; then echo "usage: $0 DATASET OUT [RUNS]" >&2; exit 2; fi

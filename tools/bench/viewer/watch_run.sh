@@ -3,14 +3,23 @@
 set -euo pipefail
 bin=$1 dataset=$2 out=$3 runs=$4
 port=8099
+read -r -a run_args <<< "${REKON_RUN_ARGS:-}"  # e.g. "--set player.rate=1 --set player.pacing=live"
 
 summary() {  # stats.json [state.json]
   python3 - "$@" <<'PY'
-import json, sys
+import csv, json, os, sys
 s = json.load(open(sys.argv[1]))
 m = s["mapper"]
 line = "realtime_factor=%.3f mesh_cpu_share=%.4f mesh_bytes_per_s=%.0f" % (
     s["realtime_factor"], m.get("mesh_cpu_share", 0), m.get("mesh_bytes", 0) / max(s["wall_seconds"], 1e-9))
+# Played live (player.pacing: live): the frames fused and the capture-to-pose latency.
+latency_csv = os.path.join(os.path.dirname(sys.argv[1]), "player_latency.csv")
+if os.path.exists(latency_csv):
+    ms = sorted(float(r["latency_ms"]) for r in csv.DictReader(open(latency_csv)))
+    p = s["player"]
+    captured = p.get("frames_captured", 0) + p.get("frames_skipped_late", 0)
+    line += " fused=%d/%d latency_ms_p50=%.1f latency_ms_p95=%.1f" % (
+        m.get("frames_fused", 0), captured, ms[len(ms) // 2], ms[int(0.95 * (len(ms) - 1))])
 if len(sys.argv) > 2:
     st = json.load(open(sys.argv[2]))
     line += " receive_ms_p50=%g receive_ms_p95=%g viewer_blocks=%d" % (
@@ -42,7 +51,7 @@ watched() {  # NAME [browser]
     browser=$!
     until curl -s "http://127.0.0.1:$port/state.json" | grep -q '"clients":\[{'; do sleep 0.5; done
   fi
-  "$bin/rekon" run --dataset "$dataset" --out "$out/$name" > "$out/$name.log" 2>&1
+  "$bin/rekon" run --dataset "$dataset" --out "$out/$name" "${run_args[@]}" > "$out/$name.log" 2>&1
   sleep 3  # the last blocks reach the page, and its next report the server
   curl -s "http://127.0.0.1:$port/state.json" > "$out/$name/viewer_state.json"
   if [[ ${2:-} == browser ]]; then  # the final map as a fresh browser draws it (README's picture)
@@ -55,7 +64,7 @@ watched() {  # NAME [browser]
 }
 
 for ((i = 1; i <= runs; ++i)); do
-  "$bin/rekon" run --dataset "$dataset" --out "$out/plain_$i" > "$out/plain_$i.log" 2>&1
+  "$bin/rekon" run --dataset "$dataset" --out "$out/plain_$i" "${run_args[@]}" > "$out/plain_$i.log" 2>&1
   echo "without viewer, run $i: $(summary "$out/plain_$i/stats.json")"
   watched "viewer_$i"
   echo "with viewer, run $i: $(summary "$out/viewer_$i/stats.json" "$out/viewer_$i/viewer_state.json")"
