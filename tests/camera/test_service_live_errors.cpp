@@ -15,6 +15,7 @@
 #include <fstream>
 #include <string>
 
+#include "rekon/common/config.hpp"
 #include "test_support.hpp"
 
 namespace {
@@ -68,12 +69,17 @@ TEST(LivePacing, PlayerLiveAtTwiceTheRecordedRateWithACpuHogDropsFramesAndStillM
   std::printf("player: %s\nmapper peak RSS %lld MB, tracker %lld MB\n", player.c_str(),
               jsonInt(readText(live + "/mapper_stats.json"), "peak_rss_mb"),
               jsonInt(readText(live + "/tracker_stats.json"), "peak_rss_mb"));
-  // Whether the consumers fall behind (frames dropped) or the player does
-  // (frames skipped for lateness) depends on the machine and its load; that
-  // one of them does, does not.
+  // Whether the consumers fall behind (frames the player drops when they
+  // are not ready, or the mapper drops beyond its queue: rekon run sets
+  // mapper.when_full drop behind a live source) or the player does (frames
+  // skipped for lateness) depends on the machine and its load; that one of
+  // them does, does not. On a fast 2-core VM only the mapper dropped (4
+  // runs: 28-53 of 300, the player none): counting the player alone failed
+  // there.
   const long long captured = jsonInt(player, "frames_captured"), skipped = jsonInt(player, "frames_skipped_late"),
                   dropped = jsonInt(player, "frames_dropped"), sent = jsonInt(player, "frames_sent");
-  EXPECT_GT(skipped + dropped, 0) << "a hog on two cores: the consumers or the player cannot keep up";
+  const long long mapper_dropped = jsonInt(readText(live + "/mapper_stats.json"), "frames_dropped");
+  EXPECT_GT(skipped + dropped + mapper_dropped, 0) << "a hog on two cores: the consumers or the player cannot keep up";
   EXPECT_GE(skipped, 0);
   EXPECT_EQ(captured + skipped, 300) << "every frame is taken on time or skipped for lateness";
   EXPECT_EQ(sent + dropped, captured);
@@ -89,7 +95,9 @@ TEST(LivePacing, PlayerLiveAtTwiceTheRecordedRateWithACpuHogDropsFramesAndStillM
   EXPECT_NEAR(wall, due, 0.4) << player;
   EXPECT_NE(readText(live + "/config.yaml").find("when_full: drop"), std::string::npos);
   EXPECT_NE(readText(live + "/config.yaml").find("loop_when_behind: fewer"), std::string::npos);
-  EXPECT_NE(readText(live + "/config.yaml").find("nice: 10"), std::string::npos);
+  const rekon::Config live_config = rekon::Config::load(live + "/config.yaml");
+  EXPECT_EQ(live_config.getInt("mapper.nice"), 10);
+  EXPECT_EQ(live_config.getInt("optimiser.nice"), 10);
   const double paced = ateOf(data, dir / "paced"), dropped_ate = ateOf(data, live);
   std::printf("ATE paced %.3f mm, live with hogs %.3f mm\n", 1e3 * paced, 1e3 * dropped_ate);
   // Measured: paced 0.265 mm; live at 60 Hz with the hog 0.263-0.267 mm in 5 runs (6-19 frames
