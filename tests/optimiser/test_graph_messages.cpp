@@ -147,6 +147,7 @@ TEST(OptimiserParams, DefaultConfigMatchesTheNamedDefaults) {
   EXPECT_EQ(p.information_scale, OptimiserServiceParams::kDefaultInformationScale);
   EXPECT_EQ(p.final_repeats, OptimiserServiceParams::kDefaultFinalRepeats);
   EXPECT_EQ(p.final_repeat_gap_ms, OptimiserServiceParams::kDefaultFinalRepeatGapMs);
+  EXPECT_EQ(p.nice, 0);
 }
 
 TEST(OptimiserParams, InvalidValuesAreErrorsNamingTheKey) {
@@ -157,6 +158,14 @@ TEST(OptimiserParams, InvalidValuesAreErrorsNamingTheKey) {
     EXPECT_NE(std::string(e.what()).find("optimiser.loop_loss_scale"), std::string::npos) << e.what();
   }
   EXPECT_THROW(optimiserParamsFromConfig(Config::load("", {"optimiser.loop_loss=tukey"})), Error);
+  for (const char* nice : {"optimiser.nice=-1", "optimiser.nice=20"}) {
+    try {
+      optimiserParamsFromConfig(Config::load("", {nice}));
+      FAIL() << nice << " must be rejected";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("optimiser.nice"), std::string::npos) << e.what();
+    }
+  }
 }
 
 }  // namespace

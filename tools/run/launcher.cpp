@@ -242,11 +242,12 @@ RunPlan planRun(const RunOptions& opt) {
   // Behind a source that cannot wait, a busy mapper drops frames rather than
   // holding the tracker's next frames back, loop checks that fall behind
   // take fewer candidates rather than holding the frames back, and the
-  // mapping threads yield the cores to the source and to tracking.
+  // mapping and optimisation threads yield the cores to the source and to tracking.
   if (!opt.camera.empty() || config.getString("player.pacing") == "live") {
     config.set("mapper.when_full", "drop");
     config.set("tracker.loop_when_behind", "fewer");
     config.set("mapper.nice", "10");
+    config.set("optimiser.nice", "10");
   }
   // The frame source waits only for consumers that this run starts.
   std::string wait_for;

@@ -11,6 +11,7 @@
 #include "journal.hpp"
 #include "outputs.hpp"
 #include "recovery.hpp"
+#include "rekon/common/priority.hpp"
 #include "rekon/optimiser/g2o.hpp"
 #include "rekon/optimiser/params.hpp"
 #include "rekon_msgs/done_t.hpp"
@@ -97,6 +98,9 @@ void lingerForTheMapper(ServiceContext& ctx, const PeerWatch& peers, Inbox& inbo
 
 void runOptimiserService(ServiceContext& ctx) {
   const OptimiserServiceParams params = optimiserParamsFromConfig(ctx.config());
+  // This thread, which optimises (the bus thread, started before, keeps its priority).
+  if (params.nice > 0 && !setThisThreadsNice(params.nice))
+    spdlog::warn("optimiser.nice {}: the system refused; the optimiser keeps its priority", params.nice);
   Inbox inbox(ctx, params.information_scale);
   PeerWatch peers(ctx.bus(), ctx.lifecycle());
   StopThreadsOnExit stop_threads(ctx);  // before `inbox` dies: the bus handlers write into it

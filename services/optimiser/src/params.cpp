@@ -36,6 +36,7 @@ void OptimiserServiceParams::validate() const {
   require(final_repeats >= 1 && final_repeats <= 100, "final_repeats", final_repeats, "between 1 and 100");
   require(final_repeat_gap_ms >= 0 && final_repeat_gap_ms <= 10000, "final_repeat_gap_ms", final_repeat_gap_ms,
           "between 0 and 10000");
+  require(nice >= 0 && nice <= 19, "nice", nice, "between 0 and 19");
 }
 
 RobustLoss robustLossFromString(const std::string& name) {
@@ -83,6 +84,7 @@ OptimiserServiceParams optimiserParamsFromConfig(const Config& config) {
   p.information_scale = config.getDouble("optimiser.information_scale");
   p.final_repeats = config.getInt("optimiser.final_repeats");
   p.final_repeat_gap_ms = config.getInt("optimiser.final_repeat_gap_ms");
+  p.nice = config.getInt("optimiser.nice");
   p.validate();
   return p;
 }

@@ -83,6 +83,10 @@ struct OptimiserServiceParams {
   double information_scale = kDefaultInformationScale;
   int final_repeats = kDefaultFinalRepeats;
   int final_repeat_gap_ms = kDefaultFinalRepeatGapMs;
+  // The optimisation thread's nice value (0-19): above 0 its solves yield
+  // the cores to the frame source and to tracking (rekon run sets 10 behind
+  // a live source, as for the mapper).
+  int nice = 0;
 
   void validate() const;
 };
