@@ -181,9 +181,10 @@ REKON_SIMD_CLONES __attribute__((optimize("fp-contract=off"))) void landRow(
 // input (structure of arrays: contiguous stores that vectorise): where warpRow
 // saw the surface and the bilinear sample lies inside the image, the sample's
 // luma, weight and color (B, G, R in the low three bytes); elsewhere weight 0.
-// The pixel reads are 32-bit loads of a BGR pixel (gathers in the AVX2
-// clone); the last pixel of the image is read ending on its last byte, so no
-// load leaves the image. No contraction into FMA: the same bits as sampling
+// The pixel reads are 32-bit loads of a BGR pixel (in the AVX2 clone GCC 12
+// vectorises them as element-wise inserts, vpinsrd, not gathers); the last
+// pixel of the image is read ending on its last byte, so no load leaves the
+// image. No contraction into FMA: the same bits as sampling
 // pixel by pixel in the baseline build.
 REKON_SIMD_CLONES void observeRow(
     const float* __restrict uf, const float* __restrict vf, const float* __restrict w, const int32_t* __restrict seen,
