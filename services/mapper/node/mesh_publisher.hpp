@@ -109,7 +109,8 @@ class MeshPublisher {
   int64_t publish(Mapper& mapper, const std::vector<volume::BlockCoord>& coords, bool full_snapshot, bool coarse = false,
                   std::vector<volume::BlockCoord>* empty_coarse = nullptr);
   std::vector<BlockMesh> coarseMeshes(const Mapper& mapper, const std::vector<volume::BlockCoord>& coords) const;
-  // One update's messages, kPartGap apart; on last_sender_ once finishing.
+  // One update's messages, kPartGap apart, after the previous update's; on
+  // last_sender_ during finish(), else before it returns.
   void send(std::vector<rekon_msgs::mesh_blocks_t> msgs);
 
   ServiceContext& ctx_;
@@ -131,7 +132,8 @@ class MeshPublisher {
   int64_t last_version_ = 0;
   int64_t sequence_ = 0;
   bool every_core_ = false;  // meshing and encoding on the calling thread only until finish()
-  std::thread last_sender_;  // finish()'s messages
+  bool send_behind_ = false;  // during finish(): its messages go out on last_sender_
+  std::thread last_sender_;
   double tokens_ = 0.0;  // bytes the budget allows now (negative after a large update)
   double bytes_per_block_ = 300.0;  // running estimates, to mesh only what the budget can send
   double bytes_per_coarse_block_ = 100.0;
