@@ -13,6 +13,7 @@
 #include <string>
 #include <thread>
 
+#include "rekon/common/error.hpp"
 #include "rekon/common/priority.hpp"
 
 namespace rekon {
@@ -57,6 +58,20 @@ TEST(ThreadNice, ThreadsStartedAfterwardsShareItThoseBeforeDoNot) {
     earlier.join();
   }).join();
   EXPECT_EQ(niceOf(threadId()), base) << "the test's own thread is untouched";
+}
+
+// A service's nice setting: 0-19, else one line naming the key.
+TEST(ThreadNice, ASettingOutOfRangeIsAnErrorNamingItsKey) {
+  EXPECT_NO_THROW(requireNice(0, "mapper.nice"));
+  EXPECT_NO_THROW(requireNice(19, "mapper.nice"));
+  for (const int nice : {-1, 20}) {
+    try {
+      requireNice(nice, "mapper.nice");
+      FAIL() << nice << " must be rejected";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("mapper.nice = " + std::to_string(nice)), std::string::npos) << e.what();
+    }
+  }
 }
 
 }  // namespace

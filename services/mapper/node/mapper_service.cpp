@@ -56,7 +56,7 @@ Settings readSettings(const ServiceContext& ctx) {
   const bool wait_for_optimiser =
       config.getBool("mapper.wait_for_optimiser") && contains(config.getStringList("run.services"), "optimiser");
   const int nice = config.getInt("mapper.nice");
-  if (nice < 0 || nice > 19) throw Error("mapper.nice " + std::to_string(nice) + " must be between 0 and 19");
+  requireNice(nice, "mapper.nice");
   return {params, max_queued, when_full == "drop", progress_every, wait_for_optimiser,
           write_uncorrected && params.mode != ReintegrationMode::kNone && !ctx.outDir().empty(),
           MeshPublisherSettings::fromConfig(config), config.getBool("mapper.remove_store_at_end"), nice};
@@ -148,8 +148,7 @@ void sayTheEndAgain(ServiceContext& ctx, const Settings& settings, Mapper& mappe
 void runMapperService(ServiceContext& ctx) {
   const Settings settings = readSettings(ctx);
   // This thread and every thread it starts (the bus thread, started before, keeps its priority).
-  if (settings.nice > 0 && !setThisThreadsNice(settings.nice))
-    spdlog::warn("mapper.nice {}: the system refused; the mapper keeps its priority", settings.nice);
+  applyNice(settings.nice, "mapper.nice");
   Mapper mapper(settings.params);
   if (const auto end = mapper.finishedRunEnd()) return sayTheEndAgain(ctx, settings, mapper, *end);
   Inbox inbox(ctx, settings.max_queued_frames, settings.drop_when_full);

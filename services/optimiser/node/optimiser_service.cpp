@@ -99,8 +99,7 @@ void lingerForTheMapper(ServiceContext& ctx, const PeerWatch& peers, Inbox& inbo
 void runOptimiserService(ServiceContext& ctx) {
   const OptimiserServiceParams params = optimiserParamsFromConfig(ctx.config());
   // This thread, which optimises (the bus thread, started before, keeps its priority).
-  if (params.nice > 0 && !setThisThreadsNice(params.nice))
-    spdlog::warn("optimiser.nice {}: the system refused; the optimiser keeps its priority", params.nice);
+  applyNice(params.nice, "optimiser.nice");
   Inbox inbox(ctx, params.information_scale);
   PeerWatch peers(ctx.bus(), ctx.lifecycle());
   StopThreadsOnExit stop_threads(ctx);  // before `inbox` dies: the bus handlers write into it

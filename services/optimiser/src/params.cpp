@@ -4,6 +4,7 @@
 
 #include "rekon/common/config.hpp"
 #include "rekon/common/error.hpp"
+#include "rekon/common/priority.hpp"
 
 namespace rekon::optimiser {
 namespace {
@@ -36,7 +37,7 @@ void OptimiserServiceParams::validate() const {
   require(final_repeats >= 1 && final_repeats <= 100, "final_repeats", final_repeats, "between 1 and 100");
   require(final_repeat_gap_ms >= 0 && final_repeat_gap_ms <= 10000, "final_repeat_gap_ms", final_repeat_gap_ms,
           "between 0 and 10000");
-  require(nice >= 0 && nice <= 19, "nice", nice, "between 0 and 19");
+  requireNice(nice, "optimiser.nice");
 }
 
 RobustLoss robustLossFromString(const std::string& name) {
