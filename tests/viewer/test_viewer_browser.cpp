@@ -203,6 +203,19 @@ std::string pageReport(const std::string& state) {
   return at == std::string::npos ? "" : state.substr(at, state.find('}', at) - at + 1);
 }
 
+// /state.json every 250 ms until done(its first page's report, it) or
+// `seconds` have passed; the last one read.
+template <typename Done>
+std::string waitForState(const std::string& url, Done done, double seconds) {
+  std::string state;
+  const auto start = Clock::now();
+  do {
+    std::this_thread::sleep_for(std::chrono::milliseconds(250));
+    state = stateJson(url);
+  } while (!done(pageReport(state), state) && test::secondsSince(start) < seconds);
+  return state;
+}
+
 // The report of a page opened now on `url` once it holds `blocks` blocks, or
 // its last report after `seconds`; chromium runs in real time (its debugging
 // port keeps the page open) and is stopped before this returns. Pages loaded
@@ -212,12 +225,8 @@ std::string pageReport(const std::string& state) {
 std::string pageHolding(const std::string& url, const std::string& profile, long long blocks, int seconds) {
   const pid_t browser = rekon::test::spawnShell("exec " + chromium(profile, seconds + 30) + "--remote-debugging-port=0 " + url +
                                                 " > " + profile + ".log 2>&1");
-  std::string page;
-  const auto start = Clock::now();
-  do {
-    std::this_thread::sleep_for(std::chrono::milliseconds(250));
-    page = pageReport(stateJson(url));
-  } while (jsonInt(page, "blocks") != blocks && test::secondsSince(start) < seconds);
+  const std::string page = pageReport(
+      waitForState(url, [blocks](const std::string& p, const std::string&) { return jsonInt(p, "blocks") == blocks; }, seconds));
   kill(browser, SIGTERM);
   rekon::test::waitForExit(browser, 10);
   return page;
@@ -240,15 +249,7 @@ TEST(ViewerBrowser, AnOpenPageReplacesCoarseMeshesByTheFullOnes) {
   const pid_t browser = rekon::test::spawnShell("exec " + chromium(dir / "profile", 200) + "--remote-debugging-port=0 " +
                                                 url + " > " + (dir / "chromium.log") + " 2>&1");
   // Reports come once a second; the page is live once one has come.
-  auto waitForPage = [&](auto done) {
-    std::string state;
-    const auto start = Clock::now();
-    do {
-      std::this_thread::sleep_for(std::chrono::milliseconds(250));
-      state = stateJson(url);
-    } while (!done(pageReport(state), state) && test::secondsSince(start) < 90);
-    return state;
-  };
+  auto waitForPage = [&](auto done) { return waitForState(url, done, 90); };
   ASSERT_FALSE(pageReport(waitForPage([](const std::string& page, const std::string&) { return !page.empty(); })).empty())
       << readText(dir / "chromium.log");
   auto bus = makeBus(BusOptions{});
@@ -421,11 +422,9 @@ TEST(ViewerBrowser, PageShowsTheCorrectionOfAGraphUpdate) {
   ASSERT_FALSE(url.empty()) << readText(dir / "viewer.log");
   const pid_t browser = rekon::test::spawnShell("exec " + chromium(dir / "profile", 400) + "--remote-debugging-port=0 " +
                                                 url + " > " + (dir / "chromium.log") + " 2>&1");
-  const auto start = Clock::now();
-  while (pageReport(stateJson(url)).empty() && test::secondsSince(start) < 90) {
-    std::this_thread::sleep_for(std::chrono::milliseconds(250));
-  }
-  ASSERT_FALSE(pageReport(stateJson(url)).empty()) << "the page never reported:\n" << readText(dir / "chromium.log");
+  const auto reported = [](const std::string& page, const std::string&) { return !page.empty(); };
+  ASSERT_FALSE(pageReport(waitForState(url, reported, 90)).empty()) << "the page never reported:\n"
+                                                                        << readText(dir / "chromium.log");
 
   const std::string bin = binDir(), id = std::to_string(getpid());
   const std::string pipeline =
@@ -439,15 +438,14 @@ TEST(ViewerBrowser, PageShowsTheCorrectionOfAGraphUpdate) {
       << readText(dir / "mapper.log") << readText(dir / "replay.log") << readText(dir / "player.log");
 
   // The page takes the last blocks and reports within a few seconds.
-  std::string state, page;
-  const auto end = Clock::now();
-  do {
-    std::this_thread::sleep_for(std::chrono::milliseconds(500));
-    state = stateJson(url);
-    page = pageReport(state);
-  } while ((jsonInt(page, "blocks") != jsonInt(state, "blocks") ||
-            std::abs(jsonNumber(page, "position_sum") - jsonNumber(state, "position_sum")) > 1e-3) &&
-           test::secondsSince(end) < 60);
+  const std::string state = waitForState(
+      url,
+      [](const std::string& p, const std::string& st) {
+        return jsonInt(p, "blocks") == jsonInt(st, "blocks") &&
+               !(std::abs(jsonNumber(p, "position_sum") - jsonNumber(st, "position_sum")) > 1e-3);
+      },
+      60);
+  const std::string page = pageReport(state);
   const std::string mapper_stats = readText(dir / "out/mapper_stats.json");
   EXPECT_GT(rekon::test::jsonInt(mapper_stats, "final_pass_reintegrations"), 0) << mapper_stats;
   EXPECT_EQ(jsonInt(page, "blocks"), jsonInt(state, "blocks")) << page << "\n" << state.substr(0, 400);
