@@ -1,0 +1,286 @@
+"""rekon-realsense: publishes an Intel RealSense camera's frames (or a .bag
+recording's, at its recorded rate) on the rekon bus, in place of the player,
+as rekon-camera does for OpenNI2 and libfreenect devices: it opens the device
+once its consumers listen, sends frame_t inline through the live outlet (the
+newest frame wins, never waits), records every captured frame when asked, and
+ends the stream when the recording ends, the device is lost, or the run stops."""
+import logging
+import os
+import sys
+import time
+
+from .errors import Error
+
+log = logging.getLogger("rekon")
+
+
+class Params:
+    """realsense.* and transport.* (config/default.yaml), checked once."""
+
+    def __init__(self, config):
+        g = config
+        self.device = g.get_string("realsense.device")
+        self.playback = g.get_string("realsense.playback")
+        self.calibration = g.get_string("realsense.calibration")
+        self.width = g.get_int("realsense.width")
+        self.height = g.get_int("realsense.height")
+        self.fps = g.get_int("realsense.fps")
+        # YAML 1.1 (PyYAML) reads an unquoted on/off as true/false.
+        self.emitter = {"true": "on", "false": "off"}.get(g.get_string("realsense.emitter"),
+                                                          g.get_string("realsense.emitter"))
+        self.preset = g.get_string("realsense.preset")
+        self.depth_units = g.get_double("realsense.depth_units")
+        self.encoding = g.get_string("realsense.encoding")
+        self.record = g.get_string("realsense.record")
+        self.record_queue = g.get_int("realsense.record_queue")
+        self.wait_for = g.get_string_list("realsense.wait_for")
+        self.wait_timeout_s = g.get_double("realsense.wait_timeout_s")
+        self.max_frames = g.get_int("realsense.max_frames")
+        self.transport_mode = g.get_string("transport.mode")
+        self.in_flight = g.get_int("transport.live_in_flight")
+        from .device import PRESETS
+        from .images import ENCODINGS
+        if self.emitter not in ("auto", "on", "off"):
+            raise Error(f"realsense.emitter '{self.emitter}' is unknown; use on, off or auto (the device's setting)")
+        if self.preset and self.preset not in PRESETS:
+            raise Error(f"realsense.preset '{self.preset}' is unknown; use one of {', '.join(PRESETS)} or \"\" "
+                        "(the device's)")
+        if not (self.depth_units == 0 or 1e-6 <= self.depth_units <= 0.01):
+            raise Error(f"realsense.depth_units {self.depth_units:g} is out of range; give metres per depth unit "
+                        "(0.001 = 1 mm, 0.0001 = 0.1 mm) or 0 for the device's")
+        if self.encoding not in ENCODINGS:
+            raise Error(f"realsense.encoding '{self.encoding}' is unknown; use netpbm (this host) or png (a network)")
+        if min(self.width, self.height, self.fps) <= 0:
+            raise Error("realsense.width, realsense.height and realsense.fps must be positive")
+        if self.in_flight < 1:
+            raise Error("transport.live_in_flight must be 1 or more")
+        if self.record_queue < 1:
+            raise Error("realsense.record_queue must be 1 or more (frames)")
+        if self.transport_mode not in ("auto", "lcm", "shm"):
+            raise Error(f"transport mode '{self.transport_mode}' is unknown; use shm, lcm or auto")
+
+
+def load_calibration(path, k):
+    """--calibration: camera.yaml's color intrinsics in place of the device's
+    (for a camera recalibrated by hand); its size must be the mode's. The depth
+    unit stays the device's: the depth values are the device's."""
+    import yaml
+    try:
+        with open(path, encoding="utf-8") as f:
+            c = yaml.safe_load(f)
+    except OSError:
+        raise Error(f"{path}: cannot read the calibration file; give a camera.yaml (width height fx fy cx cy)") from None
+    except yaml.YAMLError:
+        raise Error(f"{path}: not valid YAML; give a camera.yaml (width height fx fy cx cy)") from None
+    try:
+        fields = {key: float(c[key]) for key in ("width", "height", "fx", "fy", "cx", "cy")}
+    except (TypeError, KeyError, ValueError):
+        raise Error(f"{path}: needs width, height, fx, fy, cx and cy as numbers") from None
+    if (int(fields["width"]), int(fields["height"])) != (k["width"], k["height"]):
+        raise Error(f"{path} is for {int(fields['width'])}x{int(fields['height'])} but the camera runs at "
+                    f"{k['width']}x{k['height']}; set realsense.width/height or give the calibration of this mode")
+    if "depth_scale" in c and abs(float(c["depth_scale"]) - k["depth_scale"]) > 1e-3 * k["depth_scale"]:
+        log.warning("%s: depth_scale %g ignored: the device's depth unit gives %g values per metre", path,
+                    float(c["depth_scale"]), k["depth_scale"])
+    out = dict(k)
+    out.update(fx=fields["fx"], fy=fields["fy"], cx=fields["cx"], cy=fields["cy"])
+    return out
+
+
+def frame_message(frame_id, frame, k, encoding):
+    from rekon_msgs import frame_t
+    from .images import encode
+    m = frame_t()
+    m.frame_id = frame_id
+    m.timestamp = frame.timestamp
+    m.width, m.height = k["width"], k["height"]
+    m.fx, m.fy, m.cx, m.cy, m.depth_scale = k["fx"], k["fy"], k["cx"], k["cy"], k["depth_scale"]
+    m.shm_segment, m.shm_slot, m.shm_generation = "", -1, 0
+    m.depth_png, m.color, m.color_format = encode(frame.depth, frame.color_rgb, encoding)
+    m.depth_png_size, m.color_size = len(m.depth_png), len(m.color)
+    return m
+
+
+class FrameLog:
+    """<out>/realsense_frames.csv: per frame sent to the outlet, the device's
+    frame number and timestamp (ms, in its domain) beside the host stamp the
+    frame carries, so that a recording's frames can be found again."""
+
+    def __init__(self, out_dir):
+        self.f = open(os.path.join(out_dir, "realsense_frames.csv"), "w", encoding="utf-8") if out_dir else None
+        if self.f:
+            self.f.write("frame_id,device_frame_number,device_timestamp_ms,timestamp\n")
+
+    def row(self, frame_id, frame):
+        if self.f:
+            self.f.write(f"{frame_id},{frame.number},{frame.device_ms:.6f},{frame.timestamp:.6f}\n")
+
+    def close(self):
+        if self.f:
+            self.f.close()
+
+
+def capture(ctx, source, outlet, recorder, k, params, frame_log):
+    """Takes frames until the recording ends, the device is lost, max_frames
+    are captured, or the run stops. Returns (lost line or "", frames, first, last timestamp)."""
+    from .device import Capture, host_wall_seconds
+    frames, first, last, lost = 0, 0.0, 0.0, ""
+    start = last_report = time.monotonic()
+    replaced_before = 0
+    while not ctx.stop_requested() and (params.max_frames <= 0 or frames < params.max_frames):
+        c = source.next(0.5)
+        if c.status == Capture.TIMEOUT:
+            continue
+        if c.status == Capture.ENDED:
+            log.info("the recording has ended after %d frames", frames)
+            break
+        if c.status == Capture.LOST:
+            log.error("%s", c.reason)
+            lost = c.reason
+            break
+        # Frames the SDK delivered that a newer one replaced before this loop
+        # took them (gaps in the device's frame numbers): skipped late.
+        outlet.skipped(source.replaced - replaced_before)
+        replaced_before = source.replaced
+        f = c.frame
+        frame_id = frames
+        frames += 1
+        if frames == 1:
+            first = f.timestamp
+        last = f.timestamp
+        if recorder:
+            recorder.push(f)
+        frame_log.row(frame_id, f)
+        outlet.offer(frame_id, frame_message(frame_id, f, k, params.encoding), host_wall_seconds() - f.timestamp)
+        if time.monotonic() - last_report > 2.0:
+            last_report = time.monotonic()
+            log.info("captured %d frames (%.1f frames/s), sent %d, dropped %d, skipped late %d", outlet.offered,
+                     outlet.offered / (last_report - start), outlet.sent, outlet.dropped, outlet.skipped_late)
+    outlet.skipped(source.replaced - replaced_before)
+    return lost, frames, first, last
+
+
+def run_realsense(ctx):
+    from .device import RealSenseSource
+    from .outlet import ConsumerWatch, LiveOutlet, announce_end_of_stream, wait_for_consumers
+    from .recorder import Recorder, save_intrinsics
+    from .service import PeerWatch
+    from .device import import_sdk
+    params = Params(ctx.config)
+    import_sdk()  # said before waiting for anyone
+    if params.playback and not os.path.isfile(params.playback):
+        raise Error(f"{params.playback}: no such RealSense recording; give the path of a .bag file "
+                    "(rekon-realsense-write makes one from a dataset)")
+    if params.transport_mode == "shm":
+        log.warning("transport.mode shm: rekon-realsense sends its frames inline over LCM (lcm)")
+    watch = ConsumerWatch(ctx.bus)
+    peers = PeerWatch(ctx.bus, ctx.lifecycle)
+    # The device opens once its consumers listen: a camera cannot be paused,
+    # so frames captured before would only be dropped.
+    wait_for_consumers(ctx, watch, params.wait_for, params.wait_timeout_s, "realsense.wait_for")
+    if ctx.stop_requested():
+        return
+    source = RealSenseSource(params)
+    outlet = recorder = None
+    frame_log = FrameLog(ctx.out_dir)
+    try:
+        k = source.intrinsics()
+        if params.calibration:
+            k = load_calibration(params.calibration, k)
+        info = source.info()
+        log.info("realsense: %s", source.describe())
+        log.info("intrinsics %s (%s), %g depth values per metre", " ".join(
+            f"{key} {k[key]:.6g}" for key in ("fx", "fy", "cx", "cy")),
+            params.calibration or "from the " + ("recording" if params.playback else "device"), k["depth_scale"])
+        if ctx.out_dir:
+            save_intrinsics(k, os.path.join(ctx.out_dir, "camera.yaml"))  # the calibration in effect
+        if params.record:
+            recorder = Recorder(params.record, k, params.record_queue)
+        outlet = LiveOutlet(ctx, watch, params.wait_for, params.in_flight)
+        ctx.set_state("capturing")
+        lost, frames, first, last = capture(ctx, source, outlet, recorder, k, params, frame_log)
+        outlet.finish(params.wait_timeout_s)
+        if recorder:
+            recorder.close()
+        s = ctx.stats
+        outlet.write_stats(s)
+        span = (last - first) * frames / (frames - 1) if frames > 1 else 0.0
+        s.update(device=params.playback or params.device or info["serial"], serial=info["serial"],
+                 name=info["name"], firmware=info["firmware"], usb=info["usb"], mode=info["mode"],
+                 depth_units_m=info["depth_units_m"], emitter=info["emitter"], preset=info["preset"],
+                 timestamp_domain=source.timestamp_domain, clock_resets=source.clock.resets,
+                 frames_incomplete=source.incomplete, frames=outlet.sent, sequence_seconds=span,
+                 transport="lcm", encoding=params.encoding,
+                 end="end of stream" if not lost else "device lost: " + lost)
+        if params.playback:
+            s["playback"] = os.path.abspath(params.playback)
+        if recorder:
+            s.update(record_folder=params.record, frames_recorded=recorder.written,
+                     record_dropped=recorder.dropped, record_failed=recorder.failed)
+        log.info("captured %d frames: %d sent, %d dropped (the consumers were not ready), %d skipped late (replaced in "
+                 "the SDK before they were taken)%s", outlet.offered, outlet.sent, outlet.dropped, outlet.skipped_late,
+                 f", {recorder.written} recorded, {recorder.dropped + recorder.failed} not recorded (the disk did not "
+                 "keep up)" if recorder else "")
+        announce_end_of_stream(ctx.bus, outlet.newest_sent, outlet.sent, last - first)
+        ctx.set_state("lingering")
+        peers.wait_until_finished(params.wait_for, ctx)
+    finally:
+        source.stop()
+        frame_log.close()
+        if outlet:
+            outlet.close()
+        if recorder:
+            recorder.close()
+
+
+def add_options(parser):
+    parser.add_argument("--device", help="serial number of the camera to open when several are connected; "
+                                         "overrides realsense.device")
+    parser.add_argument("--playback", help="a .bag recording to play at its recorded rate instead of a camera; "
+                                           "overrides realsense.playback")
+    parser.add_argument("--calibration", help="camera.yaml with color intrinsics to use instead of the device's; "
+                                              "overrides realsense.calibration")
+    parser.add_argument("--record", help="record every captured frame into this new TUM folder; overrides "
+                                         "realsense.record")
+    parser.add_argument("--list", action="store_true", help="list the connected RealSense cameras and exit")
+
+
+def main(argv=None):
+    from .service import run_service
+    argv = sys.argv[1:] if argv is None else argv
+    if "--list" in argv:
+        return list_command()
+
+    def body(ctx):
+        for key in ("device", "playback", "calibration", "record"):
+            value = getattr(ctx.args, key)
+            if value is not None:
+                ctx.config.set(f"realsense.{key}", value)
+        run_realsense(ctx)
+
+    return run_service(argv, "realsense", "Publishes an Intel RealSense camera's frames (or a .bag recording's) on the "
+                       "rekon bus, through Intel's SDK (pyrealsense2).", add_options, body,
+                       epilog="examples:\n  rekon run --camera realsense --out out/live\n"
+                              "  rekon run --camera realsense:123456789012 --set realsense.preset=high_accuracy --out OUT\n"
+                              "  rekon run --camera realsense --playback scan.bag --out OUT\n"
+                              "  rekon-realsense --list")
+
+
+def list_command():
+    from .device import list_devices
+    try:
+        devices = list_devices()
+    except Error as e:
+        print(f"rekon-realsense: error: {e}", file=sys.stderr)
+        return 1
+    if not devices:
+        print("no RealSense camera connected (as a user other than root: Intel's udev rules, "
+              "services/realsense/README.md)")
+    for d in devices:
+        print(f"realsense:{d['serial_number']}  {d['name']}  firmware {d['firmware_version']}  "
+              f"USB {d['usb_type_descriptor']}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,77 @@
+"""rekon-realsense's parts that need no bus and no recording: the device clock,
+the frame images, the config and its checks."""
+import io
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from rekon_realsense.config import Config
+from rekon_realsense.device import DeviceClock
+from rekon_realsense.errors import Error
+from rekon_realsense.images import color_ppm, depth_pgm, encode
+from rekon_realsense.main import Params
+
+
+def test_device_clock_keeps_the_device_spacing_under_arrival_jitter():
+    # 30 Hz device stamps; arrivals 5-25 ms late at random (USB, scheduling).
+    rng = np.random.default_rng(1)
+    clock = DeviceClock()
+    device = np.arange(300) / 30.0
+    arrival = 1000.0 + device + rng.uniform(0.005, 0.025, device.size)
+    stamps = np.array([clock.stamp(d, a) for d, a in zip(device, arrival)])
+    assert np.all(stamps <= arrival + 1e-9)  # never later than the frame arrived
+    # After the first frames the envelope sits on the least delayed arrivals:
+    # spacing as the device's within 1 ms (arrivals vary by 20 ms).
+    assert np.max(np.abs(np.diff(stamps[30:]) - 1 / 30.0)) < 1e-3
+    assert clock.resets == 0
+
+
+def test_device_clock_reanchors_when_the_device_time_jumps_back():
+    clock = DeviceClock()
+    for i in range(10):
+        clock.stamp(5.0 + i / 30.0, 100.0 + i / 30.0 + 0.01)
+    s = clock.stamp(0.0, 100.5)  # a recording restarted: its clock begins again
+    assert clock.resets == 1
+    assert s == pytest.approx(100.5)
+
+
+def test_depth_pgm_and_color_ppm_hold_the_pixels_exactly():
+    rng = np.random.default_rng(2)
+    depth = rng.integers(0, 65536, (48, 64), dtype=np.uint16)
+    rgb = rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)
+    assert np.array_equal(np.array(Image.open(io.BytesIO(depth_pgm(depth)))).astype(np.uint16), depth)
+    assert np.array_equal(np.array(Image.open(io.BytesIO(color_ppm(rgb)))), rgb)
+    d, c, fmt = encode(depth, rgb, "png")
+    assert fmt == "png"
+    assert np.array_equal(np.array(Image.open(io.BytesIO(d))).astype(np.uint16), depth)
+    assert np.array_equal(np.array(Image.open(io.BytesIO(c))), rgb)
+
+
+def test_an_unknown_config_key_is_an_error_naming_it():
+    with pytest.raises(Error, match="realsense.laser"):
+        Config.load("", ["realsense.laser=on"])
+
+
+def test_emitter_off_reads_as_off_although_yaml_1_1_says_false():
+    assert Params(Config.load("", ["realsense.emitter=off"])).emitter == "off"
+    assert Params(Config.load("", ["realsense.emitter=on"])).emitter == "on"
+
+
+@pytest.mark.parametrize("setting, named", [
+    ("realsense.preset=very_accurate", "realsense.preset"),
+    ("realsense.emitter=sometimes", "realsense.emitter"),
+    ("realsense.depth_units=0.5", "realsense.depth_units"),
+    ("realsense.encoding=jpeg", "realsense.encoding"),
+    ("transport.live_in_flight=0", "transport.live_in_flight"),
+])
+def test_a_bad_realsense_setting_is_one_line_naming_its_key(setting, named):
+    with pytest.raises(Error) as e:
+        Params(Config.load("", [setting]))
+    assert named in str(e.value) and "\n" not in str(e.value)
+
+
+def test_the_defaults_are_the_issues_mode():
+    p = Params(Config.load())
+    assert (p.width, p.height, p.fps) == (640, 480, 30)
+    assert p.wait_for == ["tracker", "mapper"]
