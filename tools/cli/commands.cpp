@@ -33,6 +33,8 @@ const std::vector<Command>& commands() {
        &frontend_check::frontendCheckCommand},
       {"constrain", "send the optimiser an external loop edge or absolute pose prior (messages/external_constraint.lcm)",
        &constrain::constrainCommand},
+      {"import", "a ROS 1 or ROS 2 bag (sqlite3, mcap) to a dataset folder: rekon import bag FILE --out DATASET", &importCommand},
+      {"spy", "lcm-spy on the run's bus, every channel decoded with rekon's types", &spyCommand},
       {"listen", "a consumer on the bus: each frame's id, timestamp and hash, or with --mesh the mapper's mesh as a PLY", &listenMain},
       {"report", "self-contained report.html of a run folder: mesh views, trajectory, timing, stats", &report::reportCommand},
       {"bench", "mapper benchmarks: keyframes and reintegration (the paper's Figures 5 and 7), peers, scaling", &mapper_bench::benchCommand},

@@ -32,5 +32,9 @@ int viewCommand(int argc, char** argv);
 int remeshCommand(int argc, char** argv);
 // `rekon export SESSION --out DIR`: trajectory.txt, keyframes.txt, graph.g2o and mesh.ply.
 int exportCommand(int argc, char** argv);
+// `rekon import bag FILE --out DATASET | --list`: python/rekon/bag.py in the project's .venv.
+int importCommand(int argc, char** argv);
+// `rekon spy [--lcm-url URL]`: lcm-spy with build/java/rekon_msgs.jar on the run's bus.
+int spyCommand(int argc, char** argv);
 
 }  // namespace rekon
