@@ -14,9 +14,9 @@ def main():
         except ImportError:
             missing.append(package)
     if missing:
-        sdk = " (Intel's RealSense SDK)" if "pyrealsense2" in missing else ""
-        print(f"rekon-realsense: error: the Python packages {', '.join(missing)}{sdk} are not installed in "
-              f"{sys.prefix}; run tools/rekon deps (it installs python/requirements.txt from PyPI)", file=sys.stderr)
+        named = ", ".join(p + (" (Intel's RealSense SDK)" if p == "pyrealsense2" else "") for p in missing)
+        print(f"rekon-realsense: error: missing Python packages in {sys.prefix}: {named}; run tools/rekon deps (it "
+              "installs python/requirements.txt from PyPI)", file=sys.stderr)
         return 1
     try:
         importlib.import_module("rekon_msgs")

@@ -17,6 +17,11 @@ log = logging.getLogger("rekon")
 # A live device that delivers nothing for this long is lost (a D4xx sends 30
 # frames a second; the SDK itself gives up on a frame after 5 s).
 LOST_AFTER_S = 5.0
+# Framesets the SDK holds for the capture loop: 100 ms at 30 Hz absorbs a
+# hiccup of the Python loop (a collection, a busy core) without a loss; when
+# it is full the SDK drops a frameset (a gap in the frame numbers: skipped
+# late), never blocks the device.
+QUEUE_FRAMESETS = 3
 PRESETS = {"custom": 0, "default": 1, "hand": 2, "high_accuracy": 3, "high_density": 4, "medium_density": 5}
 COLOR_FORMATS = ("rgb8", "bgr8")
 
@@ -117,7 +122,8 @@ class RealSenseSource:
         else:
             self._open_device(config)
         try:
-            self.profile = self.pipeline.start(config)
+            self.queue = rs.frame_queue(QUEUE_FRAMESETS, keep_frames=True)
+            self.profile = self.pipeline.start(config, self.queue)
         except RuntimeError as e:
             raise Error(f"{self.what}: the SDK cannot start {self.mode} ({e}); is another program using the camera? "
                         "close it, or re-plug the camera") from None
@@ -271,7 +277,7 @@ class RealSenseSource:
     # ---- frames ---------------------------------------------------------
     def next(self, timeout_s):
         try:
-            ok, frames = self.pipeline.try_wait_for_frames(int(timeout_s * 1000))
+            ok, frames = self.queue.try_wait_for_frame(int(timeout_s * 1000))
         except RuntimeError as e:
             return Capture(Capture.LOST, reason=f"{self.what} stopped delivering frames (SDK: {e}); check the USB "
                                                 "cable and port, then start again")
@@ -285,7 +291,7 @@ class RealSenseSource:
             return Capture(Capture.TIMEOUT)
         arrival = host_wall_seconds()
         self._last_frame_at = time.monotonic()
-        aligned = self.align.process(frames)
+        aligned = self.align.process(frames.as_frameset())
         depth, color = aligned.get_depth_frame(), aligned.get_color_frame()
         if not depth or not color:
             self.incomplete += 1

@@ -1,0 +1,151 @@
+"""The synthetic room recorded by Intel's SDK into a .bag (rekon-realsense-write:
+rs.software_device + rs.recorder), played back by the SDK at its recorded rate
+through `rekon run --camera realsense --playback`, against the same frames
+read as a TUM folder by `rekon run --dataset`. REKON_REALSENSE_FRAMES sets the
+length (default 150 for CI; the issue's goal is 600: services/realsense/README.md
+has the command and the numbers)."""
+import json
+import os
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from conftest import BIN, run, stats, write_bag
+
+FRAMES = int(os.environ.get("REKON_REALSENSE_FRAMES", "150"))
+REKON = os.path.join(BIN, "rekon")
+
+
+def tum_index(path):
+    out = []
+    with open(path, encoding="utf-8") as f:
+        for line in f:
+            p = line.split()
+            if p and not line.startswith("#"):
+                out.append((float(p[0]), p[1:]))
+    return out
+
+
+def eval_json(args):
+    rc, text = run([REKON, "eval"] + args + ["--json"])
+    assert rc == 0, text
+    return json.loads(text.strip().splitlines()[-1])
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    d = tmp_path_factory.mktemp("playback")
+    room, bag = d / "room", str(d / "room.bag")
+    rc, text = run([REKON, "synth", "--scene", "room", "--frames", FRAMES, "--out", room], timeout=900)
+    assert rc == 0, text
+    print(write_bag(room, bag))
+    rc, text = run([REKON, "run", "--dataset", room, "--out", d / "files"], netns=True, timeout=900)
+    assert rc == 0, text
+    rc, text = run([REKON, "run", "--camera", "realsense", "--playback", bag, "--record", d / "recorded", "--out",
+                    d / "rs"], netns=True, timeout=900)
+    assert rc == 0, text + open(d / "rs" / "realsense.log").read()
+    return {"room": str(room), "files": str(d / "files"), "rs": str(d / "rs"), "recorded": str(d / "recorded"),
+            "dir": d, "source": stats(d / "rs" / "realsense_stats.json"), "run": stats(d / "rs" / "stats.json")}
+
+
+def frames_csv(rs):
+    rows = np.loadtxt(os.path.join(rs, "realsense_frames.csv"), delimiter=",", skiprows=1, ndmin=2)
+    return rows[:, 0].astype(int), rows[:, 1].astype(int), rows[:, 2], rows[:, 3]
+
+
+def live_ground_truth(r):
+    """The room's ground-truth pose of each frame the source sent, at the host
+    stamp it carried: the bag's frame number is the dataset index + 1."""
+    rgb = tum_index(os.path.join(r["room"], "rgb.txt"))
+    gt = {round(t, 6): pose for t, pose in tum_index(os.path.join(r["room"], "groundtruth.txt"))}
+    _, numbers, device_ms, stamps = frames_csv(r["rs"])
+    path = os.path.join(str(r["dir"]), "live_gt.txt")
+    with open(path, "w", encoding="utf-8") as f:
+        for n, ms, stamp in zip(numbers, device_ms, stamps):
+            t = rgb[n - 1][0]
+            # The device timestamp is the frame's dataset time, from the first frame.
+            assert ms == pytest.approx((t - rgb[0][0]) * 1e3, abs=0.01)
+            f.write(f"{stamp:.6f} {' '.join(gt[round(t, 6)])}\n")
+    return path
+
+
+def test_at_the_recorded_rate_at_most_one_percent_of_the_frames_is_lost(runs):
+    s = runs["source"]
+    print(json.dumps(s, indent=1))
+    # The SDK's playback holds every recorded frame; what does not reach the
+    # pipeline was dropped (consumers not ready) or skipped late (replaced in
+    # the SDK before the capture loop took it).
+    assert s["frames_sent"] >= 0.99 * FRAMES - 1, s
+    assert s["frames_sent"] + s["frames_dropped"] + s["frames_skipped_late"] >= FRAMES - 1
+    # At the recorded rate: the frames span what they were recorded over.
+    assert s["sequence_seconds"] == pytest.approx(FRAMES / 30.0, rel=0.05)
+
+
+def test_every_frame_sent_is_tracked(runs):
+    tracker = runs["run"]["tracker"]
+    assert tracker["frames"] == runs["source"]["frames_sent"]
+    assert tracker["lost_frames"] == 0
+
+
+def test_the_trajectory_is_within_1_2x_of_the_file_runs(runs):
+    files = eval_json(["traj", os.path.join(runs["room"], "groundtruth.txt"),
+                       os.path.join(runs["files"], "trajectory.txt")])
+    live = eval_json(["traj", live_ground_truth(runs), os.path.join(runs["rs"], "trajectory.txt")])
+    print(f"ATE files {files['ate_rmse_m'] * 1e3:.3f} mm, realsense playback {live['ate_rmse_m'] * 1e3:.3f} mm")
+    assert live["matched"] == runs["source"]["frames_sent"]
+    assert live["ate_rmse_m"] <= 1.2 * files["ate_rmse_m"]
+
+
+def test_the_mesh_is_within_1_mm_of_the_file_runs(runs):
+    ref = os.path.join(runs["room"], "mesh_gt.ply")
+    files = eval_json(["surface", os.path.join(runs["files"], "mesh.ply"), ref, "--est-trajectory",
+                       os.path.join(runs["files"], "trajectory.txt"), "--gt-trajectory",
+                       os.path.join(runs["room"], "groundtruth.txt")])
+    live = eval_json(["surface", os.path.join(runs["rs"], "mesh.ply"), ref, "--est-trajectory",
+                      os.path.join(runs["rs"], "trajectory.txt"), "--gt-trajectory", live_ground_truth(runs)])
+    print(f"CORR files {files['corr_m'] * 1e3:.3f} mm, realsense playback {live['corr_m'] * 1e3:.3f} mm")
+    assert abs(live["corr_m"] - files["corr_m"]) <= 0.001
+
+
+def test_the_devices_identity_mode_and_timestamps_are_in_its_stats(runs):
+    s = runs["source"]
+    assert s["serial"] == "REKONSYNTH"
+    assert s["mode"] == "640x480@30 depth z16 aligned to color rgb8"
+    assert s["depth_units_m"] == pytest.approx(1.0 / 1000.0, rel=1e-6)  # the room's camera.yaml: depth_scale 1000
+    assert s["timestamp_domain"] == "hardware_clock"
+    assert s["end"] == "end of stream"
+    # The frames carry the device's spacing (33.3 ms) on the host clock, not their arrival jitter.
+    _, _, device_ms, stamps = frames_csv(runs["rs"])
+    assert np.max(np.abs(np.diff(stamps) - np.diff(device_ms) / 1e3)) < 0.002
+
+
+def test_the_recording_holds_every_captured_frame_as_the_room_had_it(runs):
+    s = runs["source"]
+    assert s["frames_recorded"] == s["frames_captured"] and s["record_dropped"] == 0 and s["record_failed"] == 0
+    rec = runs["recorded"]
+    with open(os.path.join(rec, "camera.yaml")) as a, open(os.path.join(runs["rs"], "camera.yaml")) as b:
+        assert a.read() == b.read()
+    with open(os.path.join(runs["room"], "camera.yaml")) as f:
+        room_k = {k: float(v) for k, v in (line.split(":") for line in f if ":" in line)}
+    with open(os.path.join(rec, "camera.yaml")) as f:
+        rec_k = {k: float(v) for k, v in (line.split(":") for line in f if ":" in line)}
+    for key in ("width", "height", "fx", "fy", "cx", "cy"):  # read from the recording by the SDK
+        assert rec_k[key] == pytest.approx(room_k[key], rel=1e-6)
+    # Frames 0, middle, last: color bit-exact; depth after the SDK's align
+    # (identity extrinsics, equal intrinsics) equal on nearly every pixel.
+    rgb_src, depth_src = tum_index(os.path.join(runs["room"], "rgb.txt")), tum_index(
+        os.path.join(runs["room"], "depth.txt"))
+    rgb_rec, depth_rec = tum_index(os.path.join(rec, "rgb.txt")), tum_index(os.path.join(rec, "depth.txt"))
+    _, numbers, _, _ = frames_csv(runs["rs"])
+    assert len(rgb_rec) == s["frames_recorded"]
+    for i in (0, len(rgb_rec) // 2, len(rgb_rec) - 1):
+        n = numbers[i] - 1
+        src_c = np.array(Image.open(os.path.join(runs["room"], rgb_src[n][1][0])).convert("RGB"))
+        rec_c = np.array(Image.open(os.path.join(rec, rgb_rec[i][1][0])))
+        assert np.array_equal(src_c, rec_c)
+        src_d = np.array(Image.open(os.path.join(runs["room"], depth_src[n][1][0]))).astype(np.int64)
+        rec_d = np.array(Image.open(os.path.join(rec, depth_rec[i][1][0]))).astype(np.int64)
+        same = np.mean(src_d == rec_d)
+        print(f"frame {i}: depth equal on {same * 100:.2f} % of the pixels")
+        assert same > 0.99
