@@ -27,10 +27,15 @@ def tum_index(path):
     return out
 
 
+def camera_yaml(folder):
+    with open(os.path.join(folder, "camera.yaml"), encoding="utf-8") as f:
+        return {k.strip(): float(v) for k, v in (line.split("#")[0].split(":") for line in f if ":" in line)}
+
+
 def eval_json(args):
     rc, text = run([REKON, "eval"] + args + ["--json"])
     assert rc == 0, text
-    return json.loads(text.strip().splitlines()[-1])
+    return json.loads(text[text.index("{"):])
 
 
 @pytest.fixture(scope="module")
@@ -112,12 +117,15 @@ def test_the_devices_identity_mode_and_timestamps_are_in_its_stats(runs):
     s = runs["source"]
     assert s["serial"] == "REKONSYNTH"
     assert s["mode"] == "640x480@30 depth z16 aligned to color rgb8"
-    assert s["depth_units_m"] == pytest.approx(1.0 / 1000.0, rel=1e-6)  # the room's camera.yaml: depth_scale 1000
+    # The room's camera.yaml depth_scale (values per metre), through the bag's depth units (a float32).
+    assert s["depth_units_m"] == pytest.approx(1.0 / camera_yaml(runs["room"])["depth_scale"], rel=1e-6)
     assert s["timestamp_domain"] == "hardware_clock"
     assert s["end"] == "end of stream"
-    # The frames carry the device's spacing (33.3 ms) on the host clock, not their arrival jitter.
+    # The frames carry the device's spacing (33.3 ms) on the host clock, not
+    # their arrival jitter, once the clock's envelope has met the least
+    # delayed arrival (the first frames of a start-up arrive late).
     _, _, device_ms, stamps = frames_csv(runs["rs"])
-    assert np.max(np.abs(np.diff(stamps) - np.diff(device_ms) / 1e3)) < 0.002
+    assert np.max(np.abs(np.diff(stamps[10:]) - np.diff(device_ms[10:]) / 1e3)) < 0.001
 
 
 def test_the_recording_holds_every_captured_frame_as_the_room_had_it(runs):
@@ -126,10 +134,7 @@ def test_the_recording_holds_every_captured_frame_as_the_room_had_it(runs):
     rec = runs["recorded"]
     with open(os.path.join(rec, "camera.yaml")) as a, open(os.path.join(runs["rs"], "camera.yaml")) as b:
         assert a.read() == b.read()
-    with open(os.path.join(runs["room"], "camera.yaml")) as f:
-        room_k = {k: float(v) for k, v in (line.split(":") for line in f if ":" in line)}
-    with open(os.path.join(rec, "camera.yaml")) as f:
-        rec_k = {k: float(v) for k, v in (line.split(":") for line in f if ":" in line)}
+    room_k, rec_k = camera_yaml(runs["room"]), camera_yaml(rec)
     for key in ("width", "height", "fx", "fy", "cx", "cy"):  # read from the recording by the SDK
         assert rec_k[key] == pytest.approx(room_k[key], rel=1e-6)
     # Frames 0, middle, last: color bit-exact; depth after the SDK's align
