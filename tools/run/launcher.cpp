@@ -84,7 +84,7 @@ constexpr int kStopGraceS = 10;
 // Stopping order: upstream first, so that downstream services still receive
 // what the upstream ones send while finishing.
 int stopRank(const std::string& service) {
-  static const std::vector<std::string> order = {"camera", "player", "replay", "tracker", "optimiser", "mapper", "viewer"};
+  static const std::vector<std::string> order = {"camera", "realsense", "player", "replay", "tracker", "optimiser", "mapper", "viewer"};
   const auto it = std::find(order.begin(), order.end(), service);
   return static_cast<int>(it - order.begin());
 }
@@ -119,8 +119,20 @@ struct RunPlan {
   double source_fps = 0;       // the recorded rate
 };
 
-// The frame source of a run: the player (--dataset) or the camera (--camera).
-std::string frameSource(const RunOptions& opt) { return opt.camera.empty() ? "player" : "camera"; }
+// A --camera spec for rekon-realsense (Intel's SDK, a Python service) rather than rekon-camera.
+bool isRealSense(const std::string& camera) { return camera.substr(0, camera.find(':')) == "realsense"; }
+
+// The frame source of a run: the player (--dataset), rekon-realsense
+// (--camera realsense[:SERIAL]) or the camera (any other --camera).
+std::string frameSource(const RunOptions& opt) {
+  if (opt.camera.empty()) return "player";
+  return isRealSense(opt.camera) ? "realsense" : "camera";
+}
+
+// A service that brings the frames: its clean end starts the shutdown clock.
+bool isFrameSourceService(const std::string& name) {
+  return name == "player" || name == "camera" || name == "realsense";
+}
 
 // The services of run.services that this build has, the frame source among
 // them: with --camera, rekon-camera takes the player's place.
@@ -190,6 +202,14 @@ void planLocalisation(Config& config, const RunOptions& opt, std::vector<std::st
 // A camera run: the device, its calibration and the recording folder go into
 // the effective config (config.yaml says what the run used).
 void configureCamera(Config& config, const RunOptions& opt) {
+  if (isRealSense(opt.camera)) {  // rekon-realsense: realsense.*, the serial number after "realsense:"
+    const size_t colon = opt.camera.find(':');
+    if (colon != std::string::npos) config.set("realsense.device", "\"" + opt.camera.substr(colon + 1) + "\"");
+    if (!opt.playback.empty()) config.set("realsense.playback", fs::absolute(opt.playback).string());
+    if (!opt.calibration.empty()) config.set("realsense.calibration", fs::absolute(opt.calibration).string());
+    if (!opt.record.empty()) config.set("realsense.record", fs::absolute(opt.record).string());
+    return;
+  }
   config.set("camera.device", opt.camera);
   if (!opt.calibration.empty()) config.set("camera.calibration", fs::absolute(opt.calibration).string());
   if (!opt.record.empty()) config.set("camera.record", fs::absolute(opt.record).string());
@@ -202,6 +222,7 @@ DatasetSpan checkBeforeStart(const Config& config, const RunOptions& opt) {
   DatasetSpan span;
   if (!opt.dataset.empty()) span = checkDataset(opt.dataset);
   if (!opt.camera.empty()) checkCameraSpec(opt.camera);
+  if (!opt.playback.empty()) checkRealSensePlayback(opt.playback);
   if (!opt.session.empty()) store::requireNoSession(fs::absolute(opt.session).string());
   if (fs::exists(opt.out)) claimRunFolder(opt.out, opt.force);
   return span;
@@ -389,7 +410,7 @@ class Supervisor {
   // restartable service is restarted while it has restarts left; any other
   // death stops the run.
   void onEnded(ChildProcess& c, int status, bool& any_running) {
-    if ((c.name() == "player" || c.name() == "camera") && status == 0 && !source_done_) {
+    if (isFrameSourceService(c.name()) && status == 0 && !source_done_) {
       source_done_ = Clock::now();
       spdlog::info("rekon-{} has finished; waiting for the services to finish", c.name());
     }
@@ -494,7 +515,7 @@ void writeRunStats(const RunPlan& plan, double wall, bool interrupted) {
     if (!fs::exists(path)) continue;
     try {
       const YAML::Node node = YAML::LoadFile(path);
-      if (c.name() == "player" || c.name() == "camera") {
+      if (isFrameSourceService(c.name())) {
         frames = node["frames"].as<long long>(0);
         sequence_seconds = node["sequence_seconds"].as<double>(0.0);
       }
@@ -519,22 +540,26 @@ void writeRunStats(const RunPlan& plan, double wall, bool interrupted) {
   }
   stats.setRaw("restarts", restarts.str(0));
   // A camera runs at its own rate: a realtime factor says nothing there.
-  if (sequence_seconds > 0 && !fs::exists(plan.out + "/camera_stats.json")) stats.set("realtime_factor", sequence_seconds / wall);
+  if (sequence_seconds > 0 && !fs::exists(plan.out + "/camera_stats.json") &&
+      !fs::exists(plan.out + "/realsense_stats.json"))
+    stats.set("realtime_factor", sequence_seconds / wall);
   for (const auto& [name, json] : per_service) stats.setRaw(name, json);
   stats.save(plan.out + "/stats.json");
 }
 
 // The camera's one line when it lost its device mid-run ("" otherwise).
 std::string cameraLost(const std::string& out) {
-  const std::string path = out + "/camera_stats.json";
-  if (!fs::exists(path)) return "";
-  try {
-    const std::string end = YAML::LoadFile(path)["end"].as<std::string>("");
-    const std::string prefix = "device lost: ";
-    return end.rfind(prefix, 0) == 0 ? end.substr(prefix.size()) : "";
-  } catch (const YAML::Exception&) {
-    return "";
+  for (const char* source : {"camera", "realsense"}) {
+    const std::string path = out + "/" + source + "_stats.json";
+    if (!fs::exists(path)) continue;
+    try {
+      const std::string end = YAML::LoadFile(path)["end"].as<std::string>("");
+      const std::string prefix = "device lost: ";
+      if (end.rfind(prefix, 0) == 0) return end.substr(prefix.size());
+    } catch (const YAML::Exception&) {
+    }
   }
+  return "";
 }
 
 // The outputs this run wrote (a file older than the run is not one of them).
@@ -594,7 +619,9 @@ int launch(const RunOptions& opt) {
 int runCommand(int argc, char** argv) {
   ArgParser args("rekon run", "Runs the whole pipeline (every service as its own process) on a dataset or a live camera.");
   args.option("dataset", "TUM RGB-D folder with camera.yaml (this or --camera)")
-      .option("camera", "a live camera instead of a dataset: openni2[:URI|FILE.oni] or freenect[:INDEX] (rekon cameras)")
+      .option("camera", "a live camera instead of a dataset: realsense[:SERIAL] (Intel's SDK; rekon-realsense --list), "
+                        "openni2[:URI|FILE.oni] or freenect[:INDEX] (rekon cameras)")
+      .option("playback", "with --camera realsense: play this .bag recording at its recorded rate instead of a camera")
       .option("calibration", "with --camera: camera.yaml for the device (default: what the device reports)")
       .option("record", "with --camera: also record every captured frame into this new folder (a TUM dataset)")
       .option("out", "output folder (required)")
@@ -611,6 +638,8 @@ int runCommand(int argc, char** argv) {
       .examples("rekon run --dataset ../shared/data/7scenes_loop_1000 --out out/7scenes --report\n"
                 "rekon run --dataset out/room --out out/room_run --view --set mapper.kappa=10\n"
                 "rekon run --camera openni2 --out out/live --record out/live_frames --session out/live_session\n"
+                "rekon run --camera realsense --out out/rs --set realsense.preset=high_accuracy\n"
+                "rekon run --camera realsense --playback scan.bag --out out/scan\n"
                 "rekon run --dataset DATA --out OUT --continue out/live_session   # extend a session\n"
                 "rekon run --dataset DATA --out OUT --continue out/live_session --localise-only   # localise in it");
   if (!args.parse(argc, argv)) return 0;
@@ -619,6 +648,7 @@ int runCommand(int argc, char** argv) {
   opt.camera = args.get("camera");
   opt.calibration = args.get("calibration");
   opt.record = args.get("record");
+  opt.playback = args.get("playback");
   opt.out = args.get("out");
   opt.session = args.get("session");
   opt.continued = args.get("continue");
@@ -638,6 +668,10 @@ int runCommand(int argc, char** argv) {
     throw Error("--session starts a new session and --continue extends one; give one of them");
   if (opt.localise_only && opt.continued.empty())
     throw Error("--localise-only localises in a saved session: give the session with --continue SESSION");
+  if (!opt.playback.empty() && !isRealSense(opt.camera)) {
+    throw Error("--playback plays a RealSense .bag recording: give it with --camera realsense (an OpenNI2 recording "
+                "is --camera openni2:FILE.oni)");
+  }
   if (opt.camera.empty() && !(opt.calibration.empty() && opt.record.empty())) {
     throw Error("--calibration and --record go with --camera (a dataset has its own camera.yaml)");
   }

@@ -10,6 +10,7 @@ namespace rekon {
 struct RunOptions {
   std::string dataset;                   // a TUM dataset (the player), or
   std::string camera, calibration, record;  // a live camera (rekon-camera), see rekon run --help
+  std::string playback;  // with --camera realsense: a .bag recording played at its recorded rate (rekon-realsense)
   std::string out, config_file;
   std::string session;  // a new folder kept as the run goes (session.dir), for rekon remesh and rekon export
   std::string continued;  // a session this run extends (session.dir with session.continue)

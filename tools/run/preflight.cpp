@@ -80,12 +80,21 @@ DatasetSpan checkDataset(const std::string& dir) {
 }
 
 void checkCameraSpec(const std::string& spec) {
-  // The drivers rekon-camera's openCamera knows.
+  // The drivers rekon-camera's openCamera knows, and realsense (rekon-realsense,
+  // which finds its device through Intel's SDK and says in one line when it cannot).
   const std::string driver = spec.substr(0, spec.find(':'));
+  if (driver == "realsense") return;
   if (driver != "openni2" && driver != "freenect") {
     throw Error("--camera " + spec + ": unknown driver '" + driver +
-                "'; use openni2[:URI|FILE.oni] or freenect[:INDEX] (rekon cameras lists what is connected)");
+                "'; use realsense[:SERIAL], openni2[:URI|FILE.oni] or freenect[:INDEX] (rekon cameras lists what is "
+                "connected)");
   }
+}
+
+void checkRealSensePlayback(const std::string& path) {
+  if (!fs::is_regular_file(path))
+    throw Error("--playback " + path + ": no such RealSense recording; give the path of a .bag file (rekon-realsense-write "
+                "makes one from a dataset)");
 }
 
 bool isRunOutput(const std::string& f) {

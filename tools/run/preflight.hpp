@@ -25,6 +25,9 @@ DatasetSpan checkDataset(const std::string& dir);
 // A camera spec names a driver rekon-camera has: openni2[:URI|FILE.oni] or freenect[:INDEX].
 void checkCameraSpec(const std::string& spec);
 
+// --playback FILE (rekon-realsense) is a file (what is in it, Intel's SDK judges).
+void checkRealSensePlayback(const std::string& path);
+
 // The files a run writes at the top of its --out folder.
 bool isRunOutput(const std::string& file_name);
 
