@@ -405,6 +405,16 @@ def _import_bag(bag, out, tmp, depth_topic, color_topic, camera_info, intrinsics
                                        (color_topic, "--color-topic", (IMAGE, COMPRESSED))):
             if types[topic] not in allowed:
                 raise BagError(f"{topic}: is {types[topic]}, not an image; pass an Image topic with {option}")
+        # The first message of each says whether its encoding is one rekon reads, before anything is written.
+        first_depth = _first_message(reader, by_topic[depth_topic][0], bag)
+        if first_depth is not None:
+            _DepthWriter(depth_topic, depth_scale).pixels(first_depth)
+        first_color = _first_message(reader, by_topic[color_topic][0], bag)
+        if first_color is not None:
+            if types[color_topic] == COMPRESSED:
+                _compressed_suffix(first_color, color_topic)
+            else:
+                _color_pixels(first_color, color_topic)
 
         if intrinsics is None:
             infos = sorted(t for t, ty in types.items() if ty == CAMERA_INFO)

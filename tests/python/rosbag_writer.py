@@ -140,9 +140,10 @@ def ns(stamp: str) -> int:
 def write_dataset_bag(dataset: Path, bag: Path, kind: str, *, depth_encoding: str, color_encoding: str,
                       depth_topic="/camera/depth/image", color_topic="/camera/rgb/image_color",
                       info_topic="/camera/rgb/camera_info", groundtruth: str | None = None,
-                      gt_type: str = "tf", max_frames: int = 0) -> None:
+                      gt_type: str = "tf", max_frames: int = 0, color_label: str | None = None) -> None:
     """depth_encoding: '16UC1' (the PNG's values must be mm) or '32FC1' (PNG value / depth_scale metres).
-    color_encoding: 'rgb8', 'bgr8', 'mono8', 'jpeg' or 'png' (the two last as CompressedImage, the file's bytes)."""
+    color_encoding: 'rgb8', 'bgr8', 'mono8', 'jpeg' or 'png' (the two last as CompressedImage, the file's bytes).
+    info_topic None: no CameraInfo. color_label: the encoding written in the messages instead (a bad-input test)."""
     cam = read_camera(dataset / "camera.yaml")
     depth = read_index(dataset / "depth.txt")
     color = read_index(dataset / "rgb.txt")
@@ -152,7 +153,8 @@ def write_dataset_bag(dataset: Path, bag: Path, kind: str, *, depth_encoding: st
     w.add(depth_topic, "sensor_msgs/msg/Image")
     compressed = color_encoding in ("jpeg", "png")
     w.add(color_topic, "sensor_msgs/msg/CompressedImage" if compressed else "sensor_msgs/msg/Image")
-    w.add(info_topic, "sensor_msgs/msg/CameraInfo")
+    if info_topic:
+        w.add(info_topic, "sensor_msgs/msg/CameraInfo")
     if groundtruth:
         w.add(groundtruth, w.tf_type if gt_type == "tf" else "geometry_msgs/msg/PoseStamped")
     events = [(ns(s), 0, s, r) for s, r in depth] + [(ns(s), 1, s, r) for s, r in color]
@@ -177,8 +179,10 @@ def write_dataset_bag(dataset: Path, bag: Path, kind: str, *, depth_encoding: st
             else:
                 rgb = png_pixels(dataset / payload)
                 pixels = {"rgb8": rgb, "bgr8": rgb[:, :, ::-1], "mono8": rgb if rgb.ndim == 2 else rgb[:, :, 0]}[color_encoding]
-                w.write(color_topic, w.image(stamp, "rgb_optical", np.ascontiguousarray(pixels), color_encoding), t)
-            w.write(info_topic, w.camera_info(stamp, "rgb_optical", cam), t)
+                w.write(color_topic, w.image(stamp, "rgb_optical", np.ascontiguousarray(pixels),
+                                             color_label or color_encoding), t)
+            if info_topic:
+                w.write(info_topic, w.camera_info(stamp, "rgb_optical", cam), t)
         else:
             msg = w.transform(stamp, "world", "kinect", payload) if gt_type == "tf" else w.pose_stamped(stamp, "world", payload)
             w.write(groundtruth, msg, t)
