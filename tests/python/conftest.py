@@ -62,7 +62,7 @@ def evo_ape(groundtruth: Path, trajectory: Path) -> float:
     raise AssertionError(f"no rmse line in evo_ape's output:\n{p.stdout}")
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def room(tmp_path_factory) -> Path:
     """The synthetic room (exact ground truth), ROOM_FRAMES frames."""
     out = tmp_path_factory.mktemp("room") / "room"
