@@ -22,6 +22,11 @@ from . import msgs, schema_version
 # lcm.url and lcm.channel_prefix of config/default.yaml (rekon run's bus).
 DEFAULT_URL = "udpm://239.255.76.67:7667?ttl=0"
 DEFAULT_PREFIX = "REKON_"
+# As common/src/bus.cpp: a 4 MiB UDP receive buffer (the kernel's default, about 200 KB, holds less than one inline
+# frame or a large mesh update, so a receiver busy for a moment loses messages; capped at net.core.rmem_max) and
+# up to 1024 messages of a channel waiting for dispatch (liblcm's default: 30).
+RECV_BUF_OPTION = "recv_buf_size=4194304"
+QUEUE_CAPACITY = 1024
 
 
 class DecodeError(Exception):
@@ -61,7 +66,7 @@ class Bus:
     def __init__(self, url: str | None = None, prefix: str = DEFAULT_PREFIX):
         import lcm
 
-        self.url = url or os.environ.get("REKON_LCM_URL") or DEFAULT_URL
+        self.url = with_receive_buffer(url or os.environ.get("REKON_LCM_URL") or DEFAULT_URL)
         self.prefix = prefix
         self.lcm = lcm.LCM(self.url)
         self.schema_version = schema_version()
@@ -80,7 +85,9 @@ class Bus:
                 return
             callback(full_channel[len(self.prefix):] if full_channel.startswith(self.prefix) else full_channel, msg)
 
-        return self.lcm.subscribe(self.prefix + channel, handler)
+        subscription = self.lcm.subscribe(self.prefix + channel, handler)
+        subscription.set_queue_capacity(QUEUE_CAPACITY)
+        return subscription
 
     def unsubscribe(self, subscription) -> None:
         self.lcm.unsubscribe(subscription)
@@ -158,6 +165,12 @@ class Bus:
         info = np.asarray(information, dtype=float).reshape(36)
         c.information = [float(v) for v in info]
         self.publish("EXTERNAL_CONSTRAINTS", c)
+
+
+def with_receive_buffer(url: str) -> str:
+    if not url.startswith("udpm://") or "recv_buf_size" in url:
+        return url
+    return url + ("&" if "?" in url else "?") + RECV_BUF_OPTION
 
 
 def make_pose(p):
