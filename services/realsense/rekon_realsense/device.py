@@ -113,7 +113,8 @@ class RealSenseSource:
         self.replaced = 0
         self.incomplete = 0
         self.timestamp_domain = ""
-        self._last_number = None
+        self._first_number = self._last_number = None
+        self._taken = 0
         self._last_frame_at = time.monotonic()
         self.pipeline = rs.pipeline()
         config = rs.config()
@@ -291,15 +292,24 @@ class RealSenseSource:
             return Capture(Capture.TIMEOUT)
         arrival = host_wall_seconds()
         self._last_frame_at = time.monotonic()
-        aligned = self.align.process(frames.as_frameset())
-        depth, color = aligned.get_depth_frame(), aligned.get_color_frame()
-        if not depth or not color:
+        frameset = frames.as_frameset()
+        if not frameset.get_depth_frame() or not frameset.get_color_frame():
             self.incomplete += 1
             return Capture(Capture.TIMEOUT)
-        number = color.get_frame_number()
-        if self._last_number is not None and number > self._last_number + 1:
-            self.replaced += number - self._last_number - 1
+        # Frames the SDK dropped before this loop took them are the gaps in
+        # the frame numbers; a frameset older than the newest taken (the
+        # syncer let it through late, after a burst) is not sent: a live
+        # source's frames go forward in time. Both are skipped late.
+        number = frameset.get_color_frame().get_frame_number()
+        if self._first_number is None:
+            self._first_number = number
+        elif number <= self._last_number:
+            return Capture(Capture.TIMEOUT)
         self._last_number = number
+        self._taken += 1
+        self.replaced = (number - self._first_number + 1) - self._taken
+        aligned = self.align.process(frameset)
+        depth, color = aligned.get_depth_frame(), aligned.get_color_frame()
         device_ms = color.get_timestamp()
         if not self.timestamp_domain:
             self.timestamp_domain = str(color.get_frame_timestamp_domain()).split(".")[-1]
