@@ -9,7 +9,6 @@ program can be a frame source) and external constraints. Channel names are given
 
 from __future__ import annotations
 
-import io
 import os
 import select
 import time
@@ -17,7 +16,7 @@ from typing import Callable
 
 import numpy as np
 
-from . import msgs, schema_version
+from . import msgs, png, schema_version
 
 # lcm.url and lcm.channel_prefix of config/default.yaml (rekon run's bus).
 DEFAULT_URL = "udpm://239.255.76.67:7667?ttl=0"
@@ -183,12 +182,4 @@ def make_pose(p):
 
 def png_bytes(pixels: np.ndarray) -> bytes:
     """A PNG of (h, w) uint16 (16-bit grey), (h, w) uint8 or (h, w, 3) uint8 RGB pixels."""
-    from PIL import Image
-
-    buf = io.BytesIO()
-    if pixels.dtype == np.uint16:
-        image = Image.frombytes("I;16", (pixels.shape[1], pixels.shape[0]), pixels.astype("<u2").tobytes())
-    else:
-        image = Image.fromarray(np.ascontiguousarray(pixels))
-    image.save(buf, format="PNG", compress_level=1)
-    return buf.getvalue()
+    return png.encode(np.ascontiguousarray(pixels))

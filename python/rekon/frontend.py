@@ -1,5 +1,5 @@
 """What a Python frontend needs to keep messages/FRONTEND.md: a service on the bus with rekon's lifecycle (heartbeat
-once a second under its name, stop on SHUTDOWN), and one call per thing a frontend publishes: keyframes (FC2),
+and stats once a second under its name, stop on SHUTDOWN), and one call per thing a frontend publishes: keyframes (FC2),
 tracked frames (FC9), graph updates (FC6, FC7), acknowledgements (FC8) and done (FC10), with schema_version (FC1)
 and finite unit-quaternion poses (FC4) checked before they go out.
 
@@ -10,6 +10,7 @@ and finite unit-quaternion poses (FC4) checked before they go out.
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import socket
@@ -48,6 +49,7 @@ class Frontend:
         self.last_frame_id = -1
         self.keyframes: dict[int, np.ndarray] = {}  # announced keyframe id -> newest world pose
         self.graph_version = 0
+        self.stats: dict = {}  # published on STATS once a second and at exit (the stats.json keys of a service)
         self.on_frame = None
         self.on_end = None
         self._next_heartbeat = 0.0
@@ -63,6 +65,10 @@ class Frontend:
         h.service, h.pid, h.host, h.utime = self.name, self.pid, self.host, int(time.time() * 1e6)
         h.last_frame_id, h.state = self.last_frame_id, self.state
         self.bus.publish("HEARTBEAT", h)
+        st = self.m.service_stats_t()
+        st.service, st.utime = self.name, h.utime
+        st.json = json.dumps({"frames": self.last_frame_id + 1, "keyframes": len(self.keyframes), **self.stats})
+        self.bus.publish("STATS", st)
         self._next_heartbeat = time.monotonic() + HEARTBEAT_PERIOD_S
 
     def _tick(self) -> None:
