@@ -58,6 +58,24 @@ CASES = {
 }
 
 
+# Two runs on the same frames agree to this (metres, and quaternion components). Without a loop closure they are
+# byte-identical (120 frames of the room); with them, background loop checks and time-capped optimisations depend
+# on timing (docs/recording.md, "Determinism"): on all 600 frames of the room (4 loop closures) the runs on the three
+# imports and on their folders differed by 1, 16 and 157 nanometres at most.
+SAME_POSE = 1e-6
+
+
+def expect_same_trajectory(got: str, expected: str):
+    rows = [[np.array(line.split(), dtype=float) for line in text.splitlines() if line and not line.startswith("#")]
+            for text in (got, expected)]
+    a, b = (np.array(r) for r in rows)
+    assert a.shape == b.shape and a.shape[0] > 0, f"{a.shape} poses against {b.shape}"
+    assert np.array_equal(a[:, 0], b[:, 0]), "the runs tracked other frames"
+    worst = np.abs(a[:, 1:] - b[:, 1:]).max()
+    print(f"trajectories: {len(a)} poses, {'identical' if got == expected else f'largest difference {worst:.3g}'}")
+    assert worst <= SAME_POSE
+
+
 FOLDER_RUNS: dict[Path, str] = {}  # trajectory.txt of a run on each reference folder, made once
 
 
@@ -76,7 +94,7 @@ def test_a_bag_of_the_room_imports_into_the_same_files_and_runs_into_the_same_tr
     # The run on the import and on the folder: the same frames make the same trajectory.
     if reference not in FOLDER_RUNS:
         FOLDER_RUNS[reference] = run_pipeline(reference, tmp_path / "run_folder")
-    assert run_pipeline(tmp_path / "imported", tmp_path / "run_imported") == FOLDER_RUNS[reference]
+    expect_same_trajectory(run_pipeline(tmp_path / "imported", tmp_path / "run_imported"), FOLDER_RUNS[reference])
 
 
 def test_tum_teddy_as_a_ros1_bag_with_tum_topics_runs_as_the_folder_does(tmp_path):
