@@ -1,5 +1,6 @@
 #include "rekon/common/cli.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <iostream>
@@ -53,7 +54,13 @@ bool ArgParser::parse(int argc, char** argv) {
         name = name.substr(0, eq);
       }
       const auto it = specs_.find(name);
-      if (it == specs_.end()) throw Error(program_ + ": unknown option --" + name + "; see " + program_ + " --help");
+      if (it == specs_.end()) {
+        std::vector<std::string> known;
+        for (const auto& [option, spec] : specs_) known.push_back(option);
+        const auto near = nearestName(name, known);
+        throw Error(program_ + ": unknown option --" + name + (near ? "; did you mean --" + *near + "?" : "") + "; see " +
+                    program_ + " --help");
+      }
       if (!it->second.takes_value) {
         values_[name].push_back("1");
         continue;
@@ -146,6 +153,40 @@ void createOutputFolder(const std::string& dir) {
   std::filesystem::create_directories(dir, ec);
   if (ec) throw Error("cannot create output folder '" + dir + "' (" + ec.message() + "); choose a writable --out");
   if (!std::filesystem::is_directory(dir)) throw Error("output '" + dir + "' is not a folder; choose another --out");
+}
+
+namespace {
+
+// Optimal string alignment distance: insertions, deletions, substitutions and
+// swaps of two neighbouring characters each cost one.
+size_t editDistance(const std::string& a, const std::string& b) {
+  std::vector<std::vector<size_t>> d(a.size() + 1, std::vector<size_t>(b.size() + 1));
+  for (size_t i = 0; i <= a.size(); ++i) d[i][0] = i;
+  for (size_t j = 0; j <= b.size(); ++j) d[0][j] = j;
+  for (size_t i = 1; i <= a.size(); ++i) {
+    for (size_t j = 1; j <= b.size(); ++j) {
+      d[i][j] = std::min({d[i - 1][j] + 1, d[i][j - 1] + 1, d[i - 1][j - 1] + (a[i - 1] == b[j - 1] ? 0 : 1)});
+      if (i > 1 && j > 1 && a[i - 1] == b[j - 2] && a[i - 2] == b[j - 1]) d[i][j] = std::min(d[i][j], d[i - 2][j - 2] + 1);
+    }
+  }
+  return d[a.size()][b.size()];
+}
+
+}  // namespace
+
+std::optional<std::string> nearestName(const std::string& word, const std::vector<std::string>& candidates) {
+  std::optional<std::string> best;
+  size_t best_distance = std::max<size_t>(2, word.size() / 3) + 1;
+  for (const std::string& c : candidates) {
+    const size_t d = editDistance(word, c);
+    if (d < best_distance) best = c, best_distance = d;
+  }
+  return best;
+}
+
+std::string didYouMean(const std::string& word, const std::vector<std::string>& candidates) {
+  const auto near = nearestName(word, candidates);
+  return near ? "; did you mean '" + *near + "'?" : "";
 }
 
 }  // namespace rekon

@@ -5,12 +5,30 @@
 #include <fstream>
 #include <sstream>
 
+#include "rekon/common/cli.hpp"
 #include "rekon/common/error.hpp"
 
 namespace rekon {
 namespace {
 
 const char* kFix = "see config/default.yaml for every key and its type";
+
+// Every key under `node` (sections and values), as dotted paths after `prefix`.
+void keyPaths(const YAML::Node& node, const std::string& prefix, std::vector<std::string>& out) {
+  if (!node.IsMap()) return;
+  for (const auto& kv : node) {
+    const std::string key = (prefix.empty() ? "" : prefix + ".") + kv.first.as<std::string>();
+    out.push_back(key);
+    keyPaths(kv.second, key, out);
+  }
+}
+
+// "; did you mean 'volume.voxel_size'?" for a mistyped key, or "".
+std::string nearestKey(const YAML::Node& node, const std::string& prefix, const std::string& key) {
+  std::vector<std::string> paths;
+  keyPaths(node, prefix, paths);
+  return didYouMean(key, paths);
+}
 
 std::vector<std::string> splitKey(const std::string& key) {
   std::vector<std::string> parts;
@@ -33,7 +51,7 @@ void overlay(YAML::Node base, const YAML::Node& over, const std::string& prefix,
     const std::string name = kv.first.as<std::string>();
     const std::string key = prefix.empty() ? name : prefix + "." + name;
     const YAML::Node existing = static_cast<const YAML::Node&>(base)[name];
-    if (!existing) throw Error(source + ": unknown config key '" + key + "'; " + kFix);
+    if (!existing) throw Error(source + ": unknown config key '" + key + "'" + nearestKey(base, prefix, key) + "; " + kFix);
     if (existing.IsMap()) {
       overlay(base[name], kv.second, key, source);
     } else if (kv.second.IsMap()) {
@@ -111,7 +129,8 @@ void Config::set(const std::string& key, const std::string& value) {
   n.reset(*root_);
   for (size_t i = 0; i < parts.size(); ++i) {
     const YAML::Node& cn = n;
-    if (!cn.IsMap() || !cn[parts[i]]) throw Error("--set " + key + ": unknown config key; " + kFix);
+    if (!cn.IsMap() || !cn[parts[i]])
+      throw Error("--set " + key + ": unknown config key" + nearestKey(*root_, "", key) + "; " + kFix);
     if (i + 1 < parts.size()) n.reset(cn[parts[i]]);
   }
   const YAML::Node& parent = n;

@@ -5,6 +5,7 @@
 #include <filesystem>
 #include <fstream>
 #include <sstream>
+#include <tuple>
 
 #include "rekon/common/error.hpp"
 #include "rekon/common/image_io.hpp"
@@ -89,6 +90,22 @@ TumDataset::TumDataset(const std::string& dir, const DatasetOptions& options) : 
 }
 
 double TumDataset::duration() const { return entries_.back().timestamp - entries_.front().timestamp; }
+
+void TumDataset::checkImagesExist() const {
+  const fs::path root(dir_);
+  for (const auto& [kind, member, index] : {std::tuple{"depth", &Entry::depth, "depth.txt"}, std::tuple{"color", &Entry::rgb, "rgb.txt"}}) {
+    size_t missing = 0;
+    std::string first;
+    for (const Entry& e : entries_) {
+      if (fs::exists(root / (e.*member))) continue;
+      if (missing++ == 0) first = (root / (e.*member)).string();
+    }
+    if (missing > 0) {
+      throw Error(dir_ + ": " + std::to_string(missing) + " of the " + std::to_string(entries_.size()) + " " + kind +
+                  " images " + index + " lists are missing (the first: " + first + "); copy them in, or list only those present");
+    }
+  }
+}
 
 RgbdFrame TumDataset::load(size_t i) const { return decode(i, loadEncoded(i)); }
 

@@ -48,10 +48,15 @@ TEST(ProgressLine, ElsewhereItIsAPlainLineEveryFewSeconds) {
 }
 
 TEST(ProgressLine, FrameProgressSaysDoneTotalRateRealtimeAndEta) {
-  EXPECT_EQ(rekon::frameProgress(150, 600, 25.0, 30.0), "frame 150/600 (25 %), 25.0 fps, 0.83x realtime, ETA 18 s");
-  EXPECT_EQ(rekon::frameProgress(600, 600, 25.0, 30.0), "frame 600/600 (100 %), 25.0 fps, 0.83x realtime");
-  EXPECT_EQ(rekon::frameProgress(42, 0, 30.0, 0.0), "frame 42, 30.0 fps");  // a live camera: no end, its own rate
-  EXPECT_EQ(rekon::frameProgress(0, 600, 0.0, 30.0), "frame 0/600 (0 %)");
+  EXPECT_EQ(rekon::frameProgress(150, 600, 25.0, 0.83), "frame 150/600 (25 %), 25.0 fps, 0.83x realtime, ETA 18 s");
+  EXPECT_EQ(rekon::frameProgress(600, 600, 25.0, 0.83), "frame 600/600 (100 %), 25.0 fps, 0.83x realtime");
+  EXPECT_EQ(rekon::frameProgress(42, 0, 30.0), "frame 42, 30.0 fps");  // a live camera: no end, no realtime factor
+  EXPECT_EQ(rekon::frameProgress(0, 600, 0.0, 0.0), "frame 0/600 (0 %)");
+}
+
+TEST(ProgressLine, TheLastLineOfAStoppedRunHasNoEta) {
+  // Ctrl-C at frame 150 of 600: what was done, at what rate, and no time left to wait for.
+  EXPECT_EQ(rekon::frameProgress(150, 600, 25.0, 0.83, true), "frame 150/600 (25 %), 25.0 fps, 0.83x realtime");
 }
 
 }  // namespace

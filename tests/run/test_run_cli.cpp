@@ -1,10 +1,12 @@
 // `rekon run` as a user meets it (issue 27): bad input is refused before any
 // service starts, in one line, leaving nothing behind; a folder that holds a
 // run is not overwritten by accident; Ctrl-C is recorded in stats.json.
+#include <fmt/format.h>
 #include <gtest/gtest.h>
 #include <signal.h>
 
 #include <filesystem>
+#include <fstream>
 #include <regex>
 #include <thread>
 
@@ -39,6 +41,10 @@ TEST(RunCli, BadInputIsRefusedBeforeAnythingStartsOrIsCreated) {
   rekon::test::TempDir dir;
   const std::string data = room(dir, 5);
   fs::create_directories(dir / "empty");
+  // A dataset whose depth images are gone, and a port another program holds.
+  fs::copy(data, dir / "no_depth", fs::copy_options::recursive);
+  fs::remove_all(dir / "no_depth/depth");
+  const rekon::test::ListeningSocket busy;
   const std::vector<Refusal> refusals = {
       {"--dataset " + data + " --set mapper.kappa=abc", "config key mapper.kappa = 'abc' is not a number"},
       {"--dataset " + data + " --set volume.voxel_size=-1", "volume.voxel_size = -1"},
@@ -47,6 +53,13 @@ TEST(RunCli, BadInputIsRefusedBeforeAnythingStartsOrIsCreated) {
       {"--dataset " + (dir / "empty"), "camera.yaml"},
       {"--dataset " + (dir / "nowhere"), "dataset folder not found"},
       {"--camera kinect", "unknown driver 'kinect'"},
+      // Issue 45: these were found only after every service had started.
+      {"--camera freenect", "no freenect device is connected"},  // no Kinect on any machine here
+      {"--camera freenect --record " + data, "already holds a recording (rgb.txt)"},
+      {"--camera openni2:" + (dir / "none.oni"), "OpenNI2 recording not found"},
+      {"--dataset " + (dir / "no_depth"), "of the 5 depth images depth.txt lists are missing"},
+      {"--dataset " + data + " --view --set viewer.port=" + std::to_string(busy.port()), "viewer.port " +
+           std::to_string(busy.port()) + " on 127.0.0.1 is in use"},
       {"--dataset " + data + " --camera openni2", "give one of them"},
   };
   for (const Refusal& r : refusals) {
@@ -75,9 +88,16 @@ TEST(RunCli, AFolderHoldingARunIsRefusedUnlessForced) {
   const std::string run = "timeout 120 " + rekonBin() + " run --dataset " + data + " --out " + (dir / "out");
   ASSERT_EQ(runCommand(run + " > " + (dir / "first.log") + " 2>&1"), 0) << readText(dir / "first.log");
   ASSERT_TRUE(fs::exists(dir / "out/mesh.ply"));
-  // Not a terminal: the progress as plain lines, the last one the whole run's.
-  EXPECT_TRUE(std::regex_search(readText(dir / "first.log"), std::regex(R"(\nframe 20/20 \(100 %\), [0-9.]+ fps, [0-9.]+x realtime\n)")))
-      << readText(dir / "first.log");
+  // Not a terminal: the progress as plain lines, the last one the whole run's,
+  // whose realtime factor is stats.json's (issue 45: they were 1.78 and 1.22).
+  std::smatch last;
+  const std::string first_log = readText(dir / "first.log");
+  ASSERT_TRUE(std::regex_search(first_log, last, std::regex(R"(\nframe 20/20 \(100 %\), [0-9.]+ fps, ([0-9.]+)x realtime\n)")))
+      << first_log;
+  std::smatch factor;
+  const std::string stats = readText(dir / "out/stats.json");
+  ASSERT_TRUE(std::regex_search(stats, factor, std::regex(R"("realtime_factor": ([0-9.]+))"))) << stats;
+  EXPECT_EQ(last[1].str(), fmt::format("{:.2f}", std::stod(factor[1].str()))) << first_log << stats;
   const auto mesh_time = fs::last_write_time(dir / "out/mesh.ply");
 
   std::string out;
@@ -87,8 +107,12 @@ TEST(RunCli, AFolderHoldingARunIsRefusedUnlessForced) {
   EXPECT_EQ(fs::last_write_time(dir / "out/mesh.ply"), mesh_time);
 
   // Without the mapper this run writes no mesh: the first run's must neither stay nor be listed.
+  // The report's folder goes too (issue 45: 26 files of it stayed).
+  fs::create_directories(dir / "out/report");
+  std::ofstream(dir / "out/report/plot.svg") << "<svg/>";
   EXPECT_EQ(runCommand(run + " --force --set run.services=[player,tracker,optimiser] 2>&1", &out), 0) << out;
   EXPECT_FALSE(fs::exists(dir / "out/mesh.ply")) << out;
+  EXPECT_FALSE(fs::exists(dir / "out/report")) << out;
   EXPECT_EQ(out.find("mesh.ply"), std::string::npos) << out;
   EXPECT_NE(out.find("trajectory.txt"), std::string::npos) << out;
 }
@@ -110,6 +134,19 @@ TEST(RunCli, AServiceThatCannotStartFailsTheRunInsteadOfHanging) {
   EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(), 30.0);
 }
 
+// player.first_frame and max_frames: the progress counts the frames played
+// (it said "frame 613/500 (123 %)" for first_frame 500, max_frames 500).
+TEST(RunCli, ProgressCountsTheFramesPlayedFromTheFirst) {
+  if (!rekon::test::insideNetns()) return;
+  rekon::test::TempDir dir;
+  const std::string data = room(dir, 20);
+  std::string out;
+  ASSERT_EQ(runCommand("timeout 120 " + rekonBin() + " run --dataset " + data + " --out " + (dir / "out") +
+                       " --set player.first_frame=12 --set player.max_frames=6 2>&1", &out), 0) << out;
+  EXPECT_TRUE(std::regex_search(out, std::regex(R"(\nframe 6/6 \(100 %\), [0-9.]+ fps, [0-9.]+x realtime\n)"))) << out;
+  EXPECT_FALSE(std::regex_search(out, std::regex(R"(frame ([7-9]|[1-9][0-9]+)/6)"))) << out;
+}
+
 // Ctrl-C mid-run: exit 130 and stats.json says the run was interrupted.
 TEST(RunCli, AnInterruptedRunIsMarkedInStats) {
   if (!rekon::test::insideNetns()) return;
@@ -126,6 +163,10 @@ TEST(RunCli, AnInterruptedRunIsMarkedInStats) {
   kill(run, SIGINT);
   EXPECT_EQ(rekon::test::waitForExit(run, 60), 130) << readText(dir / "run.log");
   EXPECT_NE(readText(dir / "out/stats.json").find("\"interrupted\": true"), std::string::npos) << readText(dir / "out/stats.json");
+  // The last progress line says so, with no ETA for a run that is over.
+  const std::string log = readText(dir / "run.log");
+  EXPECT_TRUE(std::regex_search(log, std::regex(R"(\nframe [0-9]+/150 \([0-9]+ %\)[^\n]* \(interrupted\)\n)"))) << log;
+  EXPECT_FALSE(std::regex_search(log, std::regex(R"(ETA[^\n]*\(interrupted\))"))) << log;
 }
 
 }  // namespace
@@ -145,7 +186,7 @@ TEST(RekonCli, VersionHelpAndExamples) {
     runCommand(rekonBin() + " " + c + " --help 2>&1", &out);
     EXPECT_EQ(out.rfind(std::string("usage: rekon ") + c, 0), 0u) << out.substr(0, 200);
   }
-  for (const char* c : {"run", "demo", "synth", "render"}) {
+  for (const char* c : {"run", "demo", "synth", "render", "eval", "remesh", "export"}) {
     runCommand(rekonBin() + " " + c + " --help 2>&1", &out);
     EXPECT_TRUE(std::regex_search(out, std::regex(std::string("\nexamples:\n  rekon ") + c + "[ \n]"))) << out;
   }
@@ -154,6 +195,35 @@ TEST(RekonCli, VersionHelpAndExamples) {
                         "\n  run ", "\n  report "}) {
     EXPECT_NE(out.find(c), std::string::npos) << c << " not in tools/rekon --help:\n" << out;
   }
+  // Each command once (demo was listed by the script and again by the binary).
+  EXPECT_EQ(out.find("\n  demo "), out.rfind("\n  demo ")) << out;
+  // The script's own commands answer --help with their usage and do nothing
+  // else: no apt-get, no configure or build (REKON_BUILD_DIR stays absent),
+  // no fuzzing (`fuzz --help` started an unbounded run).
+  rekon::test::TempDir dir;
+  for (const char* c : {"demo", "test", "setup", "deps", "stress", "sanitize", "fuzz"}) {
+    EXPECT_EQ(runCommand("REKON_BUILD_DIR=" + (dir / "nobuild") + " timeout 20 " + rekon::test::sourceDir() + "/tools/rekon " +
+                         c + " --help 2>&1", &out), 0) << c << ": " << out;
+    EXPECT_EQ(out.rfind(std::string("usage: tools/rekon ") + c, 0), 0u) << c << ": " << out;
+    EXPECT_FALSE(fs::exists(dir / "nobuild")) << c;
+  }
+}
+
+// A mistyped command, option or config key gets the nearest one suggested, as git does.
+TEST(RekonCli, TyposGetTheNearestNameSuggested) {
+  std::string out;
+  EXPECT_EQ(runCommand(rekonBin() + " runn 2>&1", &out), 2);
+  EXPECT_NE(out.find("unknown command 'runn'; did you mean 'run'?"), std::string::npos) << out;
+  EXPECT_EQ(runCommand(rekonBin() + " run --dataest x --out y 2>&1", &out), 1);
+  EXPECT_NE(out.find("unknown option --dataest; did you mean --dataset?"), std::string::npos) << out;
+  rekon::test::TempDir dir;
+  const std::string data = room(dir, 3);
+  EXPECT_EQ(runCommand(rekonBin() + " run --dataset " + data + " --out " + (dir / "out") + " --set volume.voxelsize=0.02 2>&1",
+                       &out), 1);
+  EXPECT_NE(out.find("did you mean 'volume.voxel_size'?"), std::string::npos) << out;
+  // Nothing near: no suggestion.
+  EXPECT_EQ(runCommand(rekonBin() + " frobnicate 2>&1", &out), 2);
+  EXPECT_EQ(out.find("did you mean"), std::string::npos) << out;
 }
 
 }  // namespace

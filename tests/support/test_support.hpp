@@ -79,4 +79,18 @@ bool insideNetns();
 // (sanitizer reports, aborts, uncaught exceptions, decoder noise).
 std::string crashLines(const std::string& output);
 
+// A TCP socket listening on 127.0.0.1 at a port the system chose, for as long
+// as it lives: a port that is in use.
+class ListeningSocket {
+ public:
+  ListeningSocket();
+  ~ListeningSocket();
+  ListeningSocket(const ListeningSocket&) = delete;
+  ListeningSocket& operator=(const ListeningSocket&) = delete;
+  int port() const { return port_; }
+
+ private:
+  int fd_ = -1, port_ = 0;
+};
+
 }  // namespace rekon::test

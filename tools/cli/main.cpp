@@ -5,8 +5,10 @@
 #include <cstring>
 #include <iostream>
 #include <string>
+#include <vector>
 
 #include "commands.hpp"
+#include "rekon/common/cli.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/common/memory.hpp"
 #include "version_info.hpp"
@@ -41,6 +43,9 @@ int main(int argc, char** argv) {
       return 1;
     }
   }
-  std::cerr << "rekon: unknown command '" << argv[1] << "'; run rekon --help for the list\n";
+  std::vector<std::string> names;
+  for (const auto& c : table) names.emplace_back(c.name);
+  std::cerr << "rekon: unknown command '" << argv[1] << "'" << rekon::didYouMean(argv[1], names)
+            << "; run rekon --help for the list\n";
   return 2;
 }

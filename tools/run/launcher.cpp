@@ -1,6 +1,7 @@
 #include "launcher.hpp"
 
 #include <signal.h>
+#include <fmt/ranges.h>
 #include <spdlog/spdlog.h>
 #include <unistd.h>
 #include <yaml-cpp/yaml.h>
@@ -213,6 +214,10 @@ void configureCamera(Config& config, const RunOptions& opt) {
   config.set("camera.device", opt.camera);
   if (!opt.calibration.empty()) config.set("camera.calibration", fs::absolute(opt.calibration).string());
   if (!opt.record.empty()) config.set("camera.record", fs::absolute(opt.record).string());
+  // On the terminal, not only in camera.log: the map's scale depends on it.
+  if (opt.calibration.empty() && opt.camera.rfind("freenect", 0) == 0)
+    spdlog::warn("no --calibration: rekon-camera uses the nominal Kinect v1 calibration (camera.log names it); "
+                 "calibrate the camera and pass --calibration camera.yaml for accurate maps");
 }
 
 // Everything that can be checked before anything starts or is created;
@@ -221,8 +226,11 @@ DatasetSpan checkBeforeStart(const Config& config, const RunOptions& opt) {
   checkConfigValues(config, opt.dataset);
   DatasetSpan span;
   if (!opt.dataset.empty()) span = checkDataset(opt.dataset);
+  if (!opt.record.empty()) checkRecordFolder(opt.record);
   if (!opt.camera.empty()) checkCameraSpec(opt.camera);
   if (!opt.playback.empty()) checkRealSensePlayback(opt.playback);
+  const std::vector<std::string> listed = config.getStringList("run.services");
+  if (opt.view || std::find(listed.begin(), listed.end(), "viewer") != listed.end()) checkViewerPort(config);
   if (!opt.session.empty()) store::requireNoSession(fs::absolute(opt.session).string());
   if (fs::exists(opt.out)) claimRunFolder(opt.out, opt.force);
   return span;
@@ -503,8 +511,9 @@ class Supervisor {
 };
 
 // stats.json: run-level figures (frames, wall time, restarts, realtime
-// factor) plus each service's own stats file.
-void writeRunStats(const RunPlan& plan, double wall, bool interrupted) {
+// factor) plus each service's own stats file; returns the realtime factor
+// (0 where there is none: a camera, an unknown recorded rate).
+double writeRunStats(const RunPlan& plan, double wall, bool interrupted) {
   JsonObject stats;
   double sequence_seconds = 0;
   long long frames = 0;
@@ -540,11 +549,15 @@ void writeRunStats(const RunPlan& plan, double wall, bool interrupted) {
   }
   stats.setRaw("restarts", restarts.str(0));
   // A camera runs at its own rate: a realtime factor says nothing there.
-  if (sequence_seconds > 0 && !fs::exists(plan.out + "/camera_stats.json") &&
-      !fs::exists(plan.out + "/realsense_stats.json"))
-    stats.set("realtime_factor", sequence_seconds / wall);
+  double realtime_factor = 0.0;
+  if (sequence_seconds > 0 && wall > 0 && !fs::exists(plan.out + "/camera_stats.json") &&
+      !fs::exists(plan.out + "/realsense_stats.json")) {
+    realtime_factor = sequence_seconds / wall;
+    stats.set("realtime_factor", realtime_factor);
+  }
   for (const auto& [name, json] : per_service) stats.setRaw(name, json);
   stats.save(plan.out + "/stats.json");
+  return realtime_factor;
 }
 
 // The camera's one line when it lost its device mid-run ("" otherwise).
@@ -562,15 +575,40 @@ std::string cameraLost(const std::string& out) {
   return "";
 }
 
-// The outputs this run wrote (a file older than the run is not one of them).
+// Whether an output holds anything: a mesh with a vertex, a trajectory with a
+// pose (a run that failed early writes a 243-byte mesh and a header).
+bool holdsData(const fs::path& path) {
+  std::ifstream in(path);
+  std::string line;
+  if (path.extension() == ".ply") {
+    while (std::getline(in, line) && line != "end_header") {
+      if (line.rfind("element vertex ", 0) == 0) return std::atoll(line.c_str() + 15) > 0;
+    }
+    return false;
+  }
+  if (path.extension() == ".txt") {
+    while (std::getline(in, line)) {
+      if (!line.empty() && line[0] != '#') return true;
+    }
+    return false;
+  }
+  return true;
+}
+
+// The outputs this run wrote (a file older than the run is not one of them),
+// and those it wrote empty said as such.
 void logOutputs(const std::string& out, fs::file_time_type started) {
   spdlog::info("outputs in {}:", out);
+  std::vector<std::string> empty;
   for (const char* f : {"trajectory.txt", "mesh.ply", "mesh_uncorrected.ply", "stats.json", "report.html", "config.yaml"}) {
     const fs::path path = fs::path(out) / f;
     std::error_code ec;
-    if (fs::exists(path) && fs::last_write_time(path, ec) >= started && !ec) spdlog::info("  {}", path.string());
+    if (!fs::exists(path) || fs::last_write_time(path, ec) < started || ec) continue;
+    if (holdsData(path)) spdlog::info("  {}", path.string());
+    else empty.push_back(f);
   }
   spdlog::info("  logs: {}/<service>.log", out);
+  if (!empty.empty()) spdlog::warn("written empty (nothing was tracked or fused): {}", fmt::join(empty, ", "));
 }
 
 }  // namespace
@@ -582,20 +620,20 @@ int launch(const RunOptions& opt) {
   signal(SIGTERM, onInterrupt);
   const auto start = Clock::now();
   Supervisor supervisor(plan);
-  RunProgress progress(plan.config, plan.total_frames, plan.source_fps);
+  RunProgress progress(plan.config, plan.total_frames, opt.camera.empty() ? plan.config.getInt("player.first_frame") : 0,
+                       plan.source_fps, start);
   supervisor.startAll();
   while (supervisor.step()) {
     progress.poll(supervisor.pids());
     std::this_thread::sleep_for(std::chrono::milliseconds(50));
   }
-  progress.finish();
   const double wall = std::chrono::duration<double>(Clock::now() - start).count();
   const bool interrupted = g_interrupted.load();
   if (removeFrameRing(plan.frame_ring)) spdlog::info("removed the frame ring '{}' left by a stopped player", plan.frame_ring);
   // With its spill files: a restartable mapper leaves it, and one that died for good too.
   if (store::KeyframeStore::remove(plan.keyframe_store)) spdlog::debug("removed the keyframe store '{}'", plan.keyframe_store);
 
-  writeRunStats(plan, wall, interrupted);
+  progress.finish(writeRunStats(plan, wall, interrupted), interrupted);
   if (opt.report) {
     try {
       report::writeRunReport(plan.out);

@@ -3,10 +3,18 @@
 #include <spdlog/spdlog.h>
 #include <yaml-cpp/yaml.h>
 
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
 #include <algorithm>
+#include <cerrno>
+#include <cstring>
 #include <cmath>
 #include <filesystem>
 
+#include "rekon/camera/source.hpp"
 #include "rekon/common/bus.hpp"
 #include "rekon/common/dataset.hpp"
 #include "rekon/common/error.hpp"
@@ -76,18 +84,38 @@ void checkConfigValues(const Config& config, const std::string& dataset) {
 DatasetSpan checkDataset(const std::string& dir) {
   if (!fs::is_directory(dir)) throw Error(dir + ": dataset folder not found; give a TUM RGB-D folder (rgb.txt, depth.txt, camera.yaml)");
   const TumDataset dataset(dir);  // throws naming the missing or empty file
+  dataset.checkImagesExist();
   return {static_cast<long long>(dataset.size()), dataset.duration()};
 }
 
 void checkCameraSpec(const std::string& spec) {
   // The drivers rekon-camera's openCamera knows, and realsense (rekon-realsense,
   // which finds its device through Intel's SDK and says in one line when it cannot).
-  const std::string driver = spec.substr(0, spec.find(':'));
+  const size_t colon = spec.find(':');
+  const std::string driver = spec.substr(0, colon), device = colon == std::string::npos ? "" : spec.substr(colon + 1);
   if (driver == "realsense") return;
   if (driver != "openni2" && driver != "freenect") {
     throw Error("--camera " + spec + ": unknown driver '" + driver +
                 "'; use realsense[:SERIAL], openni2[:URI|FILE.oni] or freenect[:INDEX] (rekon cameras lists what is "
                 "connected)");
+  }
+  if (driver == "openni2" && device.ends_with(".oni")) {
+    if (!fs::is_regular_file(device)) throw Error("--camera " + spec + ": OpenNI2 recording not found; check the path after openni2:");
+    return;
+  }
+  // The device itself: what the drivers see now (libfreenect's fakenect sees its recording).
+  std::vector<std::string> seen;
+  for (const camera::CameraInfo& c : camera::listCameras()) {
+    if (c.driver == driver) seen.push_back(c.uri);
+  }
+  if (seen.empty()) {
+    throw Error("--camera " + spec + ": no " + driver + " device is connected; check its USB cable and power (rekon "
+                "cameras lists what the drivers see)");
+  }
+  if (!device.empty() && std::find(seen.begin(), seen.end(), device) == seen.end()) {
+    std::string list;
+    for (const std::string& uri : seen) list += (list.empty() ? "" : ", ") + driver + ":" + uri;
+    throw Error("--camera " + spec + ": no such " + driver + " device; connected: " + list + " (rekon cameras)");
   }
 }
 
@@ -95,6 +123,33 @@ void checkRealSensePlayback(const std::string& path) {
   if (!fs::is_regular_file(path))
     throw Error("--playback " + path + ": no such RealSense recording; give the path of a .bag file (rekon-realsense-write "
                 "makes one from a dataset)");
+}
+
+void checkViewerPort(const Config& config) {
+  const int port = config.getInt("viewer.port");
+  if (port == 0) return;  // any free port
+  const std::string address = config.getString("viewer.bind");
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_port = htons(static_cast<uint16_t>(port));
+  if (port < 0 || port > 65535 || inet_pton(AF_INET, address.c_str(), &a.sin_addr) != 1)
+    throw Error("viewer.bind " + address + " / viewer.port " + std::to_string(port) + ": not an IPv4 address and port");
+  const int fd = socket(AF_INET, SOCK_STREAM, 0);
+  if (fd < 0) return;  // the viewer will say why
+  const int one = 1;
+  setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);  // as the viewer does: a closed run's port is free
+  const int rc = bind(fd, reinterpret_cast<const sockaddr*>(&a), sizeof a), err = errno;
+  close(fd);
+  if (rc == 0) return;
+  if (err == EADDRINUSE)
+    throw Error("viewer.port " + std::to_string(port) + " on " + address + " is in use (another rekon view or program); "
+                "stop it, or --set viewer.port=0 for any free port");
+  throw Error("viewer.bind " + address + ":" + std::to_string(port) + ": cannot listen (" + std::strerror(err) + ")");
+}
+
+void checkRecordFolder(const std::string& dir) {
+  if (fs::exists(fs::path(dir) / "rgb.txt") || fs::exists(fs::path(dir) / "depth.txt"))
+    throw Error("--record " + dir + ": already holds a recording (rgb.txt); record into a new folder, nothing is overwritten");
 }
 
 bool isRunOutput(const std::string& f) {
@@ -110,9 +165,12 @@ void claimRunFolder(const std::string& out, bool force) {
     throw Error(out + " holds an earlier run (its config.yaml, stats.json, mesh.ply...); give a fresh --out folder, "
                 "or --force to replace that run");
   }
-  int removed = 0;
+  // Everything a run writes: its files and the report's folder (left behind before).
+  long long removed = 0;
   for (const auto& entry : fs::directory_iterator(out)) {
-    if (entry.is_regular_file() && isRunOutput(entry.path().filename().string())) removed += fs::remove(entry.path());
+    const std::string name = entry.path().filename().string();
+    if (entry.is_regular_file() && isRunOutput(name)) removed += fs::remove(entry.path());
+    if (entry.is_directory() && name == "report") removed += static_cast<long long>(fs::remove_all(entry.path()));
   }
   spdlog::info("--force: removed the {} files of the earlier run in {}", removed, out);
 }

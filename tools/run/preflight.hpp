@@ -22,11 +22,20 @@ struct DatasetSpan {
 // A TUM-layout dataset with camera.yaml and at least one frame.
 DatasetSpan checkDataset(const std::string& dir);
 
-// A camera spec names a driver rekon-camera has: openni2[:URI|FILE.oni] or freenect[:INDEX].
+// A camera spec names a driver rekon-camera has, openni2[:URI|FILE.oni] or
+// freenect[:INDEX], and a device that driver sees now (or a recording that exists).
 void checkCameraSpec(const std::string& spec);
 
 // --playback FILE (rekon-realsense) is a file (what is in it, Intel's SDK judges).
 void checkRealSensePlayback(const std::string& path);
+
+// The viewer can listen on viewer.bind:viewer.port (a busy port used to fail
+// the viewer after every service had started).
+void checkViewerPort(const Config& config);
+
+// --record's folder holds no recording yet (the camera would refuse it after
+// every service had started).
+void checkRecordFolder(const std::string& dir);
 
 // The files a run writes at the top of its --out folder.
 bool isRunOutput(const std::string& file_name);

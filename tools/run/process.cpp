@@ -47,6 +47,7 @@ void ChildProcess::start() {
 void ChildProcess::restart(const std::vector<std::string>& extra_args) {
   extra_args_ = extra_args;
   status_.reset();
+  reported_ = false;
   pid_ = -1;
   ++restarts_;
   start();
@@ -66,10 +67,14 @@ std::string describeExit(int status) {
 }
 
 std::optional<int> ChildProcess::poll() {
-  if (status_ || pid_ <= 0) return status_;
-  int st = 0;
-  const pid_t r = waitpid(pid_, &st, WNOHANG);
-  if (r == pid_) status_ = WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
+  if (pid_ <= 0 || reported_) return std::nullopt;
+  if (!status_) {
+    int st = 0;
+    const pid_t r = waitpid(pid_, &st, WNOHANG);
+    if (r != pid_) return std::nullopt;
+    status_ = WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
+  }
+  reported_ = true;
   return status_;
 }
 

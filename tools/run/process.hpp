@@ -19,7 +19,10 @@ class ChildProcess {
   int restarts() const { return restarts_; }
   // Resident set size in MiB from /proc, or nullopt when not running.
   std::optional<double> rssMb() const;
-  // Exit status once the process has ended (128 + signal for a signal), else nullopt.
+  // The exit status (128 + signal for a signal) the first time the process is
+  // seen to have ended, so each end is handled once; nullopt while it runs and
+  // after its end was reported (a viewer that failed to bind was reported
+  // every 50 ms for a whole run).
   std::optional<int> poll();
   void terminate();  // SIGTERM
   void kill();       // SIGKILL
@@ -35,6 +38,7 @@ class ChildProcess {
   int restarts_ = 0;
   pid_t pid_ = -1;
   std::optional<int> status_;
+  bool reported_ = false;  // poll returned status_ already
 };
 
 // "exited with status 1", "was killed by signal 9 (Killed)": how a child ended,

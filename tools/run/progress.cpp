@@ -2,10 +2,14 @@
 
 #include "rekon_msgs/heartbeat_t.hpp"
 
+#include <algorithm>
+
 namespace rekon {
 
-RunProgress::RunProgress(const Config& config, long long total_frames, double source_fps)
-    : bus_(makeBus(BusOptions::fromConfig(config))), total_(total_frames), source_fps_(source_fps) {
+RunProgress::RunProgress(const Config& config, long long total_frames, long long first_frame_id, double source_fps,
+                         Clock::time_point started)
+    : bus_(makeBus(BusOptions::fromConfig(config))), total_(total_frames), first_frame_id_(first_frame_id),
+      source_fps_(source_fps), started_(started) {
   bus_->subscribe<rekon_msgs::heartbeat_t>(channel::kHeartbeat, [this](const rekon_msgs::heartbeat_t& hb) {
     heard_[hb.service] = {hb.pid, hb.state, hb.last_frame_id};
   });
@@ -14,7 +18,7 @@ RunProgress::RunProgress(const Config& config, long long total_frames, double so
 long long RunProgress::framesDone() const {
   for (const char* s : {"mapper", "tracker", "player", "camera"}) {  // the furthest downstream that reports
     const auto it = services_.find(s);
-    if (it != services_.end() && it->second.second >= 0) return it->second.second + 1;
+    if (it != services_.end() && it->second.second >= 0) return std::max(0LL, it->second.second + 1 - first_frame_id_);
   }
   return 0;
 }
@@ -25,7 +29,10 @@ std::string RunProgress::text() const {
     const double seconds = std::chrono::duration<double>(samples_.back().first - samples_.front().first).count();
     if (seconds > 0.5) rate = static_cast<double>(samples_.back().second - samples_.front().second) / seconds;
   }
-  std::string s = frameProgress(framesDone(), total_, rate, source_fps_);
+  const long long done = framesDone();
+  const double elapsed = std::chrono::duration<double>(Clock::now() - started_).count();
+  const double realtime = source_fps_ > 0 && elapsed > 0 ? static_cast<double>(done) / source_fps_ / elapsed : 0.0;
+  std::string s = frameProgress(done, total_, rate, realtime);
   std::string others;  // the services not in their working state
   for (const auto& [name, state] : services_) {
     if (state.first != "running" && state.first != "playing" && name != "viewer")
@@ -58,11 +65,11 @@ double RunProgress::overallRate() const {
   return since_start > 0 ? static_cast<double>(last_.second) / since_start : 0.0;
 }
 
-void RunProgress::finish() {
+void RunProgress::finish(double realtime_factor, bool interrupted) {
   while (bus_->handle(0)) {
   }
   const long long done = framesDone();
-  line_.finish(frameProgress(done, total_, overallRate(), source_fps_));
+  line_.finish(frameProgress(done, total_, overallRate(), realtime_factor, true) + (interrupted ? " (interrupted)" : ""));
 }
 
 }  // namespace rekon

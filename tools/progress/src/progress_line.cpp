@@ -92,12 +92,13 @@ void ProgressLine::show(const std::string& text) {
   std::fflush(out_);
 }
 
-std::string frameProgress(long long done, long long total, double frames_per_s, double source_fps) {
+std::string frameProgress(long long done, long long total, double frames_per_s, double realtime_factor, bool ended) {
   std::string s = total > 0 ? fmt::format("frame {}/{} ({:.0f} %)", done, total, 100.0 * static_cast<double>(done) / static_cast<double>(total))
                             : fmt::format("frame {}", done);
   if (frames_per_s > 0) s += fmt::format(", {:.1f} fps", frames_per_s);
-  if (frames_per_s > 0 && source_fps > 0) s += fmt::format(", {:.2f}x realtime", frames_per_s / source_fps);
-  if (frames_per_s > 0 && total > done) s += fmt::format(", ETA {:.0f} s", std::ceil(static_cast<double>(total - done) / frames_per_s));
+  if (realtime_factor > 0) s += fmt::format(", {:.2f}x realtime", realtime_factor);
+  if (!ended && frames_per_s > 0 && total > done)
+    s += fmt::format(", ETA {:.0f} s", std::ceil(static_cast<double>(total - done) / frames_per_s));
   return s;
 }
 

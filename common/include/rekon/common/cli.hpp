@@ -45,6 +45,14 @@ class ArgParser {
   std::map<std::string, std::vector<std::string>> values_;
 };
 
+// The candidate nearest to `word` by edit distance (a swap of two neighbours
+// counts one), if it is close enough to be a typo of it (at most 2 edits, or a
+// third of the word's length); nullopt otherwise. For "did you mean ...?".
+std::optional<std::string> nearestName(const std::string& word, const std::vector<std::string>& candidates);
+
+// "; did you mean 'NAME'?" for the nearest candidate, or "" when none is near.
+std::string didYouMean(const std::string& word, const std::vector<std::string>& candidates);
+
 // Creates an output folder (--out) and its parents; a rekon::Error naming the
 // folder and the reason (permission, a file in the way) when it cannot.
 void createOutputFolder(const std::string& dir);

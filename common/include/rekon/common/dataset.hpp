@@ -32,6 +32,10 @@ class TumDataset {
   // Timestamp span of the sequence (last minus first), in seconds.
   double duration() const;
 
+  // Checks that every image the index files list exists (a stat per file, no
+  // reading); throws rekon::Error naming how many are missing and the first.
+  void checkImagesExist() const;
+
   // Loads frame i from disk (checks decoding, bit depth and size).
   RgbdFrame load(size_t i) const;
   // The files of frame i as they are on disk (no decoding).

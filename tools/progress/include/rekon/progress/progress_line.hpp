@@ -45,7 +45,10 @@ class ProgressLine {
 };
 
 // "frame 123/300 (41 %), 28.5 fps, 0.95x realtime, ETA 6 s": `total` 0 for an
-// open end (a live camera), `source_fps` 0 when the recorded rate is unknown.
-std::string frameProgress(long long done, long long total, double frames_per_s, double source_fps);
+// open end (a live camera), `realtime_factor` 0 where there is none (a camera,
+// an unknown recorded rate). `ended`: the last line of work that stopped (done
+// or interrupted), without an ETA.
+std::string frameProgress(long long done, long long total, double frames_per_s, double realtime_factor = 0.0,
+                          bool ended = false);
 
 }  // namespace rekon
