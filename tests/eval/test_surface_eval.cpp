@@ -2,6 +2,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <filesystem>
 #include <cstdio>
 #include <numbers>
 #include <vector>
@@ -150,6 +151,50 @@ TEST(EvalCommand, SurfaceMovesTheMeshByTheTrajectoryAlignment) {
   ASSERT_EQ(rekon::test::runCommand(cmd, &out), 0) << out;  // without alignment the tilted plane is far off
   ASSERT_EQ(std::sscanf(out.substr(out.rfind("corr_m=")).c_str(), "corr_m=%lf", &corr), 1) << out;
   EXPECT_GT(corr, 0.04);
+}
+
+// A run's mesh against its dataset's mesh_gt.ply, no trajectories given: the
+// run's trajectory.txt and the dataset's groundtruth.txt are found and used
+// (issue 45: without them CORR was the 50 mm cap for a 0.92 mm mesh); without
+// the run's trajectory the command refuses, naming the options to add.
+TEST(EvalCommand, SurfaceFindsARunsAndADatasetsTrajectories) {
+  rekon::test::TempDir dir;
+  rekon::Pose world_to_slam = rekon::Pose::Identity();
+  world_to_slam.linear() = Eigen::AngleAxisd(0.4, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
+  world_to_slam.translation() = Eigen::Vector3d(0.3, -1.0, 2.0);
+  rekon::Trajectory gt, est;
+  const std::vector<Eigen::Vector3d> centres = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0.5}};
+  for (size_t i = 0; i < centres.size(); ++i) {
+    rekon::Pose p = rekon::Pose::Identity();
+    p.translation() = centres[i];
+    gt.push_back({0.1 * static_cast<double>(i), p});
+    est.push_back({0.1 * static_cast<double>(i), world_to_slam * p});
+  }
+  std::filesystem::create_directories(dir / "run");
+  std::filesystem::create_directories(dir / "data");
+  rekon::writeTumTrajectory(gt, dir / "data/groundtruth.txt");
+  rekon::writeTumTrajectory(est, dir / "run/trajectory.txt");
+  Mesh mesh = plane(1.0, 20, 0.0f);
+  for (auto& v : mesh.vertices) v = world_to_slam.cast<float>() * v;
+  rekon::writePly(mesh, dir / "run/mesh.ply");
+  rekon::writePly(plane(1.0, 20, 0.0f), dir / "data/mesh_gt.ply");
+  const std::string cmd = rekon::test::binDir() + "/rekon eval surface " + (dir / "run/mesh.ply") + " " + (dir / "data/mesh_gt.ply");
+  std::string out;
+  ASSERT_EQ(rekon::test::runCommand(cmd + " 2>&1", &out), 0) << out;
+  EXPECT_NE(out.find("MESH moved into REF's world: " + (dir / "run/trajectory.txt") + " aligned to " +
+                     (dir / "data/groundtruth.txt")), std::string::npos) << out;
+  double corr = 1;
+  ASSERT_EQ(std::sscanf(out.substr(out.rfind("corr_m=")).c_str(), "corr_m=%lf", &corr), 1) << out;
+  EXPECT_NEAR(corr, 0.0, 1e-5);
+  // Both in one frame on purpose: --no-align compares them as they are.
+  ASSERT_EQ(rekon::test::runCommand(cmd + " --no-align 2>&1", &out), 0) << out;
+  ASSERT_EQ(std::sscanf(out.substr(out.rfind("corr_m=")).c_str(), "corr_m=%lf", &corr), 1) << out;
+  EXPECT_GT(corr, 0.04);
+  // No trajectory beside the mesh: no number, one line saying what to add.
+  std::filesystem::remove(dir / "run/trajectory.txt");
+  EXPECT_EQ(rekon::test::runCommand(cmd + " 2>&1", &out), 1) << out;
+  EXPECT_NE(out.find("give --est-trajectory"), std::string::npos) << out;
+  EXPECT_EQ(out.find("corr_m="), std::string::npos) << out;
 }
 
 TEST(EvalCommand, SurfaceNeedsBothTrajectoriesOrNeither) {

@@ -46,6 +46,43 @@ TEST(Render, AutoViewShowsTheMeshInTheCentre) {
   for (int x = 0; x < image.cols; ++x) EXPECT_TRUE(isBackground(image.at<cv::Vec3b>(0, x), o));
 }
 
+// A 1 m square floor of 100 x 100 vertices, and a stray triangle 40 m away
+// (as 7-Scenes' mesh has a few far-off fragments): the view frames the floor.
+TEST(Render, AutoViewFramesTheBulkNotAStrayFragment) {
+  Mesh m;
+  const int n = 100;
+  for (int y = 0; y < n; ++y) {
+    for (int x = 0; x < n; ++x) {
+      m.vertices.emplace_back(static_cast<float>(x) / (n - 1), static_cast<float>(y) / (n - 1), 0.0f);
+      m.colors.push_back({200, 200, 200});
+    }
+  }
+  for (int y = 0; y + 1 < n; ++y) {
+    for (int x = 0; x + 1 < n; ++x) {
+      const int i = y * n + x;
+      m.triangles.emplace_back(i, i + 1, i + n + 1);
+      m.triangles.emplace_back(i, i + n + 1, i + n);
+    }
+  }
+  const int stray = static_cast<int>(m.vertices.size());
+  for (const Eigen::Vector3f& v : {Eigen::Vector3f(40, 40, 5), Eigen::Vector3f(40.1f, 40, 5), Eigen::Vector3f(40, 40.1f, 5)}) {
+    m.vertices.push_back(v);
+    m.colors.push_back({200, 200, 200});
+  }
+  m.triangles.emplace_back(stray, stray + 1, stray + 2);
+  RenderOptions o;
+  o.width = 320;
+  o.height = 240;
+  o.up = Eigen::Vector3d::UnitZ();
+  const cv::Mat image = rekon::render::renderMesh(m, o);
+  int covered = 0;
+  for (int y = 0; y < image.rows; ++y) {
+    for (int x = 0; x < image.cols; ++x) covered += !isBackground(image.at<cv::Vec3b>(y, x), o);
+  }
+  // Framed by every vertex, the floor covered 0.1 % of the image; by the bulk, 20 % or more.
+  EXPECT_GT(covered, image.rows * image.cols / 5) << covered << " pixels of " << image.rows * image.cols;
+}
+
 TEST(Render, AnExplicitViewLooksAtItsTarget) {
   RenderOptions o;
   o.width = 200;

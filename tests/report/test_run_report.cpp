@@ -228,6 +228,7 @@ TEST(RunReport, ADefaultRunMissesNothing) {
   // samples, the tracker's odometry, the mapper's memory figures.
   std::ofstream(f.run + "/rss.csv") << "seconds,service,rss_mb\n0.0,mapper,100\n1.0,mapper,120\n";
   fs::copy_file(f.run + "/trajectory.txt", f.run + "/odometry.txt");
+  rekon::writePly(boxOnFloor(0.0f), f.dataset + "/mesh_gt.ply");  // a synthetic scene's ground-truth surface
   std::ofstream(f.run + "/stats.json") << R"({"frames": 60, "wall_seconds": 2.5, "player": {"frames": 60, "sequence_seconds": 2.0},)"
                                        << R"( "mapper": {"input_frame_bytes": 1000000, "keyframe_bytes": 200000}})";
   const RunReportResult r = writeRunReport(f.run);
@@ -263,6 +264,8 @@ TEST(RunReport, MeshesAreExplainedAndMeasuredAgainstAGroundTruthMesh) {
   std::string html = readText(writeRunReport(f.run).html_path);
   EXPECT_NE(html.find("<code>mesh_uncorrected.ply</code> is the same keyframes fused once"), std::string::npos);
   EXPECT_EQ(html.find("CORR mean"), std::string::npos);  // no ground-truth mesh: no such table
+  // ... and the report says why (the 7-Scenes report said "0 absent inputs").
+  EXPECT_NE(html.find("surface errors (CORR/COMPL): " + f.dataset + "/mesh_gt.ply does not exist"), std::string::npos);
   const rekon::Pose to_gt = rekon::readTumTrajectory(f.dataset + "/groundtruth.txt").front().pose *
                             rekon::readTumTrajectory(f.run + "/trajectory.txt").front().pose.inverse();
   rekon::Mesh gt = boxOnFloor(0.0f);
@@ -275,6 +278,48 @@ TEST(RunReport, MeshesAreExplainedAndMeasuredAgainstAGroundTruthMesh) {
   std::smatch m;
   ASSERT_TRUE(std::regex_search(html, m, uncorrected));
   EXPECT_GT(std::stod(m[1]), 5.0);  // the box's sides and top 10 cm off: many vertices at the 50 mm cap
+}
+
+// A COMPL median at the cap (most of the reference never seen: here a large
+// floor 5 m below the scan) is explained, not left as a bare 50 mm.
+TEST(RunReport, AComplMedianAtTheCapIsExplained) {
+  FakeRun f;
+  const rekon::Pose to_gt = rekon::readTumTrajectory(f.dataset + "/groundtruth.txt").front().pose *
+                            rekon::readTumTrajectory(f.run + "/trajectory.txt").front().pose.inverse();
+  const auto write_gt = [&](bool far_floor) {
+    rekon::Mesh gt = boxOnFloor(0.0f);
+    const int i = static_cast<int>(gt.vertices.size());
+    if (far_floor) {
+      for (const Eigen::Vector3f& v : {Eigen::Vector3f(-10, -10, -5), Eigen::Vector3f(10, -10, -5),
+                                       Eigen::Vector3f(10, 10, -5), Eigen::Vector3f(-10, 10, -5)}) {
+        gt.vertices.push_back(v);
+        gt.colors.push_back({100, 100, 100});
+      }
+      gt.triangles.emplace_back(i, i + 1, i + 2);
+      gt.triangles.emplace_back(i, i + 2, i + 3);
+    }
+    for (auto& v : gt.vertices) v = to_gt.cast<float>() * v;
+    rekon::writePly(gt, f.dataset + "/mesh_gt.ply");
+  };
+  write_gt(true);
+  const std::string html = readText(writeRunReport(f.run).html_path);
+  EXPECT_NE(html.find("A COMPL median at the cap means"), std::string::npos) << html.substr(html.find("CORR"), 1200);
+  // Without the far floor the median is far below the cap: no such note.
+  write_gt(false);
+  const std::string near = readText(writeRunReport(f.run).html_path);
+  EXPECT_EQ(near.find("A COMPL median at the cap means"), std::string::npos) << near.substr(near.find("CORR"), 1200);
+}
+
+// The re-integration table sums what each round did, but gives a running
+// count (graph_version) its value at the end: the sum of 1, 2, 3 is no count
+// of anything (a 1 000-frame run's "total" graph_version read 27 077).
+TEST(RunReport, ReintegrationTableGivesRunningCountsTheirLastValue) {
+  FakeRun f;
+  const std::string html = readText(writeRunReport(f.run).html_path);
+  EXPECT_NE(html.find("<tr><td>graph_version</td><td class=\"num\">at the end: 3</td>"), std::string::npos)
+      << html.substr(html.find("Re-integration activity"), 1500);
+  EXPECT_NE(html.find("<tr><td>keyframes_reintegrated</td><td class=\"num\">12.0</td>"), std::string::npos)
+      << html.substr(html.find("Re-integration activity"), 1500);
 }
 
 // A run stopped by Ctrl-C says so at the top of its report (stats.json's mark).

@@ -99,7 +99,10 @@ int remeshCommand(int argc, char** argv) {
       .option("voxel", "voxel size in metres (default: the session's)")
       .option("truncation", "truncation distance in metres (default: the session's)")
       .option("max-depth", "ignore depth beyond this many metres (default: the session's)")
-      .option("backend", "auto, cpu or cuda", "auto");
+      .option("backend", "auto, cpu or cuda", "auto")
+      .examples("rekon remesh out/7s_session --out out/7s_5mm.ply --voxel 0.005   # the same scan at 5 mm\n"
+                "rekon remesh out/7s_session --out out/7s_near.ply --max-depth 2  # only what was seen within 2 m\n"
+                "  (a session comes from rekon run ... --session out/7s_session)");
   if (!args.parse(argc, argv)) return 0;
   if (!args.has("out")) throw Error("rekon remesh: --out is required (see --help)");
   const Session session = Session::open(args.get("session"));
@@ -120,7 +123,9 @@ int remeshCommand(int argc, char** argv) {
 int exportCommand(int argc, char** argv) {
   ArgParser args(argv[0], "Write a session's trajectory, pose graph and mesh in formats other tools read");
   args.positional("session", "a session folder (rekon run --session)")
-      .option("out", "output folder (created; not the session itself)");
+      .option("out", "output folder (created; not the session itself)")
+      .examples("rekon export out/7s_session --out out/7s_export   # trajectory.txt, keyframes.txt, graph.g2o, mesh.ply\n"
+                "evo_traj tum out/7s_export/trajectory.txt --plot     # e.g. with evo");
   if (!args.parse(argc, argv)) return 0;
   if (!args.has("out")) throw Error("rekon export: --out is required (see --help)");
   const Session session = Session::open(args.get("session"));

@@ -1,5 +1,7 @@
 // `rekon eval traj` and `rekon eval surface`: print the metrics, last line key=value (or JSON with --json).
 #include <chrono>
+#include <filesystem>
+#include <optional>
 #include <cstdio>
 #include <iostream>
 #include <string>
@@ -14,11 +16,48 @@
 namespace rekon::eval {
 namespace {
 
+// The layout of every command's --help (ArgParser::usage): usage, summary, the two evaluations, examples.
 constexpr const char* kUsage =
-    "usage: rekon eval traj GT EST [--json] [--max-dt S] [--delta S]\n"
-    "       rekon eval surface MESH REF [--json] [--cap M] [--samples N] [--est-trajectory EST --gt-trajectory GT]\n"
-    "  traj     ATE (after rigid Horn/Umeyama alignment) and RPE per second of TUM trajectories\n"
-    "  surface  CORR (MESH vertices to REF surface) and COMPL (REF samples to MESH), capped distances\n";
+    "usage: rekon eval traj|surface ARGS [options]\n\n"
+    "Trajectory and surface errors of a run against ground truth.\n\n"
+    "commands:\n"
+    "  traj GT EST         ATE (after rigid Horn/Umeyama alignment) and RPE per second of TUM trajectories\n"
+    "  surface MESH REF    CORR (MESH vertices to REF's surface) and COMPL (REF's surface to MESH), capped; a run's\n"
+    "                      mesh is moved into a dataset's world through the run's trajectory.txt and the dataset's\n"
+    "                      groundtruth.txt, found beside MESH and REF when not given\n"
+    "  (rekon eval traj --help and rekon eval surface --help list their options)\n\n"
+    "examples:\n"
+    "  rekon eval traj ../shared/data/7scenes_loop_1000/groundtruth.txt out/7scenes/trajectory.txt\n"
+    "  rekon eval surface out/demo/mesh.ply out/demo/room_0_data/mesh_gt.ply\n"
+    "  rekon eval surface out/a/mesh.ply out/b/mesh.ply      # two runs of one dataset: both in the first camera's frame\n";
+
+// The trajectories that take MESH into REF's world: given, or found beside
+// them (a run's trajectory.txt, a dataset's groundtruth.txt). None when REF is
+// not in a dataset's world (another run's mesh) or --no-align says so; an
+// error when REF is and MESH's trajectory cannot be found, because CORR and
+// COMPL of two frames' meshes would be numbers about the frames, not the surface.
+struct Alignment {
+  std::string est, gt;
+};
+
+std::optional<Alignment> alignmentFor(const ArgParser& args) {
+  namespace fs = std::filesystem;
+  if (args.flagSet("no-align")) {
+    if (!args.get("est-trajectory").empty()) throw Error("--no-align and --est-trajectory contradict each other; give one");
+    return std::nullopt;
+  }
+  if (args.get("est-trajectory").empty() != args.get("gt-trajectory").empty())
+    throw Error("--est-trajectory and --gt-trajectory go together; give both or neither");
+  if (!args.get("est-trajectory").empty()) return Alignment{args.get("est-trajectory"), args.get("gt-trajectory")};
+  const fs::path gt = fs::path(args.get("REF")).parent_path() / "groundtruth.txt";
+  if (!fs::exists(gt)) return std::nullopt;  // REF is not in a dataset's world
+  const fs::path est = fs::path(args.get("MESH")).parent_path() / "trajectory.txt";
+  if (!fs::exists(est))
+    throw Error(args.get("REF") + " is in its dataset's world (" + gt.string() + " beside it) and " + args.get("MESH") +
+                " has no trajectory.txt beside it: give --est-trajectory (the run's trajectory.txt) --gt-trajectory " +
+                gt.string() + ", or --no-align if MESH is already in REF's world");
+  return Alignment{est.string(), gt.string()};
+}
 
 std::string fmt(double v, const char* f = "%.6f") {
   char buf[64];
@@ -33,11 +72,16 @@ int trajMain(int argc, char** argv) {
       .option("max-dt", "largest timestamp difference of associated poses (s)",
               fmt(TrajectoryEvalOptions::kDefaultMaxTimeDifferenceS, "%g"))
       .option("delta", "RPE interval (s)", fmt(TrajectoryEvalOptions::kDefaultRpeDeltaS, "%g"))
-      .flag("json", "print JSON instead of text");
+      .option("offset", "seconds added to EST's timestamps before association (associate.py's --offset), e.g. -1 for a "
+                        "fakenect recording of a dataset that starts at 0", "0")
+      .flag("json", "print JSON instead of text")
+      .examples("rekon eval traj ../shared/data/7scenes_loop_1000/groundtruth.txt out/7scenes/trajectory.txt\n"
+                "rekon eval traj out/demo/room_0_data/groundtruth.txt out/demo/trajectory.txt --json");
   if (!args.parse(argc, argv)) return 0;
   TrajectoryEvalOptions o;
   o.max_time_difference_s = args.getDouble("max-dt");
   o.rpe_delta_s = args.getDouble("delta");
+  o.time_offset_s = args.getDouble("offset");
   const Trajectory gt = readTumTrajectory(args.get("GT")), est = readTumTrajectory(args.get("EST"));
   const TrajectoryErrors e = evaluateTrajectory(gt, est, o);
   if (args.flagSet("json")) {
@@ -77,10 +121,14 @@ int surfaceMain(int argc, char** argv) {
       .option("est-trajectory", "the TUM trajectory MESH was built with: MESH is first moved by the rigid alignment "
               "that maps it onto --gt-trajectory (the ATE's), so a SLAM mesh meets REF in REF's world", "")
       .option("gt-trajectory", "ground-truth TUM trajectory in REF's world (with --est-trajectory)", "")
-      .flag("json", "print JSON instead of text");
+      .flag("no-align", "compare MESH and REF as they are (both already in one frame); without it and without the "
+                        "two trajectories, MESH's trajectory.txt and REF's groundtruth.txt are used when found")
+      .flag("json", "print JSON instead of text")
+      .examples("rekon eval surface out/demo/mesh.ply out/demo/room_0_data/mesh_gt.ply   # trajectories found beside them\n"
+                "rekon eval surface MESH REF --est-trajectory EST --gt-trajectory GT\n"
+                "rekon eval surface out/a/mesh.ply out/b/mesh.ply --no-align");
   if (!args.parse(argc, argv)) return 0;
-  if (args.get("est-trajectory").empty() != args.get("gt-trajectory").empty())
-    throw Error("--est-trajectory and --gt-trajectory go together; give both or neither");
+  const std::optional<Alignment> alignment = alignmentFor(args);
   SurfaceEvalOptions o;
   o.cap_m = args.getDouble("cap");
   const int samples = args.getInt("samples");
@@ -89,12 +137,11 @@ int surfaceMain(int argc, char** argv) {
   const auto start = std::chrono::steady_clock::now();
   Mesh mesh = readPly(args.get("MESH"));
   const Mesh ref = readPly(args.get("REF"));
-  if (!args.get("est-trajectory").empty()) {
-    const Pose alignment =
-        evaluateTrajectory(readTumTrajectory(args.get("gt-trajectory")), readTumTrajectory(args.get("est-trajectory")))
-            .alignment;
-    const Eigen::Isometry3f a = alignment.cast<float>();
+  if (alignment) {
+    const Eigen::Isometry3f a =
+        evaluateTrajectory(readTumTrajectory(alignment->gt), readTumTrajectory(alignment->est)).alignment.cast<float>();
     for (auto& v : mesh.vertices) v = a * v;
+    if (!args.flagSet("json")) std::cout << "MESH moved into REF's world: " << alignment->est << " aligned to " << alignment->gt << "\n";
   }
   const SurfaceErrors e = evaluateSurface(mesh, ref, o);
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

@@ -1,5 +1,7 @@
 #include "rekon/eval/surface_eval.hpp"
 
+#include <fmt/format.h>
+
 #include <Eigen/Geometry>
 
 #include <algorithm>
@@ -103,7 +105,7 @@ DistanceStats distances(const std::vector<Eigen::Vector3f>& points, const Closes
 
 std::vector<float> distancesToSurface(const std::vector<Eigen::Vector3f>& points, const Mesh& surface, double cap_m,
                                       int threads) {
-  if (!(cap_m > 0)) throw Error("the distance cap must be positive, got " + std::to_string(cap_m));
+  if (!(cap_m > 0)) throw Error("the distance cap must be positive, got " + fmt::format("{}", cap_m));
   const ClosestPointIndex index(surface);
   return distancesTo(points, index, cap_m, threadCount(threads));
 }
@@ -111,7 +113,7 @@ std::vector<float> distancesToSurface(const std::vector<Eigen::Vector3f>& points
 SurfaceErrors evaluateSurface(const Mesh& mesh, const Mesh& reference, const SurfaceEvalOptions& options) {
   if (mesh.vertices.empty()) throw Error("the evaluated mesh has no vertices; nothing to compare");
   if (reference.vertices.empty()) throw Error("the reference mesh has no vertices; give the ground-truth mesh");
-  if (!(options.cap_m > 0)) throw Error("the distance cap must be positive, got " + std::to_string(options.cap_m));
+  if (!(options.cap_m > 0)) throw Error("the distance cap must be positive, got " + fmt::format("{}", options.cap_m));
   const int threads = threadCount(options.threads);
   SurfaceErrors r;
   r.cap_m = options.cap_m;

@@ -1,5 +1,7 @@
 #include "rekon/eval/trajectory_eval.hpp"
 
+#include <fmt/format.h>
+
 #include <Eigen/SVD>
 #include <algorithm>
 #include <cmath>
@@ -25,10 +27,11 @@ double rms(const std::vector<double>& v) {
 
 }  // namespace
 
-std::vector<std::pair<size_t, size_t>> associate(const Trajectory& gt, const Trajectory& est, double max_difference) {
+std::vector<std::pair<size_t, size_t>> associate(const Trajectory& gt, const Trajectory& est, double max_difference,
+                                                 double est_offset) {
   const std::vector<size_t> est_order = byTime(est);
   std::vector<double> est_times(est_order.size());
-  for (size_t i = 0; i < est_order.size(); ++i) est_times[i] = est[est_order[i]].timestamp;
+  for (size_t i = 0; i < est_order.size(); ++i) est_times[i] = est[est_order[i]].timestamp + est_offset;
   struct Candidate {
     double diff;
     size_t gt, est;
@@ -77,11 +80,13 @@ Pose alignRigid(const std::vector<Eigen::Vector3d>& from, const std::vector<Eige
 }
 
 TrajectoryErrors evaluateTrajectory(const Trajectory& gt, const Trajectory& est, const TrajectoryEvalOptions& options) {
-  const auto pairs = associate(gt, est, options.max_time_difference_s);
+  const auto pairs = associate(gt, est, options.max_time_difference_s, options.time_offset_s);
   if (pairs.size() < 2) {
     throw Error("only " + std::to_string(pairs.size()) + " of " + std::to_string(est.size()) +
-                " estimated poses have a ground-truth pose within " + std::to_string(options.max_time_difference_s) +
-                " s; check that both trajectories use the same clock");
+                " estimated poses have a ground-truth pose within " + fmt::format("{}", options.max_time_difference_s) +
+                " s; check that both trajectories use the same clock (a live camera stamps frames with this computer's "
+                "clock: to score a recording made from a dataset against its ground truth, run it with --set "
+                "camera.clock=recording)");
   }
   TrajectoryErrors r;
   r.matched = pairs.size();

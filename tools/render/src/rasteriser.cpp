@@ -16,6 +16,9 @@ constexpr float kDiffuse = 0.7f;
 // Margin kept between the mesh and the image border by autoView.
 constexpr double kFrameFill = 0.94;
 constexpr size_t kMaxFramingVertices = 200000;
+// autoView frames this share of the vertices (along each axis and in the
+// image), so that a few stray fragments do not shrink the scan to a corner.
+constexpr double kFramedShare = 0.995;
 const cv::Vec3f kDefaultVertexColor{200, 200, 200};
 
 struct ClipVertex {
@@ -99,13 +102,25 @@ Pose viewPose(const View& view, const Eigen::Vector3d& up) {
 
 View autoView(const Mesh& mesh, const RenderOptions& options) {
   if (mesh.vertices.empty()) return {};
-  Eigen::Vector3f lo = mesh.vertices[0], hi = lo;
-  for (const auto& v : mesh.vertices) {
-    lo = lo.cwiseMin(v);
-    hi = hi.cwiseMax(v);
+  // The bulk of the vertices, not every one: a few stray fragments far off
+  // (7-Scenes' mesh has some) left the room 9 % of the image.
+  const size_t step = std::max<size_t>(1, mesh.vertices.size() / kMaxFramingVertices);
+  std::vector<Eigen::Vector3f> sample;
+  for (size_t i = 0; i < mesh.vertices.size(); i += step) sample.push_back(mesh.vertices[i]);
+  const auto quantile = [](std::vector<double>& values, double q) {
+    const size_t k = std::min(values.size() - 1, static_cast<size_t>(q * static_cast<double>(values.size())));
+    std::nth_element(values.begin(), values.begin() + static_cast<std::ptrdiff_t>(k), values.end());
+    return values[k];
+  };
+  Eigen::Vector3d lo, hi;
+  std::vector<double> values(sample.size());
+  for (int axis = 0; axis < 3; ++axis) {
+    for (size_t i = 0; i < sample.size(); ++i) values[i] = sample[i][axis];
+    lo[axis] = quantile(values, 1.0 - kFramedShare);
+    hi[axis] = quantile(values, kFramedShare);
   }
-  const Eigen::Vector3d centre = (0.5f * (lo + hi)).cast<double>();
-  const double radius = std::max(1e-6, 0.5 * static_cast<double>((hi - lo).norm()));
+  const Eigen::Vector3d centre = 0.5 * (lo + hi);
+  const double radius = std::max(1e-6, 0.5 * (hi - lo).norm());
   // Look down at about 40 degrees from an oblique corner.
   const Eigen::Vector3d up = options.up.normalized();
   const Eigen::Vector3d ref = std::abs(up.x()) < 0.9 ? Eigen::Vector3d::UnitX() : Eigen::Vector3d::UnitY();
@@ -116,15 +131,13 @@ View autoView(const Mesh& mesh, const RenderOptions& options) {
   View v;
   v.target = centre;
   v.eye = centre + dir * (radius / std::sin(std::atan(std::min(tan_x, tan_y))));
-  // Then slide along the view direction until the farthest-out vertex just fits.
+  // Then slide along the view direction until the bulk of the vertices just fits.
   const Pose world_to_cam = viewPose(v, up).inverse();
-  const size_t step = std::max<size_t>(1, mesh.vertices.size() / kMaxFramingVertices);
-  double shift = -std::numeric_limits<double>::infinity();
-  for (size_t i = 0; i < mesh.vertices.size(); i += step) {
-    const Eigen::Vector3d p = world_to_cam * mesh.vertices[i].cast<double>();
-    shift = std::max({shift, std::abs(p.x()) / (kFrameFill * tan_x) - p.z(), std::abs(p.y()) / (kFrameFill * tan_y) - p.z()});
+  for (size_t i = 0; i < sample.size(); ++i) {
+    const Eigen::Vector3d p = world_to_cam * sample[i].cast<double>();
+    values[i] = std::max(std::abs(p.x()) / (kFrameFill * tan_x) - p.z(), std::abs(p.y()) / (kFrameFill * tan_y) - p.z());
   }
-  v.eye += dir * shift;  // moving back by `shift` adds it to every vertex's depth
+  v.eye += dir * quantile(values, kFramedShare);  // moving back by the shift adds it to every vertex's depth
   return v;
 }
 

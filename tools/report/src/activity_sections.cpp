@@ -183,6 +183,12 @@ void timingSection(Page& page, const fs::path& run, const std::vector<std::strin
   }
 }
 
+// Columns of mapper_reintegration.csv that count on over the run (the row's
+// state then) rather than what one round did.
+namespace {
+bool isRunningCount(const std::string& column) { return column == "graph_version" || column == "frames_fused"; }
+}  // namespace
+
 void reintegrationSection(Page& page, const fs::path& run) {
   page.body << "<h2>Re-integration activity</h2>\n";
   const auto table = readOptionalCsv(run / kReintegrationFile, {kReintegrationColumns.front()},
@@ -194,8 +200,14 @@ void reintegrationSection(Page& page, const fs::path& run) {
   const std::vector<double> time = table->values(0);
   std::vector<std::vector<std::string>> rows;
   for (size_t c = 1; c < table->columns.size(); ++c) {
-    const Summary s = summarise(table->values(static_cast<int>(c)));
-    rows.push_back({table->columns[c], number(s.total, 1), number(s.mean, 2), number(s.max, 1)});
+    const std::vector<double> v = table->values(static_cast<int>(c));
+    const Summary s = summarise(v);
+    // A running count (graph_version, frames_fused) says its last value; a
+    // sum of it is no quantity (27 077 "graph versions" on a 1 000-frame run).
+    if (isRunningCount(table->columns[c]))
+      rows.push_back({table->columns[c], "at the end: " + number(v.back(), 0), "-", number(s.max, 0)});
+    else
+      rows.push_back({table->columns[c], number(s.total, 1), number(s.mean, 2), number(s.max, 1)});
   }
   page.body << "<p>" << table->rows.size() << " rounds over " << number(time.back() - time.front(), 1) << " s.</p>\n";
   page.table({"column", "total", "mean per round", "max"}, rows);

@@ -98,12 +98,14 @@ void surfaceErrorTable(Page& page, const std::vector<const MeshFile*>& meshes, c
     return;
   }
   std::vector<std::vector<std::string>> rows;
+  bool compl_at_cap = false;
   for (const MeshFile* f : meshes) {
     if (!f->mesh) continue;
     Mesh moved = *f->mesh;
     const Eigen::Isometry3f t = alignment->cast<float>();
     for (auto& v : moved.vertices) v = t * v;
     const eval::SurfaceErrors e = eval::evaluateSurface(moved, gt);
+    compl_at_cap |= e.compl_median_m >= e.cap_m;
     rows.push_back({f->name, number(e.corr_m * 1e3, 2), number(e.corr_median_m * 1e3, 2), number(e.compl_m * 1e3, 2),
                     number(e.compl_median_m * 1e3, 2), number(e.compl_within_1cm * 100.0, 1)});
   }
@@ -113,6 +115,12 @@ void surfaceErrorTable(Page& page, const std::vector<const MeshFile*>& meshes, c
             << number(eval::SurfaceEvalOptions::kDefaultCapM * 1e3, 0) << " mm; as <code>rekon eval surface</code>):</p>\n";
   page.table({"mesh", "CORR mean [mm]", "CORR median [mm]", "COMPL mean [mm]", "COMPL median [mm]", "COMPL within 1 cm [%]"},
              rows);
+  if (compl_at_cap) {
+    page.body << "<p>A COMPL median at the cap means that more than half of the ground-truth surface is farther than "
+              << number(eval::SurfaceEvalOptions::kDefaultCapM * 1e3, 0)
+              << " mm from the mesh: parts the camera never saw (a room's floor far below a camera looking at the walls, "
+                 "the backs of objects) count at the cap. COMPL within 1 cm says how much of it the scan covered.</p>\n";
+  }
 }
 
 }  // namespace

@@ -85,11 +85,15 @@ std::string groundTruthPath(const fs::path& run, const RunReportOptions& options
 }
 
 // The dataset's ground-truth surface (synthetic scenes write mesh_gt.ply
-// beside their frames), "" when the run's dataset has none.
-std::string groundTruthMeshPath(const fs::path& run) {
+// beside their frames), "" when the run's dataset has none: then the report
+// says why it has no CORR/COMPL.
+std::string groundTruthMeshPath(const fs::path& run, Page& page) {
   if (!fs::exists(run / kDatasetPathFile)) return "";
   const fs::path mesh = fs::path(firstLine(run / kDatasetPathFile)) / "mesh_gt.ply";
-  return fs::exists(mesh) ? mesh.string() : "";
+  if (fs::exists(mesh)) return mesh.string();
+  page.absentInput("surface errors (CORR/COMPL): " + mesh.string() + " does not exist; a dataset needs a ground-truth "
+                   "surface for them (synthetic scenes have one, real datasets rarely do)");
+  return "";
 }
 
 std::vector<std::string> servicesOfRun(const fs::path& run) {
@@ -161,7 +165,7 @@ RunReportResult writeRunReport(const std::string& run_dir, const RunReportOption
   const TrajectoryInputs trajectories = readTrajectories(run, gt_path, page);
   RunReportResult result;
   result.ate = trajectorySection(page, trajectories, options);
-  meshSection(page, run, options, trajectories, groundTruthMeshPath(run));
+  meshSection(page, run, options, trajectories, groundTruthMeshPath(run, page));
   const std::vector<std::string> services = servicesOfRun(run);
   timingSection(page, run, services);
   reintegrationSection(page, run);

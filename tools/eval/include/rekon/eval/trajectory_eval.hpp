@@ -17,6 +17,9 @@ struct TrajectoryEvalOptions {
   // RPE interval (evaluate_rpe.py --delta 1 --delta_unit s).
   static constexpr double kDefaultRpeDeltaS = 1.0;
   double max_time_difference_s = kDefaultMaxTimeDifferenceS;
+  // Added to the estimate's timestamps before they are associated
+  // (associate.py's --offset): a trajectory on a clock shifted by a constant.
+  double time_offset_s = 0.0;
   double rpe_delta_s = kDefaultRpeDeltaS;
 };
 
@@ -34,8 +37,10 @@ struct TrajectoryErrors {
 };
 
 // Index pairs (gt, est) of timestamps within max_difference, each entry used at
-// most once, closest pairs first (TUM associate.py), sorted by gt timestamp.
-std::vector<std::pair<size_t, size_t>> associate(const Trajectory& gt, const Trajectory& est, double max_difference);
+// most once, closest pairs first (TUM associate.py), sorted by gt timestamp;
+// `est_offset` is added to est's timestamps first (associate.py's --offset).
+std::vector<std::pair<size_t, size_t>> associate(const Trajectory& gt, const Trajectory& est, double max_difference,
+                                                 double est_offset = 0.0);
 
 // The rigid motion (no scale) that best maps `from` onto `to` in the least-squares sense (Horn/Umeyama).
 Pose alignRigid(const std::vector<Eigen::Vector3d>& from, const std::vector<Eigen::Vector3d>& to);
