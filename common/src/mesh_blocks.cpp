@@ -1,5 +1,7 @@
 #include "rekon/common/mesh_blocks.hpp"
 
+#include <fmt/format.h>
+
 #include <spdlog/fmt/fmt.h>
 
 #include <zlib.h>
@@ -166,7 +168,7 @@ void encodeSlice(const std::vector<BlockMesh>& blocks, size_t begin, size_t end,
 void checkParams(const MeshBlocksParams& p) {
   if (!(p.voxel_size > 0.0) || p.block_voxels < 1 || p.quanta_per_voxel < 1 ||
       2LL * p.block_voxels * p.quanta_per_voxel > 0xffff + 1) {
-    throw Error("mesh blocks: voxel_size " + std::to_string(p.voxel_size) + ", block_voxels " +
+    throw Error("mesh blocks: voxel_size " + fmt::format("{}", p.voxel_size) + ", block_voxels " +
                 std::to_string(p.block_voxels) + " and quanta_per_voxel " + std::to_string(p.quanta_per_voxel) +
                 " do not fit 16-bit coordinates (2 * block_voxels * quanta_per_voxel must be at most 65536)");
   }

@@ -182,6 +182,18 @@ TEST(ViewerBrowser, PageWithoutWebGLShowsTheStatusAndSaysWhatIsMissing) {
   EXPECT_NE(dom.find(">live<"), std::string::npos);  // connected, not "connecting..."
   EXPECT_TRUE(std::regex_search(dom, std::regex("<td>mapper</td><td>[a-z]+</td><td>17</td>"))) << dom;
   EXPECT_EQ(dataCounter(dom, "blocks"), 400);
+  EXPECT_NE(dom.find("data-run-finished=\"0\""), std::string::npos) << dom.substr(0, 800);
+
+  // Every service exited (here the one there was): the header says the run
+  // is over (it said "live"), and an exited service shows no frame rate.
+  hb.state = "exited";
+  bus->publish(channel::kHeartbeat, hb);
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  ASSERT_EQ(runCommand(chromium(dir / "profile_end") + "--disable-webgl --disable-3d-apis --virtual-time-budget=5000 --dump-dom " +
+                           url + " 2>/dev/null", &dom), 0) << dom;
+  EXPECT_NE(dom.find("data-run-finished=\"1\""), std::string::npos) << dom.substr(0, 800);
+  EXPECT_NE(dom.find(">run finished: its final map<"), std::string::npos) << dom.substr(0, 1500);
+  EXPECT_TRUE(std::regex_search(dom, std::regex("<td>mapper</td><td>exited</td><td>17</td><td></td>"))) << dom;
   const std::string shot = binDir() + "/../test_viewer_no_webgl.png";
   runCommand(chromium(dir / "profile2") + "--disable-webgl --disable-3d-apis --virtual-time-budget=5000 --screenshot=" + shot +
              " " + url + " 2>&1");

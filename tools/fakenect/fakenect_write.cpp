@@ -8,6 +8,8 @@
 // camera.yaml says so, so the driver's software registration has work to do.
 #include <spdlog/spdlog.h>
 
+#include <fmt/format.h>
+
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -59,7 +61,7 @@ std::optional<Options> parseOptions(int argc, char** argv) {
   if (o.frames < 0) throw Error("--frames " + std::to_string(o.frames) + " is negative; 0 means all frames");
   if (!(o.slowdown > 0.0)) throw Error("--slowdown must be positive (1 = the recorded rate)");
   if (std::abs(o.depth_offset) > kMaxOffsetM) {
-    throw Error("--depth-offset " + std::to_string(o.depth_offset) +
+    throw Error("--depth-offset " + fmt::format("{}", o.depth_offset) +
                 " is over 1 m; give it in metres (a Kinect's is about 0.025)");
   }
   return o;
@@ -151,11 +153,16 @@ int run(const Options& o) {
                   -calibration.depth_to_color_translation);
   const cam::DisparityTable table(calibration.disparity);
   RecordingWriter writer(o.out);
-  // Times are the dataset's, stretched by --slowdown around the first. fakenect
-  // takes a recorded time of 0 for "no previous entry" and would not wait
-  // before the second frame, so a sequence starting at 0 starts at 1 s.
+  // Times are the dataset's, stretched by --slowdown around the first (what
+  // camera.clock=recording gives the frames). fakenect takes a recorded time
+  // of 0 for "no previous entry" and would not wait before the second frame,
+  // so a sequence starting at 0 starts at 1 s (score it with eval traj
+  // --offset -1). A start at 1 µs instead paired depth and color images of
+  // different frames in fakenect (the room's live ATE 0.2 -> 99 mm).
   const double first = dataset.timestamp(0);
   const double base = first > 0.0 ? first : 1.0;
+  if (first <= 0.0)
+    spdlog::info("the dataset starts at time 0: its frames are recorded from 1 s on (fakenect needs a start after 0)");
   const std::vector<uint8_t> accelerometer(kAccelerometerBytes, 0);  // level and still
   for (size_t i = 0; i < dataset.size(); ++i) {
     const rekon::RgbdFrame frame = dataset.load(i);
@@ -176,7 +183,7 @@ int run(const Options& o) {
   spdlog::info(
       "fakenect recording {}: {} frames, {:.1f} s to play, depth {}; camera.yaml written beside it", o.out,
       dataset.size(), (dataset.timestamp(dataset.size() - 1) - first) * o.slowdown,
-      calibration.aligned ? "aligned with color" : "seen from " + std::to_string(o.depth_offset) + " m along x");
+      calibration.aligned ? "aligned with color" : "seen from " + fmt::format("{}", o.depth_offset) + " m along x");
   return 0;
 }
 

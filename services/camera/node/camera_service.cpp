@@ -53,7 +53,7 @@ CaptureEnd capture(ServiceContext& ctx, CameraSource& source, LiveOutlet& outlet
     if (end.frames == 1) end.first_timestamp = c.frame.timestamp;
     end.last_timestamp = c.frame.timestamp;
     if (recorder) recorder->push(c.frame);
-    outlet.offer(std::move(c.frame), k, hostWallSeconds() - end.last_timestamp);
+    outlet.offer(std::move(c.frame), k, hostWallSeconds() - c.host_time);
     if (std::chrono::duration<double>(Clock::now() - last_report).count() > 2.0) {
       last_report = Clock::now();
       const auto n = outlet.counts();
@@ -102,6 +102,11 @@ CameraParams CameraParams::fromConfig(const Config& config) {
   p.source.width = config.getInt("camera.width");
   p.source.height = config.getInt("camera.height");
   p.source.fps = config.getInt("camera.fps");
+  const std::string clock = config.getString("camera.clock");
+  if (clock != "host" && clock != "recording")
+    throw Error("config key camera.clock must be 'host' (this computer's clock: live scans) or 'recording' (a "
+                "recording's own times), not '" + clock + "'");
+  p.source.recording_clock = clock == "recording";
   p.record = config.getString("camera.record");
   p.record_queue = config.getInt("camera.record_queue");
   p.wait_for = config.getStringList("camera.wait_for");

@@ -70,6 +70,10 @@ RecordingCheck checkRecording(const std::string& dir) {
       break;
     }
     ++check.playable;
+    char type = 0;
+    double time = 0;
+    unsigned tick = 0;
+    if (entry[0] == 'd' && std::sscanf(entry.c_str(), "%c-%lf-%u", &type, &time, &tick) == 3) check.depth_times[tick] = time;
     if (entry[0] == 'd') ++check.depth_frames;
     if (entry[0] == 'r') ++check.color_frames;
   }

@@ -181,7 +181,8 @@ int parseIndex(const std::string& index) {
 // The newest depth and color images, as the callbacks delivered them.
 struct RawPair {
   std::vector<uint8_t> depth, color;
-  double timestamp = 0.0;  // host wall clock when the later of the two arrived
+  double host_time = 0.0;  // host wall clock when the later of the two arrived
+  double timestamp = 0.0;  // host_time, or the recording's time of the depth image (SourceOptions::recording_clock)
 };
 
 class FreenectSource final : public CameraSource {
@@ -212,6 +213,7 @@ class FreenectSource final : public CameraSource {
   const int index_;
   const std::string name_;  // "freenect:0"
   std::optional<RecordingCheck> recording_;
+  bool recording_clock_ = false;
   FreenectHandles handles_;
   freenect_frame_mode depth_mode_{}, video_mode_{};
   bool registered_ = false;  // FREENECT_DEPTH_REGISTERED: millimetres aligned by libfreenect
@@ -222,6 +224,7 @@ class FreenectSource final : public CameraSource {
   // Event thread only: what arrived since the last pair.
   RawPair staging_;
   bool new_depth_ = false, new_color_ = false;
+  uint32_t depth_tick_ = 0;  // of the staged depth image
   size_t events_ = 0;
 
   mutable std::mutex mutex_;
@@ -245,6 +248,10 @@ FreenectSource::FreenectSource(int index, const SourceOptions& options)
                 std::to_string(options.fps) + ")");
   }
   recording_ = checkReplayEnvironment(fakenectLoaded());
+  recording_clock_ = options.recording_clock;
+  if (recording_clock_ && !recording_)
+    throw Error(name_ + ": camera.clock is 'recording' but this is a live Kinect, which has only this computer's clock; "
+                "set camera.clock=host (or play a fakenect recording)");
   openDevice();
   chooseDepth(options);
   startStreams();
@@ -394,9 +401,16 @@ void FreenectSource::arrived(bool depth, const void* data, uint32_t device_times
   const auto* begin = static_cast<const uint8_t*>(data);
   buffer.assign(begin, begin + bytes);
   (depth ? new_depth_ : new_color_) = true;
+  if (depth) depth_tick_ = device_timestamp;
   if (!new_depth_ || !new_color_) return;
   new_depth_ = new_color_ = false;
-  staging_.timestamp = hostWallSeconds();
+  staging_.host_time = hostWallSeconds();
+  staging_.timestamp = staging_.host_time;
+  if (recording_clock_) {
+    const auto it = recording_->depth_times.find(depth_tick_);
+    if (it != recording_->depth_times.end()) staging_.timestamp = it->second;
+    else spdlog::warn("{}: depth tick {} is not in {}/INDEX.txt; this frame has the host clock", name_, depth_tick_, recording_->dir);
+  }
   {
     std::lock_guard<std::mutex> lock(mutex_);
     if (ready_) ++replaced_;
@@ -421,6 +435,7 @@ Capture FreenectSource::next(double timeout_s) {
     lock.unlock();
     capture.status = Capture::Status::kFrame;
     capture.frame = toFrame(pair);
+    capture.host_time = pair.host_time;
     return capture;
   }
   if (stream_ != Capture::Status::kFrame) {

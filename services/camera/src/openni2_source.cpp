@@ -188,6 +188,7 @@ class OpenNI2Source : public CameraSource {
   openni::VideoStream streams_[2];  // depth, color
   std::unique_ptr<DeviceEvents> events_;
   bool is_file_ = false;
+  bool recording_clock_ = false;
   std::optional<DepthWarp> software_registration_;
   Intrinsics intrinsics_;
   std::string intrinsics_source_, registration_text_, description_;
@@ -206,7 +207,11 @@ class OpenNI2Source : public CameraSource {
   std::optional<Capture> finished_;
 };
 
-OpenNI2Source::OpenNI2Source(const std::string& uri, const SourceOptions& options) : uri_(uri) {
+OpenNI2Source::OpenNI2Source(const std::string& uri, const SourceOptions& options)
+    : uri_(uri), recording_clock_(options.recording_clock) {
+  if (recording_clock_ && !isOniFile(uri_))
+    throw Error("OpenNI2 device '" + uri_ + "': camera.clock is 'recording' but a live device has only this computer's "
+                "clock; set camera.clock=host (or play an .oni file)");
   openDevice();
   createStreams(options);
   setUpRegistration(options);
@@ -484,8 +489,10 @@ Capture OpenNI2Source::makeFrame(const openni::VideoFrameRef& depth, const openn
   capture.status = Capture::Status::kFrame;
   // The device's exposure time (µs) on the host clock: as steady as the
   // device's, where the arrival time carries USB and scheduling jitter.
-  capture.frame.timestamp =
-      clock_.stamp(static_cast<double>(std::max(depth.getTimestamp(), color.getTimestamp())) * 1e-6, hostWallSeconds());
+  // With camera.clock=recording, an .oni file's own device time instead.
+  const double device_s = static_cast<double>(std::max(depth.getTimestamp(), color.getTimestamp())) * 1e-6;
+  capture.host_time = hostWallSeconds();
+  capture.frame.timestamp = recording_clock_ ? device_s : clock_.stamp(device_s, capture.host_time);
   const cv::Mat depth_mm(depth.getHeight(), depth.getWidth(), CV_16UC1, const_cast<void*>(depth.getData()),
                          static_cast<size_t>(depth.getStrideInBytes()));
   if (software_registration_) {

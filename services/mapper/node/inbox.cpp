@@ -168,9 +168,10 @@ void Inbox::onGraphUpdate(const rekon_msgs::graph_update_t& msg) {
 }
 
 void Inbox::onEndOfStream(const rekon_msgs::end_of_stream_t& m) {
-  spdlog::info("end of stream after frame {} ({} frames)", m.last_frame_id, m.frames);
   std::lock_guard<std::mutex> lock(mutex_);
+  if (end_frame_ == m.last_frame_id) return;  // the source repeats it: a lost one would cost the end
   end_frame_ = m.last_frame_id;
+  spdlog::info("end of stream after frame {} ({} frames)", m.last_frame_id, m.frames);
 }
 
 void Inbox::ack(int64_t frame_id) { publishFrameAck(ctx_, frame_id); }

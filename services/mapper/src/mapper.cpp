@@ -1,5 +1,7 @@
 #include "rekon/mapper/mapper.hpp"
 
+#include <fmt/format.h>
+
 #include <spdlog/spdlog.h>
 
 #include <time.h>
@@ -38,12 +40,12 @@ MapperParams MapperParams::fromConfig(const Config& c) {
   p.volume.streaming_radius = c.getDouble("mapper.streaming_radius");
   const double active_mb = c.getDouble("mapper.active_mb");
   if (!(active_mb >= 0.0 && active_mb <= 1.0e6))
-    throw Error("mapper.active_mb = " + std::to_string(active_mb) + " is invalid; it must be in [0, 1e6] MiB (0 = only the streaming sphere stays active)");
+    throw Error("mapper.active_mb = " + fmt::format("{}", active_mb) + " is invalid; it must be in [0, 1e6] MiB (0 = only the streaming sphere stays active)");
   const double block_bytes = volume::kBlockVoxels * sizeof(volume::Voxel);
   p.volume.active_max_blocks = static_cast<int64_t>(active_mb * 1048576.0 / block_bytes);
   const double host_mb = c.getDouble("mapper.host_mb");
   if (!(host_mb >= 0.0 && host_mb <= 1.0e7))
-    throw Error("mapper.host_mb = " + std::to_string(host_mb) + " is invalid; it must be in [0, 1e7] MiB (0 = no budget)");
+    throw Error("mapper.host_mb = " + fmt::format("{}", host_mb) + " is invalid; it must be in [0, 1e7] MiB (0 = no budget)");
   p.volume.host_max_blocks = static_cast<int64_t>(host_mb * 1048576.0 / block_bytes);
   p.volume.spill_dir = c.getString("mapper.voxel_spill_dir");
   if (p.volume.spill_dir.empty()) throw Error("mapper.voxel_spill_dir is empty; give a folder or auto ($TMPDIR or /tmp)");
@@ -56,7 +58,7 @@ MapperParams MapperParams::fromConfig(const Config& c) {
   if (!(p.min_movement >= 0)) throw Error("mapper.min_movement must not be negative");
   p.near_window_slack = c.getDouble("mapper.near_window_slack");
   if (!(p.near_window_slack >= 0.0 && p.near_window_slack < 1.0))
-    throw Error("mapper.near_window_slack = " + std::to_string(p.near_window_slack) + " is invalid; it must be in [0, 1)");
+    throw Error("mapper.near_window_slack = " + fmt::format("{}", p.near_window_slack) + " is invalid; it must be in [0, 1)");
   p.round_budget_ms = c.getDouble("mapper.round_budget_ms");
   if (!(p.round_budget_ms >= 0.0 && p.round_budget_ms <= 1.0e6))
     throw Error("mapper.round_budget_ms = " + std::to_string(p.round_budget_ms) +

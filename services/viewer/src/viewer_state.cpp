@@ -160,6 +160,7 @@ void ViewerState::heartbeat(const std::string& service, int pid, const std::stri
     s.rate_since = now;
     s.rate_frame = last_frame;
   }
+  if (state == "exited") s.frames_per_s = 0;  // its last heartbeat: no rate any more
   s.pid = pid;
   s.host = host;
   s.state = state;

@@ -85,6 +85,8 @@ const counts = { blocks: 0, vertices: 0, triangles: 0, updates: 0, corrections: 
 // Where the page's own time goes (ms, since it loaded): handling messages, and drawing.
 const cost = { handle_ms: 0, draw_ms: 0 };
 let live = false;
+let connected = false;    // the WebSocket is open
+let lastServices = {};    // the newest status message's services
 // Change times (ms) of blocks applied since the last frame drawn, and the
 // latencies once drawn: of every version, of full meshes, of first appearances.
 const drawnPending = [];
@@ -245,7 +247,10 @@ const onText = {
     loopEdges = m.edges;
     drawLoops();
   },
-  status(m) { drawStatus(m.services); },
+  status(m) {
+    lastServices = m.services;
+    drawStatus(m.services);
+  },
   live() { live = true; },
 };
 
@@ -313,9 +318,32 @@ function drawStatus(services) {
     cell(row, name);
     cell(row, s.state);
     cell(row, s.last_frame >= 0 ? String(s.last_frame) : '');
-    cell(row, s.frames_per_s ? s.frames_per_s.toFixed(1) : '');
+    cell(row, s.frames_per_s && s.state !== 'exited' ? s.frames_per_s.toFixed(1) : '');  // an exited service has no rate
     cell(row, notes(s.stats), 'notes');
   }
+  drawConnection();
+}
+
+// The header: "live" while the run goes on; once every service but the
+// viewer has exited, the page shows a finished run's final map.
+function runFinished() {
+  const names = Object.keys(lastServices).filter((n) => n !== 'viewer');
+  return names.length > 0 && names.every((n) => lastServices[n].state === 'exited');
+}
+
+function drawConnection() {
+  const status = document.getElementById('connection');
+  if (!connected) {
+    status.textContent = 'disconnected; retrying';
+    status.className = 'lost';
+  } else if (runFinished()) {
+    status.textContent = 'run finished: its final map';
+    status.className = 'done';
+  } else {
+    status.textContent = 'live';
+    status.className = 'ok';
+  }
+  body.dataset.runFinished = runFinished() ? '1' : '0';
 }
 
 function drawCounts() {
@@ -409,14 +437,13 @@ requestAnimationFrame(frame);
 // ---- connection -------------------------------------------------------------------
 
 function connect() {
-  const status = document.getElementById('connection');
   const ws = new WebSocket((location.protocol === 'https:' ? 'wss://' : 'ws://') + location.host + '/ws');
   ws.binaryType = 'arraybuffer';
   ws.onopen = () => {
     live = false;
     for (const key of [...blocks.keys()]) removeBlock(key);  // the server sends every block again
-    status.textContent = 'live';
-    status.className = 'ok';
+    connected = true;
+    drawConnection();
     body.dataset.connected = '1';
   };
   ws.onmessage = (e) => {
@@ -434,8 +461,8 @@ function connect() {
     cost.handle_ms += performance.now() - t0;
   };
   ws.onclose = () => {
-    status.textContent = 'disconnected; retrying';
-    status.className = 'lost';
+    connected = false;
+    drawConnection();
     body.dataset.connected = '0';
     setTimeout(() => { socket = connect(); }, 1000);  // the server sends the whole state again on connect
   };

@@ -1,5 +1,7 @@
 #include "rekon/constrain/constrain.hpp"
 
+#include <fmt/format.h>
+
 #include <spdlog/spdlog.h>
 
 #include <chrono>
@@ -86,7 +88,7 @@ void waitForOptimiser(ServiceContext& ctx, double seconds) {
   while (!peers.alive("optimiser")) {
     if (ctx.stopRequested()) return;
     if (std::chrono::steady_clock::now() > until)
-      throw Error("no rekon-optimiser heartbeat within " + std::to_string(seconds) +
+      throw Error("no rekon-optimiser heartbeat within " + fmt::format("{}", seconds) +
                   " s: start the run first, or pass --wait 0 to send anyway");
     std::this_thread::sleep_for(std::chrono::milliseconds(50));
   }

@@ -1,5 +1,7 @@
 #include "analytic_scene.hpp"
 
+#include <fmt/format.h>
+
 #include <thread>
 
 #include "raycast.hpp"
@@ -62,7 +64,7 @@ Trajectory AnalyticScene::trajectory(int frames, uint64_t seed, int laps) const 
 
 Mesh AnalyticScene::groundTruthMesh(double vertex_spacing_m) const {
   if (!(vertex_spacing_m >= 1e-3 && vertex_spacing_m <= 1.0)) {
-    throw Error("scene " + name_ + ": mesh vertex spacing " + std::to_string(vertex_spacing_m) +
+    throw Error("scene " + name_ + ": mesh vertex spacing " + fmt::format("{}", vertex_spacing_m) +
                 " m is out of range; give 0.001 to 1 m");
   }
   return triangulate(model_, materials_, vertex_spacing_m);

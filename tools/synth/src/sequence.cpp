@@ -1,5 +1,7 @@
 // writeSequence and drift: a whole TUM-layout sequence on disk.
 #include <atomic>
+
+#include <fmt/format.h>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -44,8 +46,8 @@ Eigen::Matrix3d expSo3(const Eigen::Vector3d& w) {
 Trajectory driftedTrajectory(const Trajectory& ground_truth, double translation_per_m, double rotation_deg_per_m,
                              uint64_t seed) {
   if (!(translation_per_m >= 0) || !(rotation_deg_per_m >= 0)) {
-    throw Error("drift must be non-negative: got " + std::to_string(translation_per_m) + " m/m, " +
-                std::to_string(rotation_deg_per_m) + " deg/m");
+    throw Error("drift must be non-negative: got " + fmt::format("{}", translation_per_m) + " m/m, " +
+                fmt::format("{}", rotation_deg_per_m) + " deg/m");
   }
   Trajectory out = ground_truth;
   Rng rng(mixSeed(seed, 0xD21F7ull));

@@ -1,5 +1,7 @@
 #include "rekon/mapper/volume/tsdf_volume.hpp"
 
+#include <fmt/format.h>
+
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
@@ -568,7 +570,7 @@ cv::Mat depthToMetres(const cv::Mat& raw_depth, double depth_scale) {
                 "; it must be 16-bit single-channel (CV_16UC1)");
   }
   if (!(std::isfinite(depth_scale) && depth_scale > 0.0)) {
-    throw Error("depthToMetres: depth_scale " + std::to_string(depth_scale) + " must be positive (units per metre)");
+    throw Error("depthToMetres: depth_scale " + fmt::format("{}", depth_scale) + " must be positive (units per metre)");
   }
   cv::Mat metres;
   raw_depth.convertTo(metres, CV_32FC1, 1.0 / depth_scale);

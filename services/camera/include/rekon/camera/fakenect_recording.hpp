@@ -7,6 +7,8 @@
 // of the file ends it. That fakenect exits the process on a missing file and
 // reads past the end of a short one, so a recording is checked before it
 // plays and only the entries before the first bad one are played.
+#include <cstdint>
+#include <map>
 #include <optional>
 #include <string>
 
@@ -22,6 +24,9 @@ struct RecordingCheck {
   size_t playable = 0;                        // INDEX.txt entries before the first bad one (all when none is bad)
   size_t depth_frames = 0, color_frames = 0;  // among the playable entries
   std::string bad;  // one line naming the first bad entry and why; "" when every entry is good
+  // The recording's own clock: each playable depth entry's recorded time
+  // (seconds) by its device tick, which fakenect hands to the callback.
+  std::map<uint32_t, double> depth_times;
 };
 
 // Throws rekon::Error (one line naming the folder) when DIR/INDEX.txt is

@@ -33,6 +33,11 @@ struct SourceOptions {
   int width = 640;
   int height = 480;
   int fps = 30;
+  // camera.clock: false stamps frames with this computer's clock at capture
+  // (a live scan); true with a recording's own clock (the times a fakenect
+  // recording or an .oni file holds), so that a recording made from a
+  // dataset can be scored against the dataset's ground truth.
+  bool recording_clock = false;
 };
 
 // One call of CameraSource::next.
@@ -44,7 +49,8 @@ struct Capture {
     kLost,     // the device vanished or failed: `reason` is one line naming it and the fix
   };
   Status status = Status::kTimeout;
-  RgbdFrame frame;  // depth CV_16UC1 in units of intrinsics().depth_scale; color CV_8UC3 BGR; timestamp = host wall-clock seconds at capture
+  RgbdFrame frame;  // depth CV_16UC1 in units of intrinsics().depth_scale; color CV_8UC3 BGR; timestamp: see SourceOptions::recording_clock
+  double host_time = 0.0;  // this computer's wall-clock seconds at capture, whichever clock `frame.timestamp` is on
   std::string reason;
 };
 
