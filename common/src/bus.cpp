@@ -5,7 +5,8 @@
 
 #include <exception>
 #include <mutex>
-#include <random>
+#include <functional>
+#include <map>
 #include <utility>
 #include <vector>
 
@@ -26,24 +27,38 @@ BusOptions BusOptions::fromConfig(const Config& config) {
 struct Bus::DropHook {
   std::mutex mutex;  // MemoryBus handlers may run while another thread publishes
   double fraction;
-  std::mt19937_64 rng;
-  std::uniform_real_distribution<double> uniform{0.0, 1.0};
+  uint64_t seed;
+  std::map<std::string, uint64_t> received;  // per channel
 };
+
+namespace {
+
+// SplitMix64's finaliser: a well-mixed 64-bit value of `x`.
+uint64_t mix(uint64_t x) {
+  x += 0x9e3779b97f4a7c15ULL;
+  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ULL;
+  x = (x ^ (x >> 27)) * 0x94d049bb133111ebULL;
+  return x ^ (x >> 31);
+}
+
+}  // namespace
 
 Bus::Bus(const BusOptions& options) : prefix_(options.prefix) {
   if (options.drop_fraction > 0) {
     drop_ = std::make_unique<DropHook>();
     drop_->fraction = options.drop_fraction;
-    drop_->rng.seed(options.drop_seed);
+    drop_->seed = options.drop_seed;
   }
 }
 
 Bus::~Bus() = default;
 
-bool Bus::dropReceived() {
+bool Bus::dropReceived(const std::string& channel) {
   if (!drop_) return false;
   std::lock_guard<std::mutex> lock(drop_->mutex);
-  if (drop_->uniform(drop_->rng) >= drop_->fraction) return false;
+  const uint64_t n = drop_->received[channel]++;
+  const uint64_t h = mix(mix(std::hash<std::string>{}(channel) ^ drop_->seed) ^ n);
+  if (static_cast<double>(h >> 11) * 0x1.0p-53 >= drop_->fraction) return false;
   ++dropped_;
   return true;
 }
@@ -117,10 +132,10 @@ void LcmBus::publishRaw(const std::string& name, const void* data, int size) {
 
 void LcmBus::subscribeRaw(const std::string& name, std::function<void(const void*, int)> handler) {
   auto sub = std::make_unique<Impl::Subscription>(Impl::Subscription{this, std::move(handler)});
-  auto trampoline = [](const lcm_recv_buf_t* rbuf, const char*, void* user) {
+  auto trampoline = [](const lcm_recv_buf_t* rbuf, const char* channel, void* user) {
     auto* s = static_cast<Impl::Subscription*>(user);
     try {
-      if (s->bus->dropReceived()) return;
+      if (s->bus->dropReceived(channel)) return;
       s->handler(rbuf->data, static_cast<int>(rbuf->data_size));
     } catch (...) {
       s->bus->impl_->handler_error = std::current_exception();

@@ -93,7 +93,7 @@ bool MemoryBus::handle(int timeout_ms) {
     const auto [first, last] = endpoint_->handlers.equal_range(message.first);
     for (auto it = first; it != last; ++it) handlers.push_back(it->second);
   }
-  if (dropReceived()) return true;
+  if (dropReceived(message.first)) return true;
   // Outside the lock: a handler may publish (its own bus receives that too) or subscribe.
   for (const auto& h : handlers) (*h)(message.second.data(), static_cast<int>(message.second.size()));
   return true;

@@ -45,7 +45,11 @@ kill -INT $logger
 wait $logger || true
 
 # Sensor replay into fresh services: they finish through the usual done chain.
-for s in tracker optimiser mapper; do start "$dir/sensor" $s --set mapper.store_segment=rekon_keyframes_sensor_$$; done
+# The live run's config.yaml says mapper.remove_store_at_end=false (rekon run
+# removes the store of the mapper it restarts); a mapper started by hand owns
+# its store and removes it at its clean end.
+owns_store="--set mapper.remove_store_at_end=true"
+for s in tracker optimiser mapper; do start "$dir/sensor" $s --set mapper.store_segment=rekon_keyframes_sensor_$$ $owns_store; done
 wait_ready "$dir/sensor" tracker optimiser mapper
 # Half the recorded speed: the live run went as fast as its consumers
 # acknowledged, and fresh services under a loaded machine (ctest -j2) once fell
@@ -65,7 +69,7 @@ kill -TERM $mapper
 wait $mapper || true
 
 # Pose and graph channels only, into a mapper resuming from that store.
-start "$dir/graph" mapper --set mapper.store_segment=$store --set mapper.resume=true
+start "$dir/graph" mapper --set mapper.store_segment=$store --set mapper.resume=true $owns_store
 wait_ready "$dir/graph" mapper
 # No images: 5x the recorded speed is easy for the mapper.
 timeout 240 lcm-logplayer --speed 5 --lcm-url="$url" -e '^REKON_(TRACKED_FRAMES|KEYFRAMES|GRAPH_UPDATES|END_OF_STREAM|DONE)$' "$dir/run.lcmlog"

@@ -124,8 +124,11 @@ class Bus {
 
  protected:
   explicit Bus(const BusOptions& options);
-  // The lcm.drop_fraction test hook: true when this received message is to be dropped (and counted).
-  bool dropReceived();
+  // The lcm.drop_fraction test hook: true when this received message is to be
+  // dropped (and counted). Which are dropped depends on the channel and the
+  // message's place among that channel's messages, not on what else arrived
+  // in between (heartbeats, stats), so a run loses the same messages each time.
+  bool dropReceived(const std::string& channel);
 
  private:
   void reportMalformed(const std::string& name, const std::string& why);
