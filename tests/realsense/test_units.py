@@ -10,7 +10,7 @@ from rekon_realsense.config import Config
 from rekon_realsense.device import DeviceClock
 from rekon_realsense.errors import Error
 from rekon_realsense.images import color_ppm, depth_pgm, encode
-from rekon_realsense.main import Params
+from rekon_realsense.params import Params
 
 
 def test_device_clock_keeps_the_device_spacing_under_arrival_jitter():

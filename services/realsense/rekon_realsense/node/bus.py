@@ -11,7 +11,7 @@ import lcm
 
 from rekon_schema import SCHEMA_VERSION
 
-from .errors import Error
+from ..errors import Error
 
 log = logging.getLogger("rekon")
 

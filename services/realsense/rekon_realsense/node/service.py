@@ -19,8 +19,8 @@ import time
 from rekon_msgs import done_t, heartbeat_t, service_stats_t, shutdown_t
 
 from .bus import Bus
-from .config import Config
-from .errors import Error
+from ..config import Config
+from ..errors import Error
 
 log = logging.getLogger("rekon")
 

@@ -101,7 +101,7 @@ def wait_for_consumers(ctx, watch, consumers, timeout_s, wait_for_key):
     ctx.set_state("waiting for consumers")
     missing = watch.wait_for_heartbeats(consumers, timeout_s, ctx)
     if missing and not ctx.stop_requested():
-        from .errors import Error
+        from ..errors import Error
         raise Error(f"no heartbeat from rekon-{missing[0]} within {int(timeout_s)} s; start it, or remove it from "
                     f"{wait_for_key}")
 
