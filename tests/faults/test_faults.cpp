@@ -251,13 +251,14 @@ TEST(Faults, MapperKilledMoreOftenThanMaxRestartsStopsTheRun) {
 
 // lcm.drop_fraction drops received messages in every service: frames, acknowledgements,
 // keyframes, constraints, graph updates, done messages alike. Lost frames are neither
-// tracked nor fused, and which are lost differs from run to run, so the result differs from
-// the uninterrupted run's. A lost first frame starts the whole run one frame later, from
-// another reference: measured with player.first_frame=1, 2, 3 (no loss), ATE 0.129, 0.124,
-// 0.121 mm and CORR 1.139, 1.140, 1.311 mm against the uninterrupted run's 0.227 and 1.668 mm.
-// Such a run is better, not wrong, so ATE and CORR are bounded from above only. (The mapper
-// fused 53 to 73 of the 90 frames in 10 runs at 5 %: a lost keyframe message leaves its
-// frames without a pose until a graph update brings it, so their count bounds nothing.)
+// tracked nor fused, so the result differs from the uninterrupted run's. Which messages are
+// lost depends only on their channel and place on it (Bus::dropReceived), so a loss is the
+// same in every run; it was a random stream shared with heartbeats and stats, which made the
+// 5 % run's CORR vary by more than its bound (issue 48: +2.099 mm against a +0.4 mm bound).
+// A lost first frame starts the whole run one frame later, from another reference:
+// measured with player.first_frame=1, 2, 3 (no loss), ATE 0.129, 0.124, 0.121 mm and CORR
+// 1.139, 1.140, 1.311 mm against the uninterrupted run's 0.227 and 1.668 mm. Such a run is
+// better, not wrong, so ATE and CORR are bounded from above only.
 void expectCompletesUnderLoss(double fraction, double ate_bound_m, double corr_bound_m) {
   rekon::test::TempDir dir;
   const std::string out = dir / "run";
@@ -268,18 +269,21 @@ void expectCompletesUnderLoss(double fraction, double ate_bound_m, double corr_b
   ASSERT_EQ(rc, 0) << output;
   // A frame lost on its way to the tracker is not tracked; the rest are.
   EXPECT_GE(lineCount(out + "/trajectory.txt"), static_cast<size_t>(kFrames * (1.0 - 3 * fraction)));
+  std::printf("%.0f %% loss: ATE %+.4f mm, CORR %+.4f mm against the uninterrupted run\n", 100 * fraction,
+              1e3 * (ateOf(out) - ateOf(baseline().run)), 1e3 * (corrOf(out) - corrOf(baseline().run)));
   EXPECT_LE(ateOf(out), ateOf(baseline().run) + ate_bound_m);
   EXPECT_LE(corrOf(out), corrOf(baseline().run) + corr_bound_m);
   EXPECT_EQ(leftoverSegments(out), std::vector<std::string>{});
 }
 
-// Measured in 8 runs, against the uninterrupted run: ATE -0.018 to +0.0013 mm (7 of them within
-// 0.0013), CORR -0.0001 to +0.0155 mm. Bounds about 3x the largest: 0.05 mm each.
+// Measured in 5 runs, each the same: ATE and CORR +0.0000 mm against the uninterrupted run
+// (the messages lost change nothing the final pass does not restore). Bounds: 0.05 mm each,
+// for a change elsewhere that moves the result a little.
 TEST(Faults, OnePercentMessageLossCompletesWithTheSameResult) { expectCompletesUnderLoss(0.01, 0.00005, 0.00005); }
 
-// Measured in 8 runs: ATE -0.0133 to +0.0069 mm, CORR +0.042 to +0.182 mm (more frames lost, more
-// of the surface from fewer views); 10 more runs: ATE -0.0012 to +0.0038 mm, CORR +0.011 to
-// +0.183 mm. Bounds about 3x and 2x the largest: 0.05 mm and 0.4 mm.
+// Measured in 5 runs, each the same: ATE -0.0975 mm, CORR -0.4328 mm (its losses include a
+// frame early on: a better start, as above). Bounds as before: 0.05 mm and 0.4 mm above the
+// uninterrupted run.
 TEST(Faults, FivePercentMessageLossCompletesWithTheSameResult) { expectCompletesUnderLoss(0.05, 0.00005, 0.0004); }
 
 TEST(Faults, RestartPolicyNamingATrackerIsAnError) {
