@@ -71,5 +71,13 @@ def test_rekon_spy_without_the_jar_names_the_fix(tmp_path):
     assert "rekon_msgs.jar is missing" in p.stdout and "default-jdk-headless" in p.stdout, p.stdout
 
 
+def test_rekon_spy_without_a_display_names_the_fix():
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    p = subprocess.run([str(BIN_DIR / "rekon"), "spy"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                       timeout=30, env=env)
+    assert p.returncode == 1 and len(p.stdout.strip().splitlines()) == 1, p.stdout
+    assert "no display" in p.stdout and "ssh -X" in p.stdout, p.stdout
+
+
 def test_rekon_spy_help_names_the_bus_option():
     assert "--lcm-url" in rekon("spy", "--help").stdout

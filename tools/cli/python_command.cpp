@@ -80,6 +80,11 @@ int spyCommand(int argc, char** argv) {
     throw Error(jar + " is missing: the build makes it when a JDK and lcm.jar are found (apt-get install "
                 "default-jdk-headless liblcm-java, then tools/rekon setup)");
   }
+  if (envOr("DISPLAY", "").empty() && envOr("WAYLAND_DISPLAY", "").empty()) {
+    throw Error("lcm-spy is a window and there is no display (DISPLAY is not set): run rekon spy on a desktop or "
+                "over ssh -X; without one, record the bus with lcm-logger and read it with the Python client "
+                "(docs/python.md)");
+  }
   // PyPI's lcm (in .venv) ships a lcm-spy that runs on Java 17; Debian 12's passes
   // the JVM option -Xincgc, which Java 17 refuses, so its jars are run directly.
   const std::string venv_spy = venvDir() + "/bin/lcm-spy";
