@@ -34,9 +34,9 @@ def error_lines(output):
     return [line for line in output.splitlines() if "error" in line]
 
 
-def write_bag(dataset, bag, frames=0, streams="depth,color"):
+def write_bag(dataset, bag, frames=0, streams="depth,color", slowdown=1):
     rc, out = run([os.path.join(BIN, "rekon-realsense-write"), "--dataset", dataset, "--out", bag, "--frames", frames,
-                   "--streams", streams], timeout=900)
+                   "--streams", streams, "--slowdown", slowdown], timeout=900)
     assert rc == 0, out
     return out
 

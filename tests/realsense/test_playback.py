@@ -2,8 +2,10 @@
 rs.software_device + rs.recorder), played back by the SDK at its recorded rate
 through `rekon run --camera realsense --playback`, against the same frames
 read as a TUM folder by `rekon run --dataset`. REKON_REALSENSE_FRAMES sets the
-length (default 150 for CI; the issue's goal is 600: services/realsense/README.md
-has the command and the numbers)."""
+length and REKON_REALSENSE_SLOWDOWN the recording's rate (30 Hz / it): 150
+frames at 15 Hz for CI, where other jobs share the 2 cores (as the freenect
+tests play at 15 Hz); the issue's goal is 600 at 30 Hz (FRAMES=600
+SLOWDOWN=1: services/realsense/README.md has the numbers)."""
 import json
 import os
 
@@ -15,6 +17,8 @@ from conftest import BIN, run, stats, write_bag
 from rekon_realsense.ground_truth import live_ground_truth as live_ground_truth_file
 
 FRAMES = int(os.environ.get("REKON_REALSENSE_FRAMES", "150"))
+SLOWDOWN = int(os.environ.get("REKON_REALSENSE_SLOWDOWN", "2"))
+FPS = 30 // SLOWDOWN
 REKON = os.path.join(BIN, "rekon")
 
 
@@ -45,11 +49,11 @@ def runs(tmp_path_factory):
     room, bag = d / "room", str(d / "room.bag")
     rc, text = run([REKON, "synth", "--scene", "room", "--frames", FRAMES, "--out", room], timeout=900)
     assert rc == 0, text
-    print(write_bag(room, bag))
+    print(write_bag(room, bag, slowdown=SLOWDOWN))
     rc, text = run([REKON, "run", "--dataset", room, "--out", d / "files"], netns=True, timeout=900)
     assert rc == 0, text
     rc, text = run([REKON, "run", "--camera", "realsense", "--playback", bag, "--record", d / "recorded", "--out",
-                    d / "rs"], netns=True, timeout=900)
+                    d / "rs", "--set", f"realsense.fps={FPS}"], netns=True, timeout=900)
     assert rc == 0, text + open(d / "rs" / "realsense.log").read()
     return {"room": str(room), "files": str(d / "files"), "rs": str(d / "rs"), "recorded": str(d / "recorded"),
             "dir": d, "source": stats(d / "rs" / "realsense_stats.json"), "run": stats(d / "rs" / "stats.json")}
@@ -61,12 +65,13 @@ def frames_csv(rs):
 
 
 def live_ground_truth(r):
-    """The room's ground-truth pose of each frame the source sent, at the host
+    """The room's ground-truth pose of each frame the source took, at the host
     stamp it carried (rekon-realsense-gt's work: the bag's frame number is the
     dataset index + 1, and its device time the dataset time, checked)."""
     path = os.path.join(str(r["dir"]), "live_gt.txt")
-    assert live_ground_truth_file(r["room"], os.path.join(r["rs"], "realsense_frames.csv"), path) == \
-        r["source"]["frames_sent"]
+    # One row per frame taken (frames_captured: those sent and those dropped).
+    assert live_ground_truth_file(r["room"], os.path.join(r["rs"], "realsense_frames.csv"), path, SLOWDOWN) == \
+        r["source"]["frames_captured"]
     return path
 
 
@@ -79,11 +84,11 @@ def test_at_the_recorded_rate_at_most_one_percent_of_the_frames_is_skipped(runs)
     # playback comes before its syncer has seen a color frame.
     assert s["frames_captured"] + s["frames_skipped_late"] == FRAMES - 1
     assert s["frames_skipped_late"] <= 0.01 * FRAMES
-    # The consumers keep up at 30 Hz on 2 cores: what they were not ready for
-    # is dropped, measured 0-1.2 % with other builds on the machine.
+    # The consumers keep up on 2 cores: what they were not ready for is
+    # dropped (at 30 Hz with other builds on the machine: 0-1.2 %).
     assert s["frames_sent"] >= 0.95 * FRAMES
     # At the recorded rate: the frames span what they were recorded over.
-    assert s["sequence_seconds"] == pytest.approx(FRAMES / 30.0, rel=0.05)
+    assert s["sequence_seconds"] == pytest.approx(FRAMES / FPS, rel=0.05)
 
 
 def test_every_frame_sent_is_tracked(runs):
@@ -115,12 +120,12 @@ def test_the_mesh_is_within_1_mm_of_the_file_runs(runs):
 def test_the_devices_identity_mode_and_timestamps_are_in_its_stats(runs):
     s = runs["source"]
     assert s["serial"] == "REKONSYNTH"
-    assert s["mode"] == "640x480@30 depth z16 aligned to color rgb8"
+    assert s["mode"] == f"640x480@{FPS} depth z16 aligned to color rgb8"
     # The room's camera.yaml depth_scale (values per metre), through the bag's depth units (a float32).
     assert s["depth_units_m"] == pytest.approx(1.0 / camera_yaml(runs["room"])["depth_scale"], rel=1e-6)
     assert s["timestamp_domain"] == "hardware_clock"
     assert s["end"] == "end of stream"
-    # The frames carry the device's spacing (33.3 ms) on the host clock, not
+    # The frames carry the device's spacing (33.3 ms times the slowdown) on the host clock, not
     # their arrival jitter, once the clock's envelope has met the least
     # delayed arrival (the first frames of a start-up arrive late).
     _, _, device_ms, stamps = frames_csv(runs["rs"])

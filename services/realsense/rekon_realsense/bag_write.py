@@ -7,8 +7,10 @@ is already registered to color), wrapped in rs.recorder, which writes the
 bag in librealsense's own rosbag layout. The recorder stamps each message
 with the time it arrived, so the frames are fed in real time: a bag plays back
 at the rate it was fed. Each frame carries its dataset time as its device
-timestamp (ms from the first frame, hardware_clock domain) and its index + 1
-as its frame number, so a run's frames can be traced back to the dataset's."""
+timestamp (ms from the first frame, hardware_clock domain; times --slowdown)
+and its index + 1 as its frame number, so a run's frames can be traced back
+to the dataset's. A machine too busy to feed them on time records its stall:
+the playback reproduces it (the tool says how far behind it fed)."""
 import argparse
 import os
 import sys
@@ -82,7 +84,9 @@ def main(argv=None):
     p.add_argument("--dataset", required=True, help="TUM RGB-D folder with camera.yaml")
     p.add_argument("--out", required=True, help="the .bag file to write (must not exist)")
     p.add_argument("--frames", type=int, default=0, help="at most this many frames (0 = all)")
-    p.add_argument("--fps", type=int, default=30, help="the stream's nominal rate in the bag's stream info")
+    p.add_argument("--fps", type=int, default=30, help="the dataset's rate (the bag's stream info says fps / slowdown)")
+    p.add_argument("--slowdown", type=int, default=1, help="record K times slower than the dataset (a 30 Hz dataset "
+                                                           "becomes a 30/K Hz recording; device times scaled alike)")
     p.add_argument("--streams", default="depth,color", help="streams to record: depth,color (color alone makes a "
                                                              "bag without depth, for tests)")
     p.add_argument("--serial", default="REKONSYNTH", help="the serial number the bag's device reports")
@@ -93,6 +97,8 @@ def main(argv=None):
         fail("Intel's RealSense SDK (the pyrealsense2 package) is not installed; run tools/rekon deps")
     if os.path.exists(a.out):
         fail(f"{a.out}: already exists; give a new file, nothing is overwritten")
+    if a.slowdown < 1 or a.fps % a.slowdown:
+        fail(f"--slowdown {a.slowdown}: give a whole number that divides --fps {a.fps}")
     streams = [s for s in a.streams.split(",") if s]
     if not streams or any(s not in ("depth", "color") for s in streams):
         fail(f"--streams {a.streams}: use depth,color, depth or color")
@@ -118,7 +124,7 @@ def main(argv=None):
         sensor = dev.add_sensor(name)
         vs = rs.video_stream()
         vs.type, vs.index, vs.uid = getattr(rs.stream, kind), 0, uid
-        vs.width, vs.height, vs.fps, vs.bpp, vs.fmt, vs.intrinsics = w, h, a.fps, bpp, fmt, intr
+        vs.width, vs.height, vs.fps, vs.bpp, vs.fmt, vs.intrinsics = w, h, a.fps // a.slowdown, bpp, fmt, intr
         profiles[kind] = sensor.add_video_stream(vs, True)
         if kind == "depth":
             sensor.add_read_only_option(rs.option.depth_units, 1.0 / k["depth_scale"])
@@ -143,7 +149,7 @@ def main(argv=None):
         for kind, img in images.items():
             if img.shape[:2] != (h, w):
                 fail(f"{kind} image of {rgb_name} is {img.shape[1]}x{img.shape[0]}, camera.yaml says {w}x{h}")
-        wait = t0 + (t - t0_data) - time.monotonic()
+        wait = t0 + (t - t0_data) * a.slowdown - time.monotonic()
         if wait > 0:
             time.sleep(wait)
         late = max(late, -wait)
@@ -151,7 +157,7 @@ def main(argv=None):
             f = rs.software_video_frame()
             f.pixels, f.bpp = img, (2 if kind == "depth" else 3)
             f.stride = w * f.bpp
-            f.timestamp = (t - t0_data) * 1e3
+            f.timestamp = (t - t0_data) * a.slowdown * 1e3
             f.domain = rs.timestamp_domain.hardware_clock
             f.frame_number = i + 1
             f.profile = profiles[kind].as_video_stream_profile()
@@ -162,8 +168,8 @@ def main(argv=None):
         sensor.stop()
         sensor.close()
     del recorder  # closes the bag
-    print(f"{a.out}: {len(pairs)} frames ({', '.join(streams)} {w}x{h}, {pairs[-1][0] - t0_data:.2f} s); fed at most "
-          f"{late * 1e3:.0f} ms behind their time")
+    print(f"{a.out}: {len(pairs)} frames ({', '.join(streams)} {w}x{h} at {a.fps // a.slowdown} Hz, "
+          f"{(pairs[-1][0] - t0_data) * a.slowdown:.2f} s); fed at most {late * 1e3:.0f} ms behind their time")
     return 0
 
 

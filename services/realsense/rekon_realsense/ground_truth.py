@@ -13,7 +13,7 @@ import numpy as np
 from .bag_write import associate, fail, read_index
 
 
-def live_ground_truth(dataset, frames_csv, out_path):
+def live_ground_truth(dataset, frames_csv, out_path, slowdown=1):
     pairs = associate(read_index(os.path.join(dataset, "rgb.txt")), read_index(os.path.join(dataset, "depth.txt")))
     gt = [(t, " ".join(rest)) for t, rest in _tum(os.path.join(dataset, "groundtruth.txt"))]
     gt_t = np.array([t for t, _ in gt])
@@ -23,9 +23,10 @@ def live_ground_truth(dataset, frames_csv, out_path):
         f.write("# ground truth of the dataset's frames at the stamps of a rekon-realsense run\n")
         for number, device_ms, stamp in zip(rows[:, 1].astype(int), rows[:, 2], rows[:, 3]):
             t = pairs[number - 1][0]
-            if abs((t - pairs[0][0]) * 1e3 - device_ms) > 0.01:
+            if abs((t - pairs[0][0]) * 1e3 * slowdown - device_ms) > 0.01:
                 fail(f"{frames_csv}: frame number {number} has device time {device_ms:.3f} ms, but that dataset frame "
-                     f"is at {(t - pairs[0][0]) * 1e3:.3f} ms; was the bag made from {dataset}?")
+                     f"is at {(t - pairs[0][0]) * 1e3 * slowdown:.3f} ms; was the bag made from {dataset} with "
+                     f"--slowdown {slowdown}?")
             j = int(np.argmin(np.abs(gt_t - t)))
             if abs(gt_t[j] - t) > 0.01:
                 continue  # no pose for this frame
@@ -54,11 +55,12 @@ def main(argv=None):
     p.add_argument("--dataset", required=True, help="the dataset the bag was made of")
     p.add_argument("--run", required=True, help="the rekon run --camera realsense --playback output folder")
     p.add_argument("--out", required=True, help="the TUM trajectory file to write")
+    p.add_argument("--slowdown", type=int, default=1, help="the bag's --slowdown")
     a = p.parse_args(argv)
     csv = os.path.join(a.run, "realsense_frames.csv")
     if not os.path.isfile(csv):
         fail(f"{csv}: not found; give the --out folder of a rekon-realsense run")
-    n = live_ground_truth(a.dataset, csv, a.out)
+    n = live_ground_truth(a.dataset, csv, a.out, a.slowdown)
     print(f"{a.out}: {n} poses")
     return 0
 
