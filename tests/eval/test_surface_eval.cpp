@@ -119,26 +119,38 @@ TEST(EvalCommand, SurfaceEndsWithKeyValues) {
   EXPECT_NEAR(compl_, 0.005, 1e-6);
 }
 
-// A SLAM mesh lives in its first camera's world; the ATE's alignment of its
-// trajectory onto the ground truth brings it into the reference's world.
-TEST(EvalCommand, SurfaceMovesTheMeshByTheTrajectoryAlignment) {
-  rekon::test::TempDir dir;
+// A SLAM run in its first camera's frame: its trajectory `est` and its plane
+// mesh are the ground truth's `gt` and plane moved by one rigid transform.
+struct SlamFrame {
+  rekon::Trajectory gt, est;
+  Mesh mesh;
+};
+
+SlamFrame slamFrame() {
   rekon::Pose world_to_slam = rekon::Pose::Identity();
   world_to_slam.linear() = Eigen::AngleAxisd(0.4, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
   world_to_slam.translation() = Eigen::Vector3d(0.3, -1.0, 2.0);
-  rekon::Trajectory gt, est;
+  SlamFrame f;
   const std::vector<Eigen::Vector3d> centres = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0.5}};
   for (size_t i = 0; i < centres.size(); ++i) {
     rekon::Pose p = rekon::Pose::Identity();
     p.translation() = centres[i];
-    gt.push_back({0.1 * static_cast<double>(i), p});
-    est.push_back({0.1 * static_cast<double>(i), world_to_slam * p});
+    f.gt.push_back({0.1 * static_cast<double>(i), p});
+    f.est.push_back({0.1 * static_cast<double>(i), world_to_slam * p});
   }
-  rekon::writeTumTrajectory(gt, dir / "gt.txt");
-  rekon::writeTumTrajectory(est, dir / "est.txt");
-  Mesh mesh = plane(1.0, 20, 0.0f);
-  for (auto& v : mesh.vertices) v = world_to_slam.cast<float>() * v;
-  rekon::writePly(mesh, dir / "mesh.ply");
+  f.mesh = plane(1.0, 20, 0.0f);
+  for (auto& v : f.mesh.vertices) v = world_to_slam.cast<float>() * v;
+  return f;
+}
+
+// A SLAM mesh lives in its first camera's world; the ATE's alignment of its
+// trajectory onto the ground truth brings it into the reference's world.
+TEST(EvalCommand, SurfaceMovesTheMeshByTheTrajectoryAlignment) {
+  rekon::test::TempDir dir;
+  const SlamFrame f = slamFrame();
+  rekon::writeTumTrajectory(f.gt, dir / "gt.txt");
+  rekon::writeTumTrajectory(f.est, dir / "est.txt");
+  rekon::writePly(f.mesh, dir / "mesh.ply");
   rekon::writePly(plane(1.0, 20, 0.0f), dir / "ref.ply");
   const std::string cmd = rekon::test::binDir() + "/rekon eval surface " + (dir / "mesh.ply") + " " + (dir / "ref.ply");
   std::string out;
@@ -159,24 +171,12 @@ TEST(EvalCommand, SurfaceMovesTheMeshByTheTrajectoryAlignment) {
 // the run's trajectory the command refuses, naming the options to add.
 TEST(EvalCommand, SurfaceFindsARunsAndADatasetsTrajectories) {
   rekon::test::TempDir dir;
-  rekon::Pose world_to_slam = rekon::Pose::Identity();
-  world_to_slam.linear() = Eigen::AngleAxisd(0.4, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
-  world_to_slam.translation() = Eigen::Vector3d(0.3, -1.0, 2.0);
-  rekon::Trajectory gt, est;
-  const std::vector<Eigen::Vector3d> centres = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0.5}};
-  for (size_t i = 0; i < centres.size(); ++i) {
-    rekon::Pose p = rekon::Pose::Identity();
-    p.translation() = centres[i];
-    gt.push_back({0.1 * static_cast<double>(i), p});
-    est.push_back({0.1 * static_cast<double>(i), world_to_slam * p});
-  }
+  const SlamFrame f = slamFrame();
   std::filesystem::create_directories(dir / "run");
   std::filesystem::create_directories(dir / "data");
-  rekon::writeTumTrajectory(gt, dir / "data/groundtruth.txt");
-  rekon::writeTumTrajectory(est, dir / "run/trajectory.txt");
-  Mesh mesh = plane(1.0, 20, 0.0f);
-  for (auto& v : mesh.vertices) v = world_to_slam.cast<float>() * v;
-  rekon::writePly(mesh, dir / "run/mesh.ply");
+  rekon::writeTumTrajectory(f.gt, dir / "data/groundtruth.txt");
+  rekon::writeTumTrajectory(f.est, dir / "run/trajectory.txt");
+  rekon::writePly(f.mesh, dir / "run/mesh.ply");
   rekon::writePly(plane(1.0, 20, 0.0f), dir / "data/mesh_gt.ply");
   const std::string cmd = rekon::test::binDir() + "/rekon eval surface " + (dir / "run/mesh.ply") + " " + (dir / "data/mesh_gt.ply");
   std::string out;
