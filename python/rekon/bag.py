@@ -497,7 +497,7 @@ def _import_bag(bag, out, tmp, depth_topic, color_topic, camera_info, intrinsics
             with open(tmp / "groundtruth.txt", "w") as f:
                 f.write(f"# ground truth trajectory\n{source}\n# timestamp tx ty tz qx qy qz qw\n")
                 for stamp, pose in gt:
-                    f.write(f"{stamp:.6f} " + " ".join(f"{v:.9g}" for v in pose) + "\n")
+                    f.write(f"{stamp:.6f} " + " ".join(repr(float(v)) for v in pose) + "\n")  # exact: shortest round trip
         with open(tmp / "camera.yaml", "w") as f:
             f.write(f"# from {info_topic or '--intrinsics'} of {bag.name} (rekon import bag)\n"
                     f"width: {width}\nheight: {height}\nfx: {fx!r}\nfy: {fy!r}\ncx: {cx!r}\ncy: {cy!r}\n"

@@ -111,7 +111,8 @@ def test_tum_teddy_as_a_ros1_bag_with_tum_topics_runs_as_the_folder_does(tmp_pat
     bag.unlink()
     # TUM's associate pairs 193 of the 200 (the folder's SOURCE.txt): 7 depth and 7 color images have no partner.
     assert "import: 193 frames" in out and "dropped 7 of 200 depth and 7 of 200 color" in out, out
-    assert len(read_index(tmp_path / "teddy" / "groundtruth.txt")) == len(read_index(TEDDY / "groundtruth.txt"))
+    # /tf's world -> kinect transforms are TUM's groundtruth.txt, line for line.
+    assert np.array_equal(np.loadtxt(tmp_path / "teddy" / "groundtruth.txt"), np.loadtxt(TEDDY / "groundtruth.txt"))
     run_pipeline(tmp_path / "teddy", tmp_path / "run_bag")
     run_pipeline(TEDDY, tmp_path / "run_folder")
     ate_bag = ate(tmp_path / "teddy" / "groundtruth.txt", tmp_path / "run_bag" / "trajectory.txt")
@@ -130,7 +131,18 @@ def small(room, tmp_path_factory) -> Path:
     for folder in ("rgb", "depth"):
         (out / folder).symlink_to(room / folder)
     shutil.copy(room / "camera.yaml", out / "camera.yaml")
+    (out / "groundtruth.txt").symlink_to(room / "groundtruth.txt")
     return out
+
+
+def test_ground_truth_from_a_pose_stamped_topic_is_the_folders(small, tmp_path):
+    bag = tmp_path / "gt"
+    write_dataset_bag(small, bag, "mcap", depth_encoding="16UC1", color_encoding="png", groundtruth="/mocap/pose",
+                      gt_type="pose")
+    rekon("import", "bag", bag, "--out", tmp_path / "out", "--groundtruth", "/mocap/pose")
+    got = np.loadtxt(tmp_path / "out" / "groundtruth.txt")
+    expected = np.loadtxt(small / "groundtruth.txt")
+    assert got.shape == expected.shape and np.allclose(got, expected, rtol=0, atol=1e-9)
 
 
 def one_error_line(p) -> str:
