@@ -145,6 +145,16 @@ def test_ground_truth_from_a_pose_stamped_topic_is_the_folders(small, tmp_path):
     assert got.shape == expected.shape and np.allclose(got, expected, rtol=0, atol=1e-9)
 
 
+def test_mono8_color_becomes_a_grey_png(small, tmp_path):
+    bag = tmp_path / "mono.bag"
+    write_dataset_bag(small, bag, "ros1", depth_encoding="32FC1", color_encoding="mono8")
+    rekon("import", "bag", bag, "--out", tmp_path / "out")
+    (_, got), (_, source) = read_index(tmp_path / "out" / "rgb.txt")[0], read_index(small / "rgb.txt")[0]
+    grey = png_pixels(tmp_path / "out" / got)
+    assert grey.dtype == np.uint8 and grey.ndim == 2  # the writer sends the red channel as mono8
+    assert np.array_equal(grey, png_pixels(small / source)[:, :, 0])
+
+
 def one_error_line(p) -> str:
     lines = [line for line in p.stdout.splitlines() if line.strip()]
     assert p.returncode == 1, p.stdout
