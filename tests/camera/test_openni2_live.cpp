@@ -127,7 +127,7 @@ TEST(OpenNI2Devices, UnknownDeviceIsOneLineNamingItAndTheFix) {
     EXPECT_NE(line.find("'no-such-device'"), std::string::npos) << line;
     EXPECT_NE(line.find("rekon cameras"), std::string::npos) << line;
     EXPECT_NE(line.find("60-libopenni2-0.rules"), std::string::npos) << line;
-    // The group that Debian's rule gives the device (GROUP:="video"), as README "Live camera" says.
+    // The group that Debian's rule gives the device (GROUP:="video"), as docs/cameras.md says.
     EXPECT_NE(line.find("group video"), std::string::npos) << line;
   }
 }

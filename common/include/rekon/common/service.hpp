@@ -131,7 +131,7 @@ class Incarnations {
 // one before is superseded, and nothing it sends later counts (a done_t of a
 // killed instance never finishes its successor). A current instance seen
 // past "starting" is announced to onNewInstance (after the first) on the bus
-// thread. README "Faults" has the contract as a table.
+// thread. docs/faults.md has the contract as a table.
 class PeerWatch {
  public:
   using Clock = std::chrono::steady_clock;
