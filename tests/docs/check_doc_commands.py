@@ -76,7 +76,7 @@ def problems_in(path, src, bin_dir, commands):
         for m in re.finditer(r"(?<![\w/.-])(rekon-[\w-]+)", code):
             if not os.path.exists(os.path.join(bin_dir, m.group(1))):
                 yield f"{where}: {m.group(1)} is no program in build/bin"
-        if block:
+        if block and "─" not in code:  # a diagram's boxes and arrows name programs, not commands
             first = code.strip().split(" ")[0] if code.strip() else ""
             if first.startswith("rekon-"):
                 yield f"{where}: '{first}' runs only with build/bin on PATH; write build/bin/{first}"
