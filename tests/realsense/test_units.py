@@ -75,3 +75,59 @@ def test_the_defaults_are_the_issues_mode():
     p = Params(Config.load())
     assert (p.width, p.height, p.fps) == (640, 480, 30)
     assert p.wait_for == ["tracker", "mapper"]
+
+
+class _Frames:
+    """A source double: `frames` frames 33 ms apart, then `end` (LOST or ENDED)."""
+
+    def __init__(self, frames, end, reason=""):
+        from rekon_realsense.device import Capture, Frame
+        self.replaced = 0
+        self._script = [Capture(Capture.FRAME, Frame(np.zeros((480, 640), np.uint16), np.zeros((480, 640, 3), np.uint8),
+                                                     1000.0 + i / 30, i * 33.333, i + 1)) for i in range(frames)]
+        self._script.insert(1, Capture(Capture.TIMEOUT))  # a wait without a frame changes nothing
+        self._script.append(Capture(end, reason=reason))
+
+    def next(self, _timeout_s):
+        return self._script.pop(0)
+
+
+class _Outlet:
+    def __init__(self):
+        self.offered, self.sent, self.dropped, self.skipped_late, self.ids = 0, 0, 0, 0, []
+
+    def offer(self, frame_id, message, age_s):
+        self.offered += 1
+        self.ids.append(frame_id)
+
+    def skipped(self, n):
+        self.skipped_late += n
+
+
+class _Ctx:
+    def stop_requested(self):
+        return False
+
+
+def _capture(source, tmp_path):
+    from rekon_realsense.node.main import FrameLog, capture
+    outlet, log = _Outlet(), FrameLog(str(tmp_path))
+    k = {"width": 640, "height": 480, "fx": 600.0, "fy": 600.0, "cx": 320.0, "cy": 240.0, "depth_scale": 1000.0}
+    result = capture(_Ctx(), source, outlet, None, k, Params(Config.load()), log)
+    log.close()
+    return result, outlet
+
+
+def test_a_lost_device_ends_the_capture_with_its_line_after_every_frame_before_it(tmp_path):
+    line = "RealSense D435 123 stopped delivering frames (SDK: ...); check the USB cable and port, then start again"
+    (lost, frames, first, last), outlet = _capture(_Frames(4, "lost", line), tmp_path)
+    assert lost == line
+    assert frames == 4 and outlet.ids == [0, 1, 2, 3]
+    assert (first, last) == (1000.0, pytest.approx(1000.1))
+    with open(tmp_path / "realsense_frames.csv") as f:
+        assert len(f.readlines()) == 1 + 4  # header and every frame taken
+
+
+def test_the_end_of_a_recording_is_a_clean_end(tmp_path):
+    (lost, frames, _, _), outlet = _capture(_Frames(3, "ended"), tmp_path)
+    assert lost == "" and frames == 3 and outlet.offered == 3
