@@ -1,3 +1,4 @@
+#include <Eigen/Eigenvalues>
 #include <opencv2/imgproc.hpp>
 
 #include <algorithm>
@@ -121,10 +122,20 @@ View autoView(const Mesh& mesh, const RenderOptions& options) {
   }
   const Eigen::Vector3d centre = 0.5 * (lo + hi);
   const double radius = std::max(1e-6, 0.5 * (hi - lo).norm());
-  // Look down at about 40 degrees from an oblique corner.
+  // Look down at about 40 degrees from an oblique corner of the mesh's own
+  // horizontal axes (e1 its longest), so that a room lies along the image
+  // rather than across its diagonal.
   const Eigen::Vector3d up = options.up.normalized();
   const Eigen::Vector3d ref = std::abs(up.x()) < 0.9 ? Eigen::Vector3d::UnitX() : Eigen::Vector3d::UnitY();
-  const Eigen::Vector3d e1 = up.cross(ref).normalized(), e2 = up.cross(e1);
+  const Eigen::Vector3d a = up.cross(ref).normalized(), b = up.cross(a);
+  Eigen::Matrix2d spread = Eigen::Matrix2d::Zero();
+  for (const Eigen::Vector3f& v : sample) {
+    const Eigen::Vector3d d = v.cast<double>() - centre;
+    const Eigen::Vector2d p(d.dot(a), d.dot(b));
+    spread += p * p.transpose();
+  }
+  const Eigen::Vector2d major = Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d>(spread).eigenvectors().col(1);
+  const Eigen::Vector3d e1 = (major.x() * a + major.y() * b).normalized(), e2 = up.cross(e1);
   const Eigen::Vector3d dir = (-0.55 * e1 - 0.85 * e2 + 0.85 * up).normalized();
   const double tan_y = std::tan(0.5 * options.fov_y_deg * std::numbers::pi / 180.0);
   const double tan_x = tan_y * options.width / options.height;
