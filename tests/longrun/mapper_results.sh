@@ -44,7 +44,7 @@ mm() { awk -v v="$1" 'BEGIN { printf "%.2f", 1000 * v }'; }
 surface() {  # MESH REF [EST_TRAJECTORY GT_TRAJECTORY] -> "CORR | COMPL"
   local line
   if [ $# -eq 4 ]; then line=$("$bin/rekon" eval surface "$1" "$2" --est-trajectory "$3" --gt-trajectory "$4")
-  else line=$("$bin/rekon" eval surface "$1" "$2"); fi
+  else line=$("$bin/rekon" eval surface "$1" "$2" --no-align); fi  # fused at ground-truth poses: REF's world
   echo "$(mm "$(echo "$line" | lastValue corr_m)") | $(mm "$(echo "$line" | lastValue compl_m)")"
 }
 ate() { mm "$("$bin/rekon" eval traj "$1" "$2" | lastValue ate_rmse_m)"; }

@@ -20,14 +20,16 @@ using rekon::test::runCommand;
 
 namespace {
 
-// `rekon eval surface MESH REF`: CORR (m) from its last line, -1 when absent.
+// `rekon eval surface MESH REF --no-align`: CORR (m) from its last line, -1
+// when absent. The replayed poses are the ground truth's world, and so is the
+// mesh: it is measured as it is, not moved by a trajectory alignment.
 struct Surface {
   double corr_m = -1.0;
   std::string output;
 };
 Surface evalSurface(const std::string& mesh, const std::string& reference) {
   Surface s;
-  rekon::test::runCommand(rekon::test::binDir() + "/rekon eval surface " + mesh + " " + reference, &s.output);
+  rekon::test::runCommand(rekon::test::binDir() + "/rekon eval surface " + mesh + " " + reference + " --no-align", &s.output);
   const auto p = s.output.find("corr_m=");
   if (p != std::string::npos) s.corr_m = std::stod(s.output.substr(p + 7));
   return s;
