@@ -19,6 +19,7 @@
 #include "preflight.hpp"
 #include "process.hpp"
 #include "progress.hpp"
+#include "rekon/camera/recorder.hpp"
 #include "rekon/common/camera.hpp"
 #include "rekon/common/cli.hpp"
 #include "rekon/common/config.hpp"
@@ -226,7 +227,7 @@ DatasetSpan checkBeforeStart(const Config& config, const RunOptions& opt) {
   checkConfigValues(config, opt.dataset);
   DatasetSpan span;
   if (!opt.dataset.empty()) span = checkDataset(opt.dataset);
-  if (!opt.record.empty()) checkRecordFolder(opt.record);
+  if (!opt.record.empty()) camera::requireNoRecording(opt.record);  // the camera refused it after every service had started
   if (!opt.camera.empty()) checkCameraSpec(opt.camera);
   if (!opt.playback.empty()) checkRealSensePlayback(opt.playback);
   const std::vector<std::string> listed = config.getStringList("run.services");

@@ -147,10 +147,6 @@ void checkViewerPort(const Config& config) {
   throw Error("viewer.bind " + address + ":" + std::to_string(port) + ": cannot listen (" + std::strerror(err) + ")");
 }
 
-void checkRecordFolder(const std::string& dir) {
-  if (fs::exists(fs::path(dir) / "rgb.txt") || fs::exists(fs::path(dir) / "depth.txt"))
-    throw Error("--record " + dir + ": already holds a recording (rgb.txt); record into a new folder, nothing is overwritten");
-}
 
 bool isRunOutput(const std::string& f) {
   static const std::vector<std::string> files = {"trajectory.txt", "mesh.ply", "mesh_uncorrected.ply", "stats.json",

@@ -33,9 +33,6 @@ void checkRealSensePlayback(const std::string& path);
 // the viewer after every service had started).
 void checkViewerPort(const Config& config);
 
-// --record's folder holds no recording yet (the camera would refuse it after
-// every service had started).
-void checkRecordFolder(const std::string& dir);
 
 // The files a run writes at the top of its --out folder.
 bool isRunOutput(const std::string& file_name);

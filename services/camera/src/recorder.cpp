@@ -75,13 +75,16 @@ struct Recorder::State {
   }
 };
 
+void requireNoRecording(const std::string& dir) {
+  if (fs::exists(fs::path(dir) / "rgb.txt") || fs::exists(fs::path(dir) / "depth.txt"))
+    throw Error(dir + ": already holds a recording (rgb.txt); record into a new folder, nothing is overwritten");
+}
+
 Recorder::Recorder(const std::string& dir, const Intrinsics& k, int max_queued) : state_(std::make_unique<State>()) {
   State& s = *state_;
   s.dir = dir;
   s.max_queued = static_cast<size_t>(std::max(1, max_queued));
-  if (fs::exists(s.dir / "rgb.txt") || fs::exists(s.dir / "depth.txt")) {
-    throw Error(dir + ": already holds a recording (rgb.txt); record into a new folder, nothing is overwritten");
-  }
+  requireNoRecording(dir);
   std::error_code ec;
   fs::create_directories(s.dir / "rgb", ec);
   if (!ec) fs::create_directories(s.dir / "depth", ec);

@@ -15,6 +15,11 @@
 
 namespace rekon::camera {
 
+// Throws rekon::Error naming `dir` when it already holds a recording (rgb.txt
+// or depth.txt): a recording never overwrites one. rekon run checks it before
+// anything starts; the Recorder again when it creates the folder.
+void requireNoRecording(const std::string& dir);
+
 class Recorder {
  public:
   // Creates `dir` (which must not hold a dataset already: nothing is ever
