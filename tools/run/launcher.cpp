@@ -118,7 +118,7 @@ struct RunPlan {
   int max_restarts = 0;
   std::vector<ChildProcess> children;
   long long total_frames = 0;  // what the player plays; 0: a camera (no end)
-  double source_fps = 0;       // the recorded rate
+  double source_fps = 0;       // the dataset's recorded rate; 0 for a camera
 };
 
 // A --camera spec for rekon-realsense (Intel's SDK, a Python service) rather than rekon-camera.
@@ -549,10 +549,10 @@ double writeRunStats(const RunPlan& plan, double wall, bool interrupted) {
     if (c.restarts() > 0) restarts.set(c.name(), static_cast<long long>(c.restarts()));
   }
   stats.setRaw("restarts", restarts.str(0));
-  // A camera runs at its own rate: a realtime factor says nothing there.
+  // A camera runs at its own rate: a realtime factor says nothing there (only
+  // a dataset has a recorded rate: plan.source_fps).
   double realtime_factor = 0.0;
-  if (sequence_seconds > 0 && wall > 0 && !fs::exists(plan.out + "/camera_stats.json") &&
-      !fs::exists(plan.out + "/realsense_stats.json")) {
+  if (sequence_seconds > 0 && wall > 0 && plan.source_fps > 0) {
     realtime_factor = sequence_seconds / wall;
     stats.set("realtime_factor", realtime_factor);
   }
