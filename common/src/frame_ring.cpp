@@ -5,6 +5,7 @@
 #include <unistd.h>
 
 #include <atomic>
+#include <chrono>
 #include <boost/interprocess/mapped_region.hpp>
 #include <boost/interprocess/shared_memory_object.hpp>
 #include <cstring>
@@ -149,7 +150,15 @@ FrameRingWriter::FrameRingWriter(const std::string& name, const FrameRingLayout&
   h->max_width = layout.max_width;
   h->max_height = layout.max_height;
   h->slot_bytes = slot_bytes;
-  for (int i = 0; i < layout.slots; ++i) new (&slotAt(base, slot_bytes, i)->sequence) std::atomic<uint64_t>(0);
+  // Generations start at this instance's own even base (its creation time in
+  // ns): a receiver still mapping a previous instance of the same name (the
+  // frame source restarted) never finds a new frame's generation there, and
+  // reopens the segment (FrameReceiver).
+  const auto created_ns = std::chrono::system_clock::now().time_since_epoch();
+  const uint64_t first_sequence =
+      static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(created_ns).count()) & ~uint64_t{1};
+  for (int i = 0; i < layout.slots; ++i)
+    new (&slotAt(base, slot_bytes, i)->sequence) std::atomic<uint64_t>(first_sequence);
   std::atomic_thread_fence(std::memory_order_release);
   h->magic = kMagic;  // last: a reader never sees a half-initialised header as valid
   impl_->header = h;
@@ -207,6 +216,11 @@ FrameRingReader::FrameRingReader(const std::string& name) : impl_(std::make_uniq
 }
 
 FrameRingReader::~FrameRingReader() = default;
+
+bool FrameRingReader::sameInstanceAs(const FrameRingReader& other) const {
+  const RingHeader &a = *impl_->header, &b = *other.impl_->header;
+  return a.creator_pid == b.creator_pid && a.creator_start_ticks == b.creator_start_ticks;
+}
 
 FrameRingReader::Status FrameRingReader::read(int slot, uint64_t generation, RgbdFrame* out,
                                               const std::function<void()>& during_copy) const {

@@ -46,6 +46,22 @@ void FrameSender::send(const RgbdFrame& frame, const Intrinsics& k, const Encode
   bus_.publish(channel::kFrames, msg);
 }
 
+// A slot whose generation is not there: either the reader is too slow, or the
+// frame source restarted and created the segment again under the same name,
+// while `ring` still maps the old one (unlinked, it stays readable to us).
+bool FrameReceiver::reopenIfRecreated(std::unique_ptr<FrameRingReader>& ring) {
+  std::unique_ptr<FrameRingReader> current;
+  try {
+    current = std::make_unique<FrameRingReader>(ring->name());
+  } catch (const Error&) {
+    return false;  // gone for now: the old mapping is all there is
+  }
+  if (current->sameInstanceAs(*ring)) return false;
+  spdlog::info("frame ring '{}' was created again (its frame source restarted): reading the new one", ring->name());
+  ring = std::move(current);
+  return true;
+}
+
 std::optional<RgbdFrame> FrameReceiver::receive(const rekon_msgs::frame_t& msg, Intrinsics* intrinsics) {
   const std::string what = "frame " + std::to_string(msg.frame_id);
   try {
@@ -54,7 +70,9 @@ std::optional<RgbdFrame> FrameReceiver::receive(const rekon_msgs::frame_t& msg, 
     if (!msg.shm_segment.empty()) {
       auto& ring = rings_[msg.shm_segment];
       if (!ring) ring = std::make_unique<FrameRingReader>(msg.shm_segment);
-      const auto status = ring->read(msg.shm_slot, static_cast<uint64_t>(msg.shm_generation), &frame);
+      auto status = ring->read(msg.shm_slot, static_cast<uint64_t>(msg.shm_generation), &frame);
+      if (status == FrameRingReader::Status::kOverwritten && reopenIfRecreated(ring))
+        status = ring->read(msg.shm_slot, static_cast<uint64_t>(msg.shm_generation), &frame);
       if (status != FrameRingReader::Status::kOk) {
         ++dropped_;
         spdlog::warn("{} dropped: {} (segment {}, slot {})", what, toString(status), msg.shm_segment, msg.shm_slot);

@@ -1,4 +1,5 @@
 #include <gtest/gtest.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <atomic>
@@ -9,6 +10,8 @@
 
 #include "rekon/common/error.hpp"
 #include "rekon/common/frame_ring.hpp"
+#include "rekon/common/frame_transport.hpp"
+#include "rekon/common/messages.hpp"
 
 namespace {
 
@@ -141,4 +144,55 @@ TEST(FrameRing, SegmentIsRemovedWhenTheWriterCloses) {
 TEST(FrameRing, FrameLargerThanASlotIsAnError) {
   rekon::FrameRingWriter w(uniqueName("large"), {2, 32, 24});
   EXPECT_THROW(w.write(0, uniformFrame(0, 1, 64, 48)), rekon::Error);
+}
+
+namespace {
+
+// What a frame source process does before it is killed: creates the ring,
+// writes frame `id` into slot 0 and dies without removing the segment.
+// Returns the frame's message as the receiver gets it.
+rekon_msgs::frame_t writeInAProcessThatDies(const std::string& name, int64_t id, int value) {
+  int fds[2];
+  EXPECT_EQ(pipe(fds), 0);
+  const pid_t child = fork();
+  if (child == 0) {
+    rekon::FrameRingWriter w(name, {2, 64, 48});
+    const uint64_t generation = w.write(0, uniformFrame(id, value));
+    (void)!write(fds[1], &generation, sizeof generation);
+    _exit(0);  // as kill -9: no destructor removes the segment
+  }
+  uint64_t generation = 0;
+  EXPECT_EQ(read(fds[0], &generation, sizeof generation), static_cast<ssize_t>(sizeof generation));
+  close(fds[0]);
+  close(fds[1]);
+  waitpid(child, nullptr, 0);
+  rekon_msgs::frame_t msg{};
+  msg.frame_id = id;
+  rekon::Intrinsics k;
+  k.width = 64, k.height = 48, k.fx = k.fy = 50, k.cx = 32, k.cy = 24, k.depth_scale = 1000;
+  rekon::setIntrinsics(k, &msg);
+  msg.shm_segment = name;
+  msg.shm_slot = 0;
+  msg.shm_generation = static_cast<int64_t>(generation);
+  return msg;
+}
+
+}  // namespace
+
+// A frame source killed and started again creates its ring again under the
+// same name. A receiver still mapping the old one (unlinked, still readable)
+// would find none of the new frames there and drop every one; it reopens
+// the segment instead (issue 48).
+TEST(FrameRing, AReceiverReadsTheRingOfARestartedSource) {
+  const std::string name = uniqueName("restarted");
+  rekon::FrameReceiver receiver;
+  const auto first = receiver.receive(writeInAProcessThatDies(name, 0, 100), nullptr);
+  ASSERT_TRUE(first.has_value());
+  EXPECT_EQ(first->depth.at<uint16_t>(0, 0), 100);
+  const auto second = receiver.receive(writeInAProcessThatDies(name, 1, 200), nullptr);
+  ASSERT_TRUE(second.has_value()) << "a frame of the restarted source was dropped";
+  EXPECT_EQ(second->id, 1);
+  EXPECT_EQ(second->depth.at<uint16_t>(0, 0), 200);
+  EXPECT_EQ(receiver.dropped(), 0u);
+  rekon::removeFrameRing(name);
 }

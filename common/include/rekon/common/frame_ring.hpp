@@ -11,6 +11,8 @@
 // its generation is the sequence after the write. A reader checks the
 // generation before and after copying: a change means the slot was
 // overwritten under it (a torn read), and the frame is dropped, never used.
+// Each instance of a segment starts its generations at its own base, so a
+// generation of one instance is never found in another of the same name.
 #include <cstdint>
 #include <functional>
 #include <memory>
@@ -62,6 +64,9 @@ class FrameRingReader {
   // copy and the final check.
   Status read(int slot, uint64_t generation, RgbdFrame* out, const std::function<void()>& during_copy = {}) const;
   const std::string& name() const { return name_; }
+  // Whether both readers map the segment one writer instance created (a
+  // restarted frame source creates the name again).
+  bool sameInstanceAs(const FrameRingReader& other) const;
 
  private:
   struct Impl;

@@ -47,6 +47,7 @@ class FrameReceiver {
   uint64_t dropped() const { return dropped_; }
 
  private:
+  bool reopenIfRecreated(std::unique_ptr<FrameRingReader>& ring);
   std::map<std::string, std::unique_ptr<FrameRingReader>> rings_;
   uint64_t dropped_ = 0;
 };
