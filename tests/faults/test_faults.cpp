@@ -218,12 +218,13 @@ TEST(Faults, OptimiserKilledAfterItsDoneIsRestartedAndTheRunFinishes) {
   EXPECT_EQ(leftoverSegments(out), std::vector<std::string>{});
 }
 
-// A dead tracker or player cannot be replaced mid-stream: the run stops,
-// says which service died, exits non-zero, and keeps what was made so far.
-void expectStoppedNaming(const std::string& service) {
+// A dead service that run.restart does not list (or that cannot recover)
+// stops the run: it says which service died, exits non-zero, and keeps what
+// was made so far.
+void expectStoppedNaming(const std::string& service, const std::string& sets = "") {
   rekon::test::TempDir dir;
   const std::string out = dir / "run";
-  const Faulty f = runKilling(service, out);
+  const Faulty f = runKilling(service, out, sets);
   ASSERT_NE(f.output.find("killed rekon-" + service), std::string::npos) << f.output;
   EXPECT_NE(f.rc, 0) << f.output;
   EXPECT_NE(f.output.find("rekon-" + service + " was killed by signal 9"), std::string::npos) << f.output;
@@ -237,7 +238,30 @@ void expectStoppedNaming(const std::string& service) {
 
 TEST(Faults, KilledTrackerStopsTheRunNamingItAndKeepsTheOutputsSoFar) { expectStoppedNaming("tracker"); }
 
-TEST(Faults, KilledPlayerStopsTheRunNamingItAndKeepsTheOutputsSoFar) { expectStoppedNaming("player"); }
+TEST(Faults, KilledPlayerNotListedInRunRestartStopsTheRunNamingIt) {
+  expectStoppedNaming("player", "--set run.restart=[mapper,optimiser]");
+}
+
+// The player killed mid-stream and restarted: the new instance asks its
+// consumers' heartbeats where they are, goes on after that, and the run ends
+// with every frame tracked and the same map as without the kill.
+TEST(Faults, KilledPlayerIsRestartedAndGoesOnWhereItsConsumersAre) {
+  rekon::test::TempDir dir;
+  const std::string out = dir / "run";
+  const Faulty f = runKilling("player", out);
+  ASSERT_NE(f.output.find("killed rekon-player"), std::string::npos) << f.output;
+  ASSERT_EQ(f.rc, 0) << f.output;
+  EXPECT_NE(readText(out + "/stats.json").find("\"restarts\": {\"player\":1}"), std::string::npos) << f.output;
+  const std::string player_log = readText(out + "/player.log");
+  EXPECT_NE(player_log.find("restarted: the consumers have the frames up to"), std::string::npos) << player_log;
+  EXPECT_EQ(lineCount(out + "/trajectory.txt"), static_cast<size_t>(kFrames)) << f.output;
+  // The same frames tracked and fused in the same order: the result of the
+  // uninterrupted run, to a bound of 0.01 mm (measured: ATE and CORR equal to the
+  // uninterrupted run's to 1 nm, 0.2265 and 1.6685 mm).
+  EXPECT_NEAR(ateOf(out), ateOf(baseline().run), 0.00001);
+  EXPECT_NEAR(corrOf(out), corrOf(baseline().run), 0.00001);
+  EXPECT_EQ(leftoverSegments(out), std::vector<std::string>{});
+}
 
 TEST(Faults, MapperKilledMoreOftenThanMaxRestartsStopsTheRun) {
   rekon::test::TempDir dir;
@@ -286,14 +310,15 @@ TEST(Faults, OnePercentMessageLossCompletesWithTheSameResult) { expectCompletesU
 // uninterrupted run.
 TEST(Faults, FivePercentMessageLossCompletesWithTheSameResult) { expectCompletesUnderLoss(0.05, 0.00005, 0.0004); }
 
-TEST(Faults, RestartPolicyNamingATrackerIsAnError) {
+TEST(Faults, RestartPolicyNamingAServiceThatCannotRecoverIsAnError) {
   rekon::test::TempDir dir;
   std::string out;
   const int rc = runCommand(bin() + "/rekon run --dataset " + dir.path() + " --out " + (dir / "out") +
-                                " --set run.restart=[mapper,tracker]",
+                                " --set run.restart=[mapper,realsense]",
                             &out);
   EXPECT_EQ(rc, 1);
-  EXPECT_NE(out.find("only mapper and optimiser can be restarted"), std::string::npos) << out;
+  EXPECT_NE(out.find("run.restart lists 'realsense', which cannot be restarted"), std::string::npos) << out;
+  EXPECT_FALSE(fs::exists(dir / "out")) << "a refused run leaves no folder";
 }
 
 }  // namespace

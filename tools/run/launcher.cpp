@@ -10,6 +10,7 @@
 #include <chrono>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <optional>
 #include <set>
 #include <string>
@@ -91,14 +92,27 @@ int stopRank(const std::string& service) {
   return static_cast<int>(it - order.begin());
 }
 
-// run.restart / run.max_restarts. Only services that recover their state can
-// be restarted: the mapper (keyframe store) and the optimiser (tracker replay).
+// The setting a restarted service is started with, to recover what the
+// killed instance had (docs/faults.md): only these services can be restarted.
+const std::map<std::string, std::string>& restartSettings() {
+  static const std::map<std::string, std::string> settings = {
+      {"mapper", "mapper.resume=true"},          // its keyframe store
+      {"optimiser", "optimiser.restarted=true"},  // its journal and the tracker's replay
+      {"player", "player.restarted=true"},        // where its consumers are
+  };
+  return settings;
+}
+
+// run.restart / run.max_restarts.
 std::pair<std::set<std::string>, int> restartPolicy(const Config& config) {
   std::set<std::string> services;
   for (const auto& s : config.getStringList("run.restart")) {
-    if (s != "mapper" && s != "optimiser") {
-      throw Error("run.restart lists '" + s + "'; only mapper and optimiser can be restarted (they recover from the "
-                  "keyframe store and the tracker's replay); remove it");
+    if (restartSettings().count(s) == 0) {
+      std::vector<std::string> names;
+      for (const auto& [name, setting] : restartSettings()) names.push_back(name);
+      throw Error(fmt::format("run.restart lists '{}', which cannot be restarted (it cannot recover its state); the "
+                              "services that can: {}; remove it",
+                              s, fmt::join(names, ", ")));
     }
     services.insert(s);
   }
@@ -435,8 +449,7 @@ class Supervisor {
     if (restartable && c.restarts() < plan_.max_restarts) {
       spdlog::warn("{}; restarting it ({} of at most {} restarts, run.max_restarts)", how, c.restarts() + 1,
                    plan_.max_restarts);
-      // The mapper continues from its keyframe store; the optimiser rebuilds from the tracker's replay.
-      const std::vector<std::string> extra = {"--set", c.name() == "mapper" ? "mapper.resume=true" : "optimiser.restarted=true"};
+      const std::vector<std::string> extra = {"--set", restartSettings().at(c.name())};
       try {
         c.restart(extra);
         spdlog::info("restarted rekon-{} (pid {})", c.name(), c.pid());

@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <fstream>
 #include <optional>
 #include <thread>
 
@@ -70,19 +71,67 @@ class Player {
     // a frame a consumer has not read; inline frames (~0.5 MB each) keep two
     // in flight so the receivers' UDP buffers never overflow.
     in_flight_ = mode_ == TransportMode::kShm ? sender_->slots() - 1 : 2;
+    const int64_t from = params_.restarted ? whereTheConsumersAre() : first_;
+    start_ = playbackStart(from);
+    last_report_ = Clock::now();
     ctx_.setState("playing");
-    start_ = last_report_ = Clock::now();
-    if (params_.live) playLive();
-    else playToEnd(first_);
+    if (params_.live) playLive(from);
+    else playToEnd(from);
     reportPlayed();
     linger();
     ctx_.stats()
         .set("frames_sent_again", static_cast<long long>(resent_))
         .set("rewinds", static_cast<long long>(rewinds_))
         .set("frames_decoded_unused", static_cast<long long>(ahead_.unused()));
+    if (params_.restarted) ctx_.stats().set("restarted_at_frame", static_cast<long long>(from));
   }
 
  private:
+  // A restarted player (player.restarted: the launcher restarts a killed
+  // one) goes on where its consumers are: after the oldest of the newest
+  // frames they said they have (their heartbeats; waitForConsumers heard one
+  // of each). What one had beyond that comes again and is taken for a copy.
+  // The frames before count as played (by the killed instance).
+  int64_t whereTheConsumersAre() {
+    if (params_.wait_for.empty()) {
+      spdlog::warn("restarted without consumers to ask where they are (player.wait_for is empty): playing from frame {}",
+                   first_);
+      return first_;
+    }
+    int64_t from = end_;
+    for (const auto& s : params_.wait_for) {
+      const int64_t last = watch_.lastFrame(s);
+      watch_.setAcked(s, last);
+      from = std::min(from, last + 1);
+    }
+    from = std::clamp(from, first_, end_);
+    newest_sent_ = from - 1;
+    played_before_ = from - first_;
+    spdlog::warn("restarted: the consumers have the frames up to {}; going on from frame {}", from - 1, from);
+    return from;
+  }
+
+  // When frame first_ went out, on the steady clock (CLOCK_MONOTONIC: one for
+  // every process of this host): the first instance writes it beside its
+  // stats, and a restarted one keeps to it, so that paced frames stay on the
+  // recorded clock (live: those due during the outage are skipped, as a
+  // camera's would be missed). Without it, a restarted one goes on from now.
+  Clock::time_point playbackStart(int64_t from) const {
+    const std::string path = ctx_.outDir().empty() ? "" : ctx_.outDir() + "/player_clock.txt";
+    const auto now = Clock::now();
+    if (!params_.restarted) {
+      if (!path.empty()) std::ofstream(path) << now.time_since_epoch().count() << "\n";
+      return now;
+    }
+    Clock::rep ticks = 0;
+    if (!path.empty() && (std::ifstream(path) >> ticks) && ticks > 0 && Clock::time_point(Clock::duration(ticks)) <= now)
+      return Clock::time_point(Clock::duration(ticks));
+    const auto since_first = std::chrono::duration<double>(params_.rate > 0 ? scheduledSeconds(from) : 0.0);
+    spdlog::warn("no readable player_clock.txt in {}: frame {} goes out now, the recorded clock from there", ctx_.outDir(),
+                 from);
+    return now - std::chrono::duration_cast<Clock::duration>(since_first);
+  }
+
   // Frame `id` in playing order: decoded ahead (resends decode their frame again).
   void sendFrame(int64_t id) { send(id, ahead_.take(id)); }
   void send(int64_t id, const LoadedFrame& loaded) {
@@ -202,10 +251,10 @@ class Player {
   // starved process) the frames whose time has passed are skipped, never
   // decoded, and the newest one due is sent. A restarted consumer goes on
   // from the next frame.
-  void playLive() {
+  void playLive(int64_t from) {
     LiveOutlet outlet(ctx_, *sender_, watch_, params_.wait_for, params_.live_in_flight);
     int64_t last = -1;
-    for (int64_t id = first_; id < end_ && !ctx_.stopRequested(); ++id) {
+    for (int64_t id = from; id < end_ && !ctx_.stopRequested(); ++id) {
       sleepUntilRecorded(id);
       const int64_t due = newestDue(id);
       outlet.skippedLate(due - id);
@@ -234,9 +283,9 @@ class Player {
         .set("behind_clock_s_max", behind_clock_max_s_)
         .set("behind_clock_s_end", behind_clock_end_s_)
         .set("decode_s_max", decode_max_s_);
-    newest_sent_ = c.newest_sent;
+    newest_sent_ = std::max(newest_sent_, c.newest_sent);  // a restarted player's: from before its restart
     eos_.last_frame_id = newest_sent_;
-    eos_.frames = c.sent;
+    eos_.frames = played_before_ + c.sent;
     // The recorded time played through, skipped frames included.
     eos_.duration_s = last < first_ ? 0.0
                                     : sequenceSeconds(dataset_, static_cast<size_t>(first_),
@@ -255,7 +304,7 @@ class Player {
     if (ConsumerWatch::secondsSince(last_report_) <= 2.0 && next != end_) return;
     last_report_ = Clock::now();
     // Live, the frames skipped for lateness are played through too.
-    const int64_t played = params_.live ? next - first_ : sent_;
+    const int64_t played = params_.live ? next - first_ : played_before_ + sent_;
     spdlog::info("frame {}/{} ({:.0f} %), {:.1f} frames/s sent", played, count_,
                  100.0 * static_cast<double>(played) / static_cast<double>(count_),
                  static_cast<double>(sent_) / ConsumerWatch::secondsSince(start_));
@@ -275,8 +324,8 @@ class Player {
       break;
     }
     eos_.last_frame_id = newest_sent_;
-    eos_.frames = sent_;
-    eos_.duration_s = sequenceSeconds(dataset_, static_cast<size_t>(first_), static_cast<size_t>(sent_));
+    eos_.frames = played_before_ + sent_;
+    eos_.duration_s = sequenceSeconds(dataset_, static_cast<size_t>(first_), static_cast<size_t>(eos_.frames));
     announceEndOfStream(ctx_.bus(), eos_);
   }
 
@@ -286,10 +335,11 @@ class Player {
   void reportPlayed() {
     const double wall = params_.live ? live_wall_s_ : ConsumerWatch::secondsSince(start_);
     const char* transport = mode_ == TransportMode::kShm ? "shm" : "lcm";
-    spdlog::info("played {} frames in {:.2f} s ({:.1f} frames/s, transport {})", sent_, wall,
-                 static_cast<double>(sent_) / std::max(wall, 1e-9), transport);
+    const int64_t played = played_before_ + sent_;
+    spdlog::info("played {} frames in {:.2f} s ({:.1f} frames/s, transport {})", played, wall,
+                 static_cast<double>(played) / std::max(wall, 1e-9), transport);
     ctx_.stats()
-        .set("frames", static_cast<long long>(sent_))
+        .set("frames", static_cast<long long>(played))
         .set("sequence_seconds", eos_.duration_s)
         .set("wall_seconds", wall)
         .set("transport", transport);
@@ -323,6 +373,7 @@ class Player {
   std::optional<FrameSender> sender_;
   int in_flight_ = 1;
   int64_t newest_sent_ = -1, sent_ = 0, resent_ = 0, rewinds_ = 0;
+  int64_t played_before_ = 0;  // a restarted player: the frames its killed instance played
   int64_t restarts_ = 0;  // restarted consumers handled
   Clock::time_point start_, last_report_;
   // pacing: live: when the last frame went out, how late the frames went out
@@ -363,6 +414,7 @@ PlayerParams PlayerParams::fromConfig(const Config& config, const std::string& d
   p.slots = config.getInt("transport.slots");
   p.max_width = config.getInt("transport.max_width");
   p.max_height = config.getInt("transport.max_height");
+  p.restarted = config.getBool("player.restarted");
   if (p.transport_mode != "auto") parseTransportMode(p.transport_mode);
   return p;
 }

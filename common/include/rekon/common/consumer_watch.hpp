@@ -40,6 +40,7 @@ class ConsumerWatch {
       if (seen == Incarnations::Seen::kSuperseded) return;  // a killed instance's late heartbeat
       if (seen == Incarnations::Seen::kNew && seen_before) restarted_.insert(hb.service);
       hosts_[hb.service] = hb.host;
+      last_frames_[hb.service] = hb.last_frame_id;
       changed_.notify_all();
     });
     bus.subscribe<rekon_msgs::resume_point_t>(channel::kResumePoint, [this](const rekon_msgs::resume_point_t& r) {
@@ -135,6 +136,13 @@ class ConsumerWatch {
     }
     return std::nullopt;
   }
+  // The newest frame `name` said it has (its heartbeat's last_frame_id; -1
+  // before any): where a restarted frame source finds its consumers.
+  int64_t lastFrame(const std::string& name) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    const auto it = last_frames_.find(name);
+    return it == last_frames_.end() ? -1 : it->second;
+  }
   std::set<std::string> takeRestarts() {
     std::lock_guard<std::mutex> lock(mutex_);
     std::set<std::string> r;
@@ -157,6 +165,7 @@ class ConsumerWatch {
   std::map<std::string, std::string> hosts_;
   Incarnations incarnations_;  // of the services seen past "starting"
   std::map<std::string, int64_t> acked_;
+  std::map<std::string, int64_t> last_frames_;  // from heartbeats
   std::set<std::string> restarted_;
   std::map<std::pair<std::string, int>, int64_t> resume_points_;  // (service, pid) -> first missing frame
   Clock::time_point last_ack_ = Clock::now();

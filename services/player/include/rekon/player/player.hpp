@@ -28,6 +28,7 @@ struct PlayerParams {
   int slots = 8;
   int max_width = 640;
   int max_height = 480;
+  bool restarted = false;  // a new instance after a killed one: goes on where the consumers are
 
   static PlayerParams fromConfig(const Config& config, const std::string& dataset);
 };
@@ -38,7 +39,8 @@ struct PlayerParams {
 // it missed: every frame from the resume point it announces on the bus (the
 // mapper: after the last frame its keyframe store holds), so it works across
 // hosts. After the end of stream the player stays until its consumers are
-// done, so that one restarted late is served too.
+// done, so that one restarted late is served too. A restarted player goes on
+// after the frames its consumers have, on the first instance's clock.
 void runPlayer(ServiceContext& ctx, const PlayerParams& params);
 
 }  // namespace rekon
