@@ -6,6 +6,7 @@
 #include <cstdint>
 
 #include "rekon/common/messages.hpp"
+#include "rekon/tracker/dense_aligner.hpp"
 #include "rekon_msgs/replay_end_t.hpp"
 
 namespace rekon::tracker {
@@ -46,16 +47,19 @@ void History::publishResult(const TrackResult& r) {
     kf.pose_world = toMsg(r.keyframe_pose_world);
     keyframes_.push_back(kf);
     keyframe_of_frame_[r.frame_id] = kf;
+    journal(kKeyframeRecord, kf);
     bus_.publish(channel::kKeyframes, kf);
   }
   const auto publish_edge = [&](int8_t kind, const OdometryConstraint& edge) {
     constraints_.push_back(constraintMsg(kind, edge));
+    journal(kConstraintRecord, constraints_.back());
     bus_.publish(channel::kConstraints, constraints_.back());
   };
   if (r.odometry) publish_edge(rekon_msgs::constraint_t::KIND_ODOMETRY, *r.odometry);
   if (r.relocalised_from) publish_edge(rekon_msgs::constraint_t::KIND_LOOP, *r.relocalised_from);
   tracked_[r.frame_id] = tf;
   published_for_[r.frame_id] = mapper_instance_;
+  journal(kTrackedFrameRecord, tf);
   bus_.publish(channel::kTrackedFrames, tf);
 }
 
@@ -64,6 +68,7 @@ void History::publishLoopConstraint(const LoopConstraint& l) {
   {
     std::lock_guard<std::mutex> lock(mutex_);
     constraints_.push_back(c);
+    journal(kConstraintRecord, c);
   }
   bus_.publish(channel::kConstraints, c);
   spdlog::info("loop closure {} -> {} (ln det ratios coarse {:.2f}, fine {:.2f}, {} pixels)", l.from_id, l.to_id,
@@ -145,9 +150,99 @@ void History::noteGraphVersion(int64_t version) {
   graph_version_ = std::max(graph_version_, version);
 }
 
-void History::markDone() {
+void History::markDone(const rekon_msgs::done_t& done) {
   std::lock_guard<std::mutex> lock(mutex_);
+  if (!done_) journal(kDoneRecord, done);
   done_ = true;
+}
+
+RestoredJournal History::restore(const JournalRead& read) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  RestoredJournal out;
+  std::map<int64_t, size_t> keyframe_index;  // id -> index in out.keyframes
+  std::map<int64_t, Pose> keyframe_pose;
+  const auto undecodable = [&](size_t i, const char* what) {
+    spdlog::error("{}: record {} of {} does not decode as {}; the {} records after it are not restored",
+                  journal_ ? journal_->path() : std::string("journal"), i + 1, read.records.size(), what,
+                  read.records.size() - i - 1);
+  };
+  for (size_t i = 0; i < read.records.size(); ++i) {
+    const JournalRecord& record = read.records[i];
+    if (record.tag == kKeyframeRecord) {
+      const auto kf = decodeRecord<rekon_msgs::keyframe_t>(record);
+      const auto pose = kf ? fromMsg(kf->pose_world) : std::nullopt;
+      if (!pose) {
+        undecodable(i, "a keyframe");
+        return out;
+      }
+      keyframes_.push_back(*kf);
+      keyframe_of_frame_[kf->frame_id] = *kf;
+      keyframe_index[kf->keyframe_id] = out.keyframes.size();
+      keyframe_pose[kf->keyframe_id] = *pose;
+      out.keyframes.push_back({*kf, std::nullopt});
+    } else if (record.tag == kConstraintRecord) {
+      const auto c = decodeRecord<rekon_msgs::constraint_t>(record);
+      if (!c) {
+        undecodable(i, "a constraint");
+        return out;
+      }
+      constraints_.push_back(*c);
+      ++out.constraints;
+      const auto to = keyframe_index.find(c->to_id);
+      const auto relative = fromMsg(c->relative);
+      const auto information = matrix6FromArray(c->information);
+      if (c->kind == rekon_msgs::constraint_t::KIND_ODOMETRY && to != keyframe_index.end() && relative && information) {
+        OdometryConstraint edge;
+        edge.from_id = c->from_id;
+        edge.to_id = c->to_id;
+        edge.relative = *relative;
+        edge.information = *information;
+        edge.entropy = entropyOfInformation(*information);
+        out.keyframes[to->second].incoming = edge;
+      }
+    } else if (record.tag == kTrackedFrameRecord) {
+      const auto tf = decodeRecord<rekon_msgs::tracked_frame_t>(record);
+      const auto in_keyframe = tf ? fromMsg(tf->pose_in_keyframe) : std::nullopt;
+      if (!in_keyframe) {
+        undecodable(i, "a tracked frame");
+        return out;
+      }
+      tracked_[tf->frame_id] = *tf;
+      published_for_[tf->frame_id] = mapper_instance_;
+      ++out.tracked_frames;
+      if (tf->frame_id > out.last_frame_id) {
+        out.last_frame_id = tf->frame_id;
+        const auto kf = keyframe_pose.find(tf->keyframe_id);
+        if (kf != keyframe_pose.end()) out.last_pose_world = kf->second * *in_keyframe;
+      }
+    } else if (record.tag == kDoneRecord) {
+      const auto done = decodeRecord<rekon_msgs::done_t>(record);
+      if (!done) {
+        undecodable(i, "done");
+        return out;
+      }
+      out.done = *done;
+      done_ = true;
+    } else {
+      {
+        undecodable(i, "a tracker record (unknown tag)");
+        return out;
+      }
+    }
+  }
+  return out;
+}
+
+void History::publishArchived(const rekon_msgs::keyframe_t& kf, const std::optional<OdometryConstraint>& incoming) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  keyframes_.push_back(kf);
+  keyframe_of_frame_[kf.frame_id] = kf;
+  journal(kKeyframeRecord, kf);
+  bus_.publish(channel::kKeyframes, kf);
+  if (!incoming) return;
+  constraints_.push_back(constraintMsg(rekon_msgs::constraint_t::KIND_ODOMETRY, *incoming));
+  journal(kConstraintRecord, constraints_.back());
+  bus_.publish(channel::kConstraints, constraints_.back());
 }
 
 bool History::noteMapperPid(int pid) {

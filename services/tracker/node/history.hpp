@@ -6,23 +6,53 @@
 // thread and the loop-closure worker; replays go out from the main thread.
 #include <cstdint>
 #include <map>
+#include <optional>
 #include <set>
 #include <mutex>
 #include <vector>
 
 #include "rekon/common/bus.hpp"
+#include "rekon/common/record_journal.hpp"
 #include "rekon/tracker/loop_closure.hpp"
 #include "rekon/tracker/tracker.hpp"
 #include "rekon_msgs/constraint_t.hpp"
+#include "rekon_msgs/done_t.hpp"
 #include "rekon_msgs/keyframe_t.hpp"
 #include "rekon_msgs/replay_request_t.hpp"
 #include "rekon_msgs/tracked_frame_t.hpp"
 
 namespace rekon::tracker {
 
+// The tags of the journal's records (RecordJournal), each the LCM encoding of
+// the message that went out.
+enum JournalTag : uint32_t { kKeyframeRecord = 1, kConstraintRecord = 2, kTrackedFrameRecord = 3, kDoneRecord = 4 };
+
+// What a killed instance's journal held, beyond what restore() put back into the History.
+struct RestoredJournal {
+  struct KeyframeEntry {
+    rekon_msgs::keyframe_t keyframe;
+    std::optional<OdometryConstraint> incoming;  // its odometry edge from its predecessor, when it has one
+  };
+  std::vector<KeyframeEntry> keyframes;  // in publication order
+  int64_t constraints = 0, tracked_frames = 0;
+  int64_t last_frame_id = -1;          // the newest tracked frame
+  std::optional<Pose> last_pose_world;  // ...its world pose by odometry
+  std::optional<rekon_msgs::done_t> done;  // the killed instance had finished the stream
+};
+
 class History {
  public:
-  explicit History(Bus& bus) : bus_(bus) {}
+  // `journal`: where each message goes, in order, before it is published
+  // (null: none).
+  explicit History(Bus& bus, RecordJournal* journal = nullptr) : bus_(bus), journal_(journal) {}
+
+  // A restarted tracker: the killed instance's journal put back, so that
+  // replays and frames sent again are answered as before. An undecodable
+  // record ends what is taken (one log line).
+  RestoredJournal restore(const JournalRead& journal);
+  // A keyframe the killed instance archived but never published, published
+  // now (journaled first), with its odometry edge when it has one.
+  void publishArchived(const rekon_msgs::keyframe_t& keyframe, const std::optional<OdometryConstraint>& incoming);
 
   // A tracked frame's new keyframe and its odometry constraint (or the loop
   // edge that relocalised it), then the tracked frame itself: a consumer
@@ -49,7 +79,8 @@ class History {
   // seen (a restarted optimiser numbers its updates past it) and whether the
   // tracker has finished.
   void noteGraphVersion(int64_t version);
-  void markDone();
+  // `done` journaled (a restart after it says done again), then replays say done.
+  void markDone(const rekon_msgs::done_t& done);
   // A mapper process seen on the bus (its resume point, or its heartbeat
   // once running). A pid not seen before, after the first, is a restarted
   // mapper: a newer instance. A frame sent again goes out again only to a
@@ -59,7 +90,13 @@ class History {
 
  private:
   void serveBatch(const rekon_msgs::replay_request_t& request);
+  // Under mutex_: into the journal (when there is one).
+  template <class M>
+  void journal(JournalTag tag, const M& m) {
+    if (journal_) journal_->append(tag, m);
+  }
   Bus& bus_;
+  RecordJournal* journal_;
   std::mutex mutex_;
   std::vector<rekon_msgs::keyframe_t> keyframes_;
   std::vector<rekon_msgs::constraint_t> constraints_;  // odometry and loop edges, in publication order

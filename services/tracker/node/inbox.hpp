@@ -28,6 +28,17 @@ class Inbox {
   Inbox(ServiceContext& ctx, TrackingWorker& worker, History& history, LoopClosureWorker& loops, bool hold_when_behind);
   // Call after the StopThreadsOnExit that guards everything the handlers use.
   void subscribe();
+  // A restarted tracker (before subscribe()): frames before `first_missing`
+  // were tracked by the killed instance (their stored results answer them);
+  // a later frame that comes first (the source's newest, sent again before it
+  // heard of the restart) is dropped unacknowledged and comes again in its
+  // turn, unless the source has not rewound within kRewindWaitS (a live
+  // source goes on from its next frame). -1: every frame is new.
+  void resumeFrom(int64_t first_missing);
+  // A restarted tracker whose killed instance had finished: the stream ended at `last_frame_id`.
+  void endAt(int64_t last_frame_id) { end_frame_.store(last_frame_id); }
+  int64_t framesBeforeResume() const { return before_resume_.load(); }
+  static constexpr double kRewindWaitS = 3.0;
 
   // The last frame id of the end of stream; kNoEndYet before it came.
   int64_t endFrame() const { return end_frame_.load(); }
@@ -65,6 +76,9 @@ class Inbox {
   int64_t held_ack_ = -1;  // the newest frame whose acknowledgement is held back; -1: none
   Clock::time_point held_since_;
   double held_s_ = 0.0;
+  int64_t resume_from_ = -1;  // resumeFrom(): waiting for this frame; -1: not waiting
+  Clock::time_point resume_since_;
+  std::atomic<int64_t> before_resume_{0};
 };
 
 }  // namespace rekon::tracker

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <optional>
 #include <thread>
 
 #include "history.hpp"
@@ -13,6 +14,7 @@
 #include "rekon/tracker/loop_closure.hpp"
 #include "rekon/tracker/params.hpp"
 #include "rekon_msgs/done_t.hpp"
+#include "tracker_state.hpp"
 #include "tracking_worker.hpp"
 
 namespace rekon::tracker {
@@ -30,12 +32,33 @@ constexpr int kDrainPollMs = 100;
 // How often the main thread looks for replay requests and the end.
 constexpr auto kPoll = std::chrono::milliseconds(10);
 
+// A restarted tracker's resume point, announced at the start and once a
+// second after (as the mapper's): a frame source that missed one finds the next.
+class ResumeAnnouncer {
+ public:
+  ResumeAnnouncer(Bus& bus, std::optional<rekon_msgs::resume_point_t> point) : bus_(bus), point_(std::move(point)) {
+    tick(true);
+  }
+  void tick(bool now = false) {
+    if (!point_ || (!now && std::chrono::steady_clock::now() - last_ < std::chrono::seconds(1))) return;
+    last_ = std::chrono::steady_clock::now();
+    bus_.publish(channel::kResumePoint, *point_);
+  }
+
+ private:
+  Bus& bus_;
+  std::optional<rekon_msgs::resume_point_t> point_;
+  std::chrono::steady_clock::time_point last_;
+};
+
 // Serves replays while the bus thread tracks, until every frame up to the
 // end of stream is tracked or the missing ones are given up as lost; false
 // at a stop request or when the worker cannot go on.
-bool trackUntilEndOfStream(ServiceContext& ctx, Inbox& inbox, const TrackingWorker& worker, History& history) {
+bool trackUntilEndOfStream(ServiceContext& ctx, Inbox& inbox, const TrackingWorker& worker, History& history,
+                           ResumeAnnouncer& resume) {
   while (!ctx.stopRequested()) {
     if (worker.failure()) return false;
+    resume.tick();
     history.serveReplays();
     inbox.releaseHeldAck();
     const int64_t end = inbox.endFrame();
@@ -55,24 +78,27 @@ bool trackUntilEndOfStream(ServiceContext& ctx, Inbox& inbox, const TrackingWork
 // for a replay to fill what it lost, and a restarted one rebuilds from one; a
 // restarted mapper gets its frames again, whose results go out again from
 // here.
-void finish(ServiceContext& ctx, Inbox& inbox, History& history, LoopClosureWorker& loops, const PeerWatch& peers) {
+void finish(ServiceContext& ctx, Inbox& inbox, History& history, LoopClosureWorker& loops, const PeerWatch& peers,
+            ResumeAnnouncer& resume) {
   spdlog::debug("end of stream: waiting for the loop-closure checks");  // the inbox logged the end once
   // Tracking is idle now: the checks left over (the stream kept both cores
   // busy, and they run below tracking's priority) get every core.
   loops.useThreads(static_cast<int>(std::max(1u, std::thread::hardware_concurrency())));
   while (!loops.waitUntilDrained(kDrainPollMs) && !ctx.stopRequested()) {
+    resume.tick();
     history.serveReplays();
     inbox.releaseHeldAck();
   }
   inbox.releaseHeldAck();
-  history.markDone();
   const rekon_msgs::done_t done = doneMessage("tracker", inbox.endFrame());
+  history.markDone(done);
   for (int i = 0; i < kDoneRepeats; ++i) {
     if (i > 0) std::this_thread::sleep_for(kDoneGap);
     ctx.bus().publish(channel::kDone, done);
   }
   ctx.setState("lingering");
   while (!ctx.stopRequested() && !peers.finished({"optimiser", "mapper"})) {
+    resume.tick();
     history.serveReplays();
     std::this_thread::sleep_for(kPoll);
   }
@@ -81,27 +107,44 @@ void finish(ServiceContext& ctx, Inbox& inbox, History& history, LoopClosureWork
 }  // namespace
 
 void runTrackerService(ServiceContext& ctx) {
+  const auto started = std::chrono::steady_clock::now();
   const TrackerParams params = trackerParamsFromConfig(ctx.config());
-  History history(ctx.bus());
+  const bool restarted = ctx.config().getBool("tracker.restarted");
+  TrackerState state(ctx.outDir(), restarted);
+  History history(ctx.bus(), state.journal());
   // One copy of each DVO keyframe for loop closure and relocalisation, bounded by tracker.keyframes_in_memory.
   const auto keyframes = std::make_shared<KeyframeCache>(params);
-  LoopClosureWorker loops(params, [&history](const LoopConstraint& c) { history.publishLoopConstraint(c); }, true,
+  // Started once a restart has indexed the earlier keyframes in it.
+  LoopClosureWorker loops(params, [&history](const LoopConstraint& c) { history.publishLoopConstraint(c); }, false,
                           keyframes);
   const TrackerSession session = TrackerSession::fromConfig(ctx.config());
-  TrackingWorker worker(params, session, history, loops, keyframes);
+  TrackingWorker worker(params, session, history, loops, keyframes, &state);
   PeerWatch peers(ctx.bus(), ctx.lifecycle());
   Inbox inbox(ctx, worker, history, loops, params.loop.when_behind == LoopClosureParams::WhenBehind::kHold);
+  std::optional<rekon_msgs::resume_point_t> resume_point;
+  if (restarted)
+    resume_point = restoreAfterRestart(ctx, state, history, *keyframes, worker, loops, inbox, params.aligner);
+  loops.start();
   StopThreadsOnExit stop_threads(ctx);  // before the state above dies: the bus handlers use it
   inbox.subscribe();
+  ResumeAnnouncer resume(ctx.bus(), resume_point);
+  if (restarted)
+    spdlog::info("restart: ready for frames {:.0f} ms after the start",
+                 std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - started).count());
   ctx.setState("running");
   spdlog::info("tracking levels {}..{} ({} after a gap over {} s), keyframe criterion {}",
                params.aligner.coarsest_level, params.aligner.finest_level, params.aligner.gap_coarsest_level,
                params.aligner.gap_coarse_s, params.keyframe.criterion);
 
-  const bool ended = trackUntilEndOfStream(ctx, inbox, worker, history);
+  const bool ended = trackUntilEndOfStream(ctx, inbox, worker, history, resume);
   ctx.setState("finishing");
-  if (ended) finish(ctx, inbox, history, loops, peers);
+  if (ended) finish(ctx, inbox, history, loops, peers, resume);
   ctx.stopThreads();  // no handler runs after this
+  ctx.stats()
+      .set("keyframes_archived", state.archived())
+      .set("archive_ms", state.archiveMs())
+      .set("frames_before_resume", inbox.framesBeforeResume());
+  if (restarted) ctx.stats().set("restart_first_pose", worker.resumedBy());
   writeOutputs(ctx, worker.totals(), inbox.framesSentAgain(), inbox.ackHeldSeconds(), loops.stats(), keyframes->stats(),
                session.localise_only);
   if (const auto failure = worker.failure()) throw Error(*failure);  // after the outputs: what was tracked is kept

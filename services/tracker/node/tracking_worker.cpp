@@ -36,9 +36,31 @@ TrackerSession TrackerSession::fromConfig(const Config& config) {
 }
 
 TrackingWorker::TrackingWorker(const TrackerParams& params, const TrackerSession& session, History& history,
-                               LoopClosureWorker& loops, std::shared_ptr<KeyframeCache> keyframes)
-    : session_(session), history_(history), loops_(loops), tracker_(params, std::move(keyframes)) {
+                               LoopClosureWorker& loops, std::shared_ptr<KeyframeCache> keyframes, TrackerState* state)
+    : session_(session), state_(state), history_(history), loops_(loops), tracker_(params, std::move(keyframes)) {
   if (session_.continued) continueSession(params);
+}
+
+void TrackingWorker::addIndexedKeyframe(int64_t id, const Pose& pose_world,
+                                        const std::optional<OdometryConstraint>& incoming) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  tracker_.addIndexedKeyframe(id, pose_world, incoming);
+}
+
+void TrackingWorker::continueIdsFrom(int64_t next_id) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  tracker_.continueIdsFrom(next_id);
+}
+
+void TrackingWorker::resumeAt(const Pose& last_pose_world) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  tracker_.resumeAt(last_pose_world);
+  resuming_ = true;
+}
+
+std::string TrackingWorker::resumedBy() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return resumed_by_;
 }
 
 void TrackingWorker::continueSession(const TrackerParams& params) {
@@ -127,6 +149,14 @@ bool TrackingWorker::trackLocked(const rekon_msgs::frame_t& msg) {
   totals_.lost_intervals.add(r);
   if (r.state == TrackingState::Lost) spdlog::warn("frame {}: lost ({})", r.frame_id, toString(r.lost_reason));
   keepInSession(r, k);
+  if (resuming_ && r.new_keyframe) {
+    resuming_ = false;
+    resumed_by_ = r.relocalised_from ? "relocalised" : "new keyframe";
+    spdlog::info("first pose after the restart: frame {}, {}", r.frame_id,
+                 r.relocalised_from ? "relocalised against keyframe " + std::to_string(r.relocalised_from->from_id)
+                                    : std::string("a new keyframe at the last pose before it (none validated)"));
+  }
+  if (state_ && r.new_keyframe && !session_.localise_only) state_->archive(*tracker_.currentKeyframe(), r.odometry, k);
   if (session_.localise_only) {
     // Poses only: no back end runs, and the edges name the session's keyframes, never announced on the bus.
     TrackResult poses = r;

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "history.hpp"
+#include "tracker_state.hpp"
 #include "rekon/common/config.hpp"
 #include "rekon/common/frame_transport.hpp"
 #include "rekon/common/pose.hpp"
@@ -52,8 +53,17 @@ class TrackingWorker {
  public:
   // With session.continue the session's keyframes are loaded here: rekon::Error naming the file when one is damaged.
   // `keyframes`: the DVO keyframes' cache, shared with `loops`.
+  // `state`: where each new keyframe is archived before it is published (null: nowhere).
   TrackingWorker(const TrackerParams& params, const TrackerSession& session, History& history, LoopClosureWorker& loops,
-                 std::shared_ptr<KeyframeCache> keyframes);
+                 std::shared_ptr<KeyframeCache> keyframes, TrackerState* state = nullptr);
+
+  // A restarted tracker, before the first frame (Tracker's methods of the same names).
+  void addIndexedKeyframe(int64_t id, const Pose& pose_world, const std::optional<OdometryConstraint>& incoming);
+  void continueIdsFrom(int64_t next_id);
+  void resumeAt(const Pose& last_pose_world);
+  // How the restart's first pose came: "relocalised", "new keyframe" (none
+  // validated); "" before it, or when this is no restart.
+  std::string resumedBy() const;
 
   // Decodes and tracks one frame; false when it does not decode (the
   // receiver logged why).
@@ -77,6 +87,9 @@ class TrackingWorker {
   void keepInSession(const TrackResult& r, const Intrinsics& k);
 
   TrackerSession session_;
+  TrackerState* state_;
+  bool resuming_ = false;
+  std::string resumed_by_;
   History& history_;
   LoopClosureWorker& loops_;
   mutable std::mutex mutex_;

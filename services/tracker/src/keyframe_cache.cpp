@@ -56,7 +56,7 @@ KeyframeCache::~KeyframeCache() {
   if (spill_root_.empty()) return;
   std::error_code ec;
   for (const auto& [id, slot] : slots_)
-    if (slot.on_disk) fs::remove(keyframeFile(spill_root_, id), ec);
+    if (slot.on_disk && slot.archive.empty()) fs::remove(keyframeFile(spill_root_, id), ec);
   fs::remove(fs::path(spill_root_) / "tracker", ec);  // only when empty: a shared folder keeps others' files
   if (made_root_) fs::remove(spill_root_, ec);
 }
@@ -92,12 +92,23 @@ void KeyframeCache::add(std::shared_ptr<const Keyframe> keyframe) {
   shrinkAround(it->second.pose_world.translation());
 }
 
+void KeyframeCache::addArchived(int64_t id, const Pose& pose_world, const std::string& root) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const auto [it, added] = slots_.try_emplace(id);
+  if (!added) return;
+  it->second.pose_world = pose_world;
+  it->second.on_disk = true;
+  it->second.archive = root;
+  ++stats_.keyframes;
+}
+
 std::shared_ptr<const Keyframe> KeyframeCache::get(int64_t id) {
   std::lock_guard<std::mutex> lock(mutex_);
   const auto it = slots_.find(id);
   if (it == slots_.end()) return nullptr;
   if (it->second.resident) return it->second.resident;
-  std::shared_ptr<const Keyframe> kf = loadKeyframe(spill_root_, id, aligner_).keyframe;
+  const std::string& root = it->second.archive.empty() ? spill_root_ : it->second.archive;
+  std::shared_ptr<const Keyframe> kf = loadKeyframe(root, id, aligner_).keyframe;
   ++stats_.loaded;
   ++stats_.resident;
   stats_.resident_bytes += residentBytes(*kf);

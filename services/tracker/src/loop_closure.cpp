@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cmath>
 #include <exception>
+#include <stdexcept>
 #include <limits>
 #include <numbers>
 #include <thread>
@@ -77,15 +78,19 @@ std::pair<AlignResult, AlignResult> LoopClosureDetector::refine(const Keyframe& 
 
 void LoopClosureDetector::addKeyframe(std::shared_ptr<const Keyframe> keyframe,
                                       const std::optional<OdometryConstraint>& incoming) {
+  addIndexed(keyframe->id, keyframe->pose_world, incoming);
+  cache_->add(std::move(keyframe));
+}
+
+void LoopClosureDetector::addIndexed(int64_t id, const Pose& pose_world, const std::optional<OdometryConstraint>& incoming) {
   if (incoming && std::isfinite(incoming->entropy)) {
     fine_sum_ += logDetOfEntropy(incoming->entropy);
     ++fine_count_;
   }
-  Entry& e = entries_[keyframe->id];
-  e.pose_world = keyframe->pose_world;
+  Entry& e = entries_[id];
+  e.pose_world = pose_world;
   e.incoming = incoming;
   e.incoming_coarse_log_det.reset();
-  cache_->add(std::move(keyframe));
 }
 
 std::shared_ptr<const Keyframe> LoopClosureDetector::keyframe(int64_t id) const {
@@ -440,6 +445,12 @@ void LoopClosureWorker::addStored(std::shared_ptr<const Keyframe> keyframe,
     queue_.push_back(Job{std::move(keyframe), incoming, Kind::kStored});
   }
   wake_.notify_one();
+}
+
+void LoopClosureWorker::addIndexed(int64_t id, const Pose& pose_world, const std::optional<OdometryConstraint>& incoming) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (started_) throw std::logic_error("LoopClosureWorker::addIndexed after start()");
+  if (detector_.params().enabled) detector_.addIndexed(id, pose_world, incoming);
 }
 
 void LoopClosureWorker::updateGraph(int64_t version, std::unordered_map<int64_t, Pose> poses) {

@@ -13,6 +13,11 @@ void Relocaliser::addKeyframe(std::shared_ptr<const Keyframe> keyframe, const st
   ++size_;
 }
 
+void Relocaliser::addIndexed(int64_t id, const Pose& pose_world, const std::optional<OdometryConstraint>& incoming) {
+  detector_.addIndexed(id, pose_world, incoming);
+  ++size_;
+}
+
 void Relocaliser::updateGraph(int64_t version, std::unordered_map<int64_t, Pose> poses) {
   detector_.updateGraph(version, std::move(poses));
 }

@@ -47,6 +47,11 @@ void Tracker::addStoredKeyframe(std::shared_ptr<const Keyframe> keyframe, const 
   relocaliser_->addKeyframe(std::move(keyframe), incoming);
 }
 
+void Tracker::addIndexedKeyframe(int64_t id, const Pose& pose_world, const std::optional<OdometryConstraint>& incoming) {
+  next_keyframe_id_ = std::max(next_keyframe_id_, id + 1);
+  relocaliser_->addIndexed(id, pose_world, incoming);
+}
+
 void Tracker::relocaliseFirstFrame(int frames) { relocalise_first_within_ = frames; }
 
 void Tracker::localiseOnly() {
@@ -250,6 +255,19 @@ bool Tracker::bridgeGap(const RgbdFrame& frame, TrackResult& r) {
 }
 
 void Tracker::startTracking(const RgbdFrame& frame, LostReason reason, TrackResult& r) {
+  if (resume_at_ && reason == LostReason::None) {
+    const Pose at = *resume_at_;
+    resume_at_.reset();
+    if (relocalise(frame, at, r)) return;
+    spdlog::warn("frame {}: not relocalised against the keyframes near the last pose before the restart; new keyframe "
+                 "there (no odometry edge)",
+                 frame.id);
+    keyframe_ = makeKeyframe(frame, at);
+    last_good_timestamp_ = frame.timestamp;
+    reportStartedKeyframe(r);
+    r.keyframe_reset = true;
+    return;
+  }
   if (relocalise_first_within_ > 0) {
     ++frames_before_first_;
     if (reason == LostReason::None && relocalise(frame, std::nullopt, r)) return;

@@ -38,6 +38,11 @@ class KeyframeCache {
   // Adds a keyframe (again: ignored); may move others to disk. rekon::Error
   // naming the file when one cannot be written (the keyframe stays resident).
   void add(std::shared_ptr<const Keyframe> keyframe);
+  // A keyframe already on disk in an archive (ROOT/tracker/dvo_NNNNNN.rkd,
+  // keyframe_archive.hpp), indexed without reading it: get() reads it when a
+  // check first needs it (a restarted tracker's earlier keyframes). The file
+  // is never removed by the cache. Again: ignored.
+  void addArchived(int64_t id, const Pose& pose_world, const std::string& root);
   // The keyframe with its pyramid and reference, read back when on disk;
   // null for an id never added.
   std::shared_ptr<const Keyframe> get(int64_t id);
@@ -48,6 +53,7 @@ class KeyframeCache {
     std::shared_ptr<const Keyframe> resident;  // null while only on disk
     Pose pose_world = Pose::Identity();
     bool on_disk = false;
+    std::string archive;  // the archive root it is read from; "": spill_root_ (and removed at exit)
   };
   // Under mutex_: moves the resident keyframes farthest from `near` to disk
   // until at most in_memory_ are resident.

@@ -99,6 +99,9 @@ class LoopClosureDetector {
   // Adds a keyframe as a future candidate; `incoming` links it to its
   // predecessor (absent for the first keyframe and after a tracking reset).
   void addKeyframe(std::shared_ptr<const Keyframe> keyframe, const std::optional<OdometryConstraint>& incoming);
+  // The same for a keyframe the cache already holds or indexes (a restarted
+  // tracker's archive: KeyframeCache::addArchived), by id and odometry pose.
+  void addIndexed(int64_t id, const Pose& pose_world, const std::optional<OdometryConstraint>& incoming);
 
   // The optimiser's keyframe poses; an update older than the newest seen is ignored.
   void updateGraph(int64_t version, std::unordered_map<int64_t, Pose> poses);
@@ -216,6 +219,10 @@ class LoopClosureWorker {
   void submit(std::shared_ptr<const Keyframe> keyframe, const std::optional<OdometryConstraint>& incoming);
   // A keyframe of an earlier run (a continued session): a candidate, never checked itself.
   void addStored(std::shared_ptr<const Keyframe> keyframe, const std::optional<OdometryConstraint>& incoming);
+  // A restarted tracker's earlier keyframe, indexed in the shared cache
+  // (LoopClosureDetector::addIndexed): a candidate, never checked itself.
+  // Before start() only (a worker made with start false).
+  void addIndexed(int64_t id, const Pose& pose_world, const std::optional<OdometryConstraint>& incoming);
   void updateGraph(int64_t version, std::unordered_map<int64_t, Pose> poses);
   // Waits until every queued keyframe has been handled, at most `timeout_ms`;
   // true when drained (false at once when not started and not empty).

@@ -33,6 +33,8 @@ class Relocaliser {
 
   // Tracking thread only.
   void addKeyframe(std::shared_ptr<const Keyframe> keyframe, const std::optional<OdometryConstraint>& incoming);
+  // One the shared cache indexes (LoopClosureDetector::addIndexed).
+  void addIndexed(int64_t id, const Pose& pose_world, const std::optional<OdometryConstraint>& incoming);
   // Any thread (the bus thread): the optimiser's poses.
   void updateGraph(int64_t version, std::unordered_map<int64_t, Pose> poses);
   size_t size() const { return size_; }

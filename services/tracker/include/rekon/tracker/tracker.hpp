@@ -6,6 +6,7 @@
 // keyframe brings an odometry constraint to its predecessor.
 #include <cstdint>
 #include <memory>
+#include <algorithm>
 #include <optional>
 #include <unordered_map>
 
@@ -115,6 +116,17 @@ class Tracker {
   // it are lost: Relocalising); when none of the first `frames` frames is,
   // gaveUp() turns true.
   void relocaliseFirstFrame(int frames);
+  // A restarted tracker (tracker.restarted): an earlier instance's keyframe,
+  // indexed in the shared cache (KeyframeCache::addArchived), a candidate for
+  // relocalisation; new keyframe ids continue past it.
+  void addIndexedKeyframe(int64_t id, const Pose& pose_world, const std::optional<OdometryConstraint>& incoming);
+  // New keyframe ids start at `next_id` or later.
+  void continueIdsFrom(int64_t next_id) { next_keyframe_id_ = std::max(next_keyframe_id_, next_id); }
+  // The first trackable frame is relocalised against the keyframes nearest
+  // `last_pose_world` (the killed instance's last pose); when none validates
+  // it becomes a new keyframe there, with no odometry edge (keyframe_reset,
+  // as after max_lost_frames): tracking always goes on.
+  void resumeAt(const Pose& last_pose_world) { resume_at_ = last_pose_world; }
   bool gaveUp() const { return gave_up_; }
   // Localisation in a saved map (session.localise_only): the stored keyframes
   // are the map and stay the only relocalisation candidates. The first frame
@@ -214,6 +226,7 @@ class Tracker {
   int frames_before_first_ = 0;
   bool gave_up_ = false;
   bool localise_only_ = false;
+  std::optional<Pose> resume_at_;  // resumeAt(), until the first trackable frame
 };
 
 }  // namespace rekon::tracker

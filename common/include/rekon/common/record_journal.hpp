@@ -1,0 +1,80 @@
+#pragma once
+// An append-only journal of LCM-encoded messages, the form in which a
+// service keeps what it has published or heard so that a restarted instance
+// rebuilds from it (the tracker's <out>/tracker_state/journal.rkj). A file is
+// an 8-byte magic, then records one after another:
+//
+//   u32 tag   u32 size   size bytes (the message's LCM encoding)   u32 FNV-1a 32 of tag, size and bytes
+//
+// in the host's byte order (a journal is read on the machine that wrote it).
+// Each record goes to the kernel in one write() as it is appended, so a
+// killed process loses nothing it appended; there is no fsync (a power cut
+// may lose the tail, which reads as a torn record). A record cut short by a
+// kill, or one whose checksum does not match, ends what is read: it and
+// everything after it are cut off, said in one log line.
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace rekon {
+
+struct JournalRecord {
+  uint32_t tag = 0;
+  std::string bytes;  // the LCM encoding
+};
+
+struct JournalRead {
+  std::vector<JournalRecord> records;  // in append order
+  uint64_t valid_bytes = 0;            // of the file, up to the end of the last good record
+  bool torn = false;                   // something after valid_bytes was cut off
+};
+
+// What the journal at `path` holds (no records when there is no file).
+// rekon::Error naming the file when it is not a journal (wrong magic) or
+// cannot be read.
+JournalRead readRecordJournal(const std::string& path);
+
+// Decodes a record as message type M; nullopt when it does not decode whole.
+template <class M>
+std::optional<M> decodeRecord(const JournalRecord& r) {
+  M m;
+  const int n = m.decode(r.bytes.data(), 0, static_cast<int>(r.bytes.size()));
+  if (n != static_cast<int>(r.bytes.size())) return std::nullopt;
+  return m;
+}
+
+class RecordJournal {
+ public:
+  // `restarted`: an earlier instance's journal at `path` is read (contents())
+  // and appended to after its last good record; else the file is started
+  // empty. rekon::Error naming the file when it cannot be written.
+  RecordJournal(const std::string& path, bool restarted);
+  ~RecordJournal();
+  RecordJournal(const RecordJournal&) = delete;
+  RecordJournal& operator=(const RecordJournal&) = delete;
+
+  const JournalRead& contents() const { return contents_; }
+  // Frees what contents() holds once the caller has taken it.
+  void forgetContents() { contents_ = JournalRead{}; }
+  const std::string& path() const { return path_; }
+
+  // Appends one record. A failed write logs one error and stops the journal
+  // (the run goes on; a restart then rebuilds less). Not thread-safe.
+  void append(uint32_t tag, const std::string& bytes);
+  template <class M>
+  void append(uint32_t tag, const M& message) {
+    std::string bytes(static_cast<size_t>(message.getEncodedSize()), '\0');
+    message.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
+    append(tag, bytes);
+  }
+  bool open() const { return fd_ >= 0; }
+
+ private:
+  std::string path_;
+  int fd_ = -1;
+  JournalRead contents_;
+  std::string buffer_;  // one record, reused
+};
+
+}  // namespace rekon

@@ -1,0 +1,118 @@
+#include "rekon/common/record_journal.hpp"
+
+#include <fcntl.h>
+#include <spdlog/spdlog.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+
+#include "rekon/common/error.hpp"
+
+namespace rekon {
+namespace {
+
+constexpr char kMagic[8] = {'R', 'K', 'J', 'R', 'N', 'L', '0', '1'};
+constexpr size_t kHeader = 2 * sizeof(uint32_t);
+constexpr size_t kTrailer = sizeof(uint32_t);
+
+uint32_t fnv1a32(const char* data, size_t n, uint32_t h = 2166136261u) {
+  for (size_t i = 0; i < n; ++i) h = (h ^ static_cast<unsigned char>(data[i])) * 16777619u;
+  return h;
+}
+
+template <class T>
+T at(const std::string& bytes, size_t offset) {
+  T v;
+  std::memcpy(&v, bytes.data() + offset, sizeof(T));
+  return v;
+}
+
+bool writeAll(int fd, const char* data, size_t n) {
+  while (n > 0) {
+    const ssize_t w = ::write(fd, data, n);
+    if (w < 0 && errno == EINTR) continue;
+    if (w <= 0) return false;
+    data += w;
+    n -= static_cast<size_t>(w);
+  }
+  return true;
+}
+
+}  // namespace
+
+JournalRead readRecordJournal(const std::string& path) {
+  JournalRead out;
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return out;
+  const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  if (in.bad()) throw Error("cannot read the journal " + path + "; check its permissions");
+  if (bytes.empty()) return out;  // created, killed before the magic went out
+  if (bytes.size() < sizeof(kMagic) || std::memcmp(bytes.data(), kMagic, sizeof(kMagic)) != 0)
+    throw Error(path + " is not a rekon journal (wrong magic); remove it to start without what it held");
+  size_t offset = sizeof(kMagic);
+  while (offset < bytes.size()) {
+    const size_t left = bytes.size() - offset;
+    if (left < kHeader) break;
+    const uint32_t size = at<uint32_t>(bytes, offset + sizeof(uint32_t));
+    if (left - kHeader < static_cast<size_t>(size) + kTrailer) break;
+    const size_t end = offset + kHeader + size;
+    if (at<uint32_t>(bytes, end) != fnv1a32(bytes.data() + offset, kHeader + size)) break;
+    out.records.push_back({at<uint32_t>(bytes, offset), bytes.substr(offset + kHeader, size)});
+    offset = end + kTrailer;
+  }
+  out.valid_bytes = offset;
+  if (offset < bytes.size()) {
+    out.torn = true;
+    spdlog::warn("{}: the record at byte {} is torn or damaged (a kill in mid-write?); it and the {} bytes after it "
+                 "are cut off, {} records kept",
+                 path, offset, bytes.size() - offset, out.records.size());
+  }
+  return out;
+}
+
+RecordJournal::RecordJournal(const std::string& path, bool restarted) : path_(path) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  if (const fs::path parent = fs::path(path).parent_path(); !parent.empty()) fs::create_directories(parent, ec);
+  if (restarted) contents_ = readRecordJournal(path);
+  const bool keep = restarted && contents_.valid_bytes > 0;
+  fd_ = ::open(path.c_str(), O_WRONLY | O_CREAT | O_CLOEXEC | (keep ? 0 : O_TRUNC), 0644);
+  if (fd_ < 0) throw Error("cannot write the journal " + path + " (" + std::strerror(errno) + "); check that the folder is writable");
+  // A restart appends after the last good record: a torn one is cut off.
+  const bool ok = keep ? ::ftruncate(fd_, static_cast<off_t>(contents_.valid_bytes)) == 0 &&
+                             ::lseek(fd_, 0, SEEK_END) == static_cast<off_t>(contents_.valid_bytes)
+                       : writeAll(fd_, kMagic, sizeof(kMagic));
+  if (!ok) {
+    const std::string why = std::strerror(errno);
+    ::close(fd_);
+    fd_ = -1;
+    throw Error("cannot write the journal " + path + " (" + why + "); check the disk and the folder's permissions");
+  }
+}
+
+RecordJournal::~RecordJournal() {
+  if (fd_ >= 0) ::close(fd_);
+}
+
+void RecordJournal::append(uint32_t tag, const std::string& bytes) {
+  if (fd_ < 0) return;
+  const auto size = static_cast<uint32_t>(bytes.size());
+  buffer_.clear();
+  buffer_.append(reinterpret_cast<const char*>(&tag), sizeof(tag));
+  buffer_.append(reinterpret_cast<const char*>(&size), sizeof(size));
+  buffer_.append(bytes);
+  const uint32_t sum = fnv1a32(buffer_.data(), buffer_.size());
+  buffer_.append(reinterpret_cast<const char*>(&sum), sizeof(sum));
+  if (writeAll(fd_, buffer_.data(), buffer_.size())) return;
+  spdlog::error("cannot append to the journal {} ({}; disk full?): no more journal, a restart rebuilds only what "
+                "came before",
+                path_, std::strerror(errno));
+  ::close(fd_);
+  fd_ = -1;
+}
+
+}  // namespace rekon

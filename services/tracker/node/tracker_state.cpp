@@ -1,0 +1,133 @@
+#include "tracker_state.hpp"
+
+#include <spdlog/spdlog.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <filesystem>
+#include <map>
+#include <set>
+
+#include "inbox.hpp"
+#include "rekon/common/error.hpp"
+#include "rekon/common/messages.hpp"
+#include "rekon/tracker/keyframe_archive.hpp"
+#include "rekon/tracker/loop_closure.hpp"
+#include "tracking_worker.hpp"
+
+namespace rekon::tracker {
+namespace fs = std::filesystem;
+namespace {
+
+// Ids of the keyframe files in ROOT/tracker/ (dvo_NNNNNN.rkd; a *.tmp a kill left is none).
+std::set<int64_t> archivedIds(const std::string& root) {
+  std::set<int64_t> ids;
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator(fs::path(root) / "tracker", ec)) {
+    const std::string name = e.path().filename().string();
+    long long id = -1;
+    char rest[8] = {};
+    if (std::sscanf(name.c_str(), "dvo_%lld%7s", &id, rest) == 2 && std::string(rest) == ".rkd" && id >= 0) ids.insert(id);
+  }
+  return ids;
+}
+
+}  // namespace
+
+TrackerState::TrackerState(const std::string& out_dir, bool restarted) {
+  if (out_dir.empty()) {
+    if (restarted) spdlog::warn("tracker.restarted without an output folder: nothing was kept, tracking starts afresh");
+    return;
+  }
+  root_ = (fs::path(out_dir) / kStateFolder).string();
+  if (!restarted) {
+    std::error_code ec;
+    fs::remove_all(fs::path(root_) / "tracker", ec);  // an earlier run's, in the same folder
+  }
+  journal_ = std::make_unique<RecordJournal>((fs::path(root_) / kJournalFile).string(), restarted);
+  archiving_ = true;
+}
+
+void TrackerState::archive(const Keyframe& keyframe, const std::optional<OdometryConstraint>& incoming,
+                           const Intrinsics& camera) {
+  if (!archiving_) return;
+  const auto t0 = std::chrono::steady_clock::now();
+  try {
+    saveKeyframe(root_, keyframe, incoming, camera);
+    ++archived_;
+  } catch (const Error& e) {
+    spdlog::error("{}; no more keyframes are archived: a restart of this tracker relocalises against fewer", e.what());
+    archiving_ = false;
+  }
+  archive_ms_ += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+
+rekon_msgs::resume_point_t restoreAfterRestart(ServiceContext& ctx, TrackerState& state, History& history,
+                                               KeyframeCache& cache, TrackingWorker& worker, LoopClosureWorker& loops,
+                                               Inbox& inbox, const AlignerParams& aligner) {
+  rekon_msgs::resume_point_t resume{};
+  resume.service = ctx.name();
+  resume.pid = static_cast<int32_t>(getpid());
+  resume.first_missing_frame = -1;
+  if (!state.kept()) return resume;
+  const RestoredJournal restored = history.restore(state.journal()->contents());
+  state.journal()->forgetContents();
+  const std::string& root = state.archiveRoot();
+  std::set<int64_t> archived = archivedIds(root);
+  int64_t highest = -1, missing = 0;
+  const auto index = [&](int64_t id, const Pose& pose, const std::optional<OdometryConstraint>& incoming) {
+    highest = std::max(highest, id);
+    if (!archived.count(id)) {
+      ++missing;
+      return;
+    }
+    cache.addArchived(id, pose, root);
+    worker.addIndexedKeyframe(id, pose, incoming);
+    loops.addIndexed(id, pose, incoming);
+  };
+  for (const auto& entry : restored.keyframes) {
+    const std::optional<Pose> pose = fromMsg(entry.keyframe.pose_world);
+    if (pose) index(entry.keyframe.keyframe_id, *pose, entry.incoming);
+  }
+  if (missing > 0)
+    spdlog::warn("{}: {} of the {} journaled keyframes have no archive file; they are not relocalisation or loop "
+                 "candidates",
+                 root, missing, restored.keyframes.size());
+  // Archived, never published (killed in between): published now, so that nothing waits for them.
+  int64_t published_now = 0;
+  for (const int64_t id : archived) {
+    if (id <= highest) continue;
+    StoredKeyframe stored;
+    try {
+      stored = loadKeyframe(root, id, aligner);
+    } catch (const Error& e) {
+      spdlog::error("{}; keyframe {} is left out", e.what(), id);
+      continue;
+    }
+    rekon_msgs::keyframe_t kf{};
+    kf.keyframe_id = id;
+    kf.frame_id = stored.keyframe->frame_id;
+    kf.timestamp = stored.keyframe->timestamp;
+    kf.pose_world = toMsg(stored.keyframe->pose_world);
+    history.publishArchived(kf, stored.incoming);
+    ++published_now;
+    highest = std::max(highest, id);
+    cache.addArchived(id, stored.keyframe->pose_world, root);
+    worker.addIndexedKeyframe(id, stored.keyframe->pose_world, stored.incoming);
+    loops.addIndexed(id, stored.keyframe->pose_world, stored.incoming);
+  }
+  worker.continueIdsFrom(highest + 1);
+  if (restored.last_pose_world) worker.resumeAt(*restored.last_pose_world);
+  resume.first_missing_frame = restored.last_frame_id < 0 ? -1 : restored.last_frame_id + 1;
+  inbox.resumeFrom(resume.first_missing_frame);
+  if (restored.done) inbox.endAt(restored.done->last_frame_id);
+  spdlog::info("restarted: the journal holds {} keyframes, {} constraints and {} tracked frames (the last frame {}){}; "
+               "{} keyframes archived ({} published now); new keyframe ids from {}; frames resume at {}",
+               restored.keyframes.size(), restored.constraints, restored.tracked_frames, restored.last_frame_id,
+               restored.done ? ", and its done" : "", archived.size(), published_now, highest + 1,
+               resume.first_missing_frame);
+  return resume;
+}
+
+}  // namespace rekon::tracker
