@@ -26,6 +26,8 @@ const std::vector<Command>& commands() {
       {"cameras", "list the connected RGB-D cameras (OpenNI2, libfreenect) and their modes", &camerasCommand},
       {"view", "serve a live web page of the run on the bus (mesh, camera, keyframes, status); prints its URL", &viewCommand},
       {"demo", "run the whole pipeline on the built-in default scene", &demoCommand},
+      {"chaos", "run a dataset twice, the second time killing a random service every few seconds; compare the two",
+       &chaosCommand},
       {"remesh", "rebuild a session's mesh at other settings (voxel size, truncation) without re-tracking", &remeshCommand},
       {"export", "write a session's trajectory (TUM), pose graph (g2o) and mesh (PLY)", &exportCommand},
       {"keyframes", "list or export the KF keyframes in the mapper's shared-memory keyframe store", &keyframesCommand},

@@ -29,5 +29,9 @@ int launch(const RunOptions& options);
 int runCommand(int argc, char** argv);
 // `rekon demo [--out DIR]`: the whole pipeline on the built-in default scene.
 int demoCommand(int argc, char** argv);
+// `rekon chaos --dataset DIR --out DIR [--every S[-S]] [--seed N]`: the dataset
+// run twice at its recorded rate, the second time with a random service
+// killed (kill -9) every few seconds; the two compared against bounds (chaos.cpp).
+int chaosCommand(int argc, char** argv);
 
 }  // namespace rekon
