@@ -9,9 +9,16 @@
 #   2. capture to pose at 30 Hz on the same frames: rekon-realsense (the bag)
 #      against rekon-camera (the same frames through libfreenect's fakenect,
 #      rekon-fakenect-write; its depth is the Kinect's 11-bit disparity): the
-#      latency_ms_p50/p95 each source measured (tracker's pose back).
-# Prints one line per number; everything stays in OUT.
+#      latency_ms_p50/p95 each source measured (tracker's pose back), and
+#      rekon-realsense once more with its frames inline on LCM
+#      (transport.mode lcm) instead of the shared-memory frame ring;
+#   3. where rekon-realsense's share of it goes (realsense_frames.csv and
+#      realsense_latency.csv of the first run): the SDK's delivery, align,
+#      the sending, publish to pose.
+# Prints one line per number; everything stays in OUT. The machine's load
+# average is printed before and after: these latencies depend on it.
 set -euo pipefail
+echo "load average before: $(cut -d' ' -f1-3 /proc/loadavg)"
 data="$(cd "$1" && pwd)"; out="$2"; frames="${3:-0}"
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
 bin="$root/build/bin"; netns="$root/tests/support/in_netns.sh"
@@ -39,4 +46,23 @@ fk="$out/fakenect"
 [ -d "$fk" ] || "$bin/rekon-fakenect-write" --dataset "$data" --out "$fk" --frames "$frames" >/dev/null
 FAKENECT_PATH="$fk" LD_LIBRARY_PATH=/usr/lib/x86_64-linux-gnu/fakenect "$netns" "$bin/rekon" run --camera freenect \
   --calibration "$fk/camera.yaml" --out "$out/camera" --force >"$out/camera.txt" 2>&1
-echo "capture to pose p50/p95 ms: realsense $(json "$out/rs/realsense_stats.json" "(round(d['latency_ms_p50'],1), round(d['latency_ms_p95'],1))"), camera $(json "$out/camera/camera_stats.json" "(round(d['latency_ms_p50'],1), round(d['latency_ms_p95'],1), d['frames_sent'])")"
+"$netns" "$bin/rekon" run --camera realsense --playback "$out/data.bag" --out "$out/rs_lcm" --force \
+  --set transport.mode=lcm >"$out/rs_lcm.txt" 2>&1
+p50_p95="(round(d['latency_ms_p50'],1), round(d['latency_ms_p95'],1), d['frames_sent'], d.get('transport','lcm'))"
+echo "capture to pose (p50 ms, p95 ms, frames sent, transport): realsense $(json "$out/rs/realsense_stats.json" "$p50_p95"), camera $(json "$out/camera/camera_stats.json" "$p50_p95"), realsense inline $(json "$out/rs_lcm/realsense_stats.json" "$p50_p95")"
+"$py" - "$out/rs" <<'EOF'
+import csv, sys
+import numpy as np
+run = sys.argv[1]
+frames = {r["frame_id"]: r for r in csv.DictReader(open(f"{run}/realsense_frames.csv"))}
+rows = [(frames[r["frame_id"]], r) for r in csv.DictReader(open(f"{run}/realsense_latency.csv"))]
+def line(name, values):
+    return f"{name} {np.percentile(values, 50):.1f}/{np.percentile(values, 95):.1f}"
+print("realsense stages p50/p95 ms:", ", ".join([
+    line("device stamp to SDK delivery", [float(f["delivery_ms"]) for f, _ in rows]),
+    line("align and copies", [float(f["align_ms"]) for f, _ in rows]),
+    line("send (ring or encode, publish)", [float(l["send_ms"]) for _, l in rows]),
+    line("capture to sent", [float(l["sent_ms"]) for _, l in rows]),
+    line("sent to pose", [float(l["latency_ms"]) - float(l["sent_ms"]) for _, l in rows])]))
+EOF
+echo "load average after: $(cut -d' ' -f1-3 /proc/loadavg)"

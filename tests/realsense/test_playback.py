@@ -11,6 +11,7 @@ import os
 
 import numpy as np
 import pytest
+import yaml
 from PIL import Image
 
 from conftest import BIN, run, stats, write_bag
@@ -95,6 +96,15 @@ def test_every_frame_sent_is_tracked(runs):
     tracker = runs["run"]["tracker"]
     assert tracker["frames"] == runs["source"]["frames_sent"]
     assert tracker["lost_frames"] == 0
+
+
+def test_on_one_host_the_frames_go_through_the_shared_memory_ring_and_it_is_removed(runs):
+    # transport.mode auto, every consumer on this host: the C++ consumers read
+    # the Python source's ring (every frame sent was tracked, above), and
+    # nothing of it is left once the run is over.
+    assert runs["source"]["transport"] == "shm"
+    segment = yaml.safe_load(open(os.path.join(runs["rs"], "config.yaml")))["transport"]["segment"]
+    assert not os.path.exists(os.path.join("/dev/shm", segment))
 
 
 def test_the_trajectory_is_within_1_2x_of_the_file_runs(runs):

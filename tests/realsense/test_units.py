@@ -96,7 +96,7 @@ class _Outlet:
     def __init__(self):
         self.offered, self.sent, self.dropped, self.skipped_late, self.ids = 0, 0, 0, 0, []
 
-    def offer(self, frame_id, message, age_s):
+    def offer(self, frame_id, frame, age_s):
         self.offered += 1
         self.ids.append(frame_id)
 
@@ -112,8 +112,7 @@ class _Ctx:
 def _capture(source, tmp_path):
     from rekon_realsense.node.main import FrameLog, capture
     outlet, log = _Outlet(), FrameLog(str(tmp_path))
-    k = {"width": 640, "height": 480, "fx": 600.0, "fy": 600.0, "cx": 320.0, "cy": 240.0, "depth_scale": 1000.0}
-    result = capture(_Ctx(), source, outlet, None, k, Params(Config.load()), log)
+    result = capture(_Ctx(), source, outlet, None, Params(Config.load()), log)
     log.close()
     return result, outlet
 

@@ -68,11 +68,15 @@ class DeviceClock:
 
 
 class Frame:
-    __slots__ = ("depth", "color_rgb", "timestamp", "device_ms", "number")
+    """A captured frame: `timestamp` is its device time on the host clock,
+    `arrival` the host time the SDK handed it over, `aligned` the host time
+    once aligned and copied (the stage times of realsense_frames.csv)."""
+    __slots__ = ("depth", "color_rgb", "timestamp", "device_ms", "number", "arrival", "aligned")
 
-    def __init__(self, depth, color_rgb, timestamp, device_ms, number):
+    def __init__(self, depth, color_rgb, timestamp, device_ms, number, arrival=0.0, aligned=0.0):
         self.depth, self.color_rgb, self.timestamp, self.device_ms, self.number = (
             depth, color_rgb, timestamp, device_ms, number)
+        self.arrival, self.aligned = arrival or timestamp, aligned or timestamp
 
 
 class Capture:
@@ -317,7 +321,7 @@ class RealSenseSource:
         d = np.asanyarray(depth.get_data()).copy()
         c = np.asanyarray(color.get_data())
         c = (c[:, :, ::-1] if self.color_format == "bgr8" else c).copy()
-        return Capture(Capture.FRAME, Frame(d, c, stamp, device_ms, number))
+        return Capture(Capture.FRAME, Frame(d, c, stamp, device_ms, number, arrival, host_wall_seconds()))
 
     def stop(self):
         try:

@@ -26,6 +26,10 @@ class Params:
         self.wait_timeout_s = g.get_double("realsense.wait_timeout_s")
         self.max_frames = g.get_int("realsense.max_frames")
         self.transport_mode = g.get_string("transport.mode")
+        self.segment = g.get_string("transport.segment")
+        self.slots = g.get_int("transport.slots")
+        self.max_width = g.get_int("transport.max_width")
+        self.max_height = g.get_int("transport.max_height")
         self.in_flight = g.get_int("transport.live_in_flight")
         from .device import PRESETS
         from .images import ENCODINGS

@@ -1,9 +1,10 @@
 """rekon-realsense: publishes an Intel RealSense camera's frames (or a .bag
 recording's, at its recorded rate) on the rekon bus, in place of the player,
 as rekon-camera does for OpenNI2 and libfreenect devices: it opens the device
-once its consumers listen, sends frame_t inline through the live outlet (the
-newest frame wins, never waits), records every captured frame when asked, and
-ends the stream when the recording ends, the device is lost, or the run stops."""
+once its consumers listen, sends frame_t through the live outlet (the newest
+frame wins, never waits) with the images in the shared-memory frame ring or
+inline, records every captured frame when asked, and ends the stream when the
+recording ends, the device is lost, or the run stops."""
 import logging
 import os
 import sys
@@ -42,40 +43,31 @@ def load_calibration(path, k):
     return out
 
 
-def frame_message(frame_id, frame, k, encoding):
-    from rekon_msgs import frame_t
-    from ..images import encode
-    m = frame_t()
-    m.frame_id = frame_id
-    m.timestamp = frame.timestamp
-    m.width, m.height = k["width"], k["height"]
-    m.fx, m.fy, m.cx, m.cy, m.depth_scale = k["fx"], k["fy"], k["cx"], k["cy"], k["depth_scale"]
-    m.shm_segment, m.shm_slot, m.shm_generation = "", -1, 0
-    m.depth_png, m.color, m.color_format = encode(frame.depth, frame.color_rgb, encoding)
-    m.depth_png_size, m.color_size = len(m.depth_png), len(m.color)
-    return m
-
-
 class FrameLog:
     """<out>/realsense_frames.csv: per frame sent to the outlet, the device's
     frame number and timestamp (ms, in its domain) beside the host stamp the
-    frame carries, so that a recording's frames can be found again."""
+    frame carries, so that a recording's frames can be found again; and where
+    the source's share of the capture-to-pose latency goes: delivery_ms (the
+    stamp to the SDK handing the frameset over) and align_ms (the SDK's align
+    and the copies); the rest of it is in realsense_latency.csv (sent_ms,
+    send_ms: the outlet's)."""
 
     def __init__(self, out_dir):
         self.f = open(os.path.join(out_dir, "realsense_frames.csv"), "w", encoding="utf-8") if out_dir else None
         if self.f:
-            self.f.write("frame_id,device_frame_number,device_timestamp_ms,timestamp\n")
+            self.f.write("frame_id,device_frame_number,device_timestamp_ms,timestamp,delivery_ms,align_ms\n")
 
     def row(self, frame_id, frame):
         if self.f:
-            self.f.write(f"{frame_id},{frame.number},{frame.device_ms:.6f},{frame.timestamp:.6f}\n")
+            self.f.write(f"{frame_id},{frame.number},{frame.device_ms:.6f},{frame.timestamp:.6f},"
+                         f"{(frame.arrival - frame.timestamp) * 1e3:.3f},{(frame.aligned - frame.arrival) * 1e3:.3f}\n")
 
     def close(self):
         if self.f:
             self.f.close()
 
 
-def capture(ctx, source, outlet, recorder, k, params, frame_log):
+def capture(ctx, source, outlet, recorder, params, frame_log):
     """Takes frames until the recording ends, the device is lost, max_frames
     are captured, or the run stops. Returns (lost line or "", frames, first, last timestamp)."""
     from ..device import Capture, host_wall_seconds
@@ -106,7 +98,7 @@ def capture(ctx, source, outlet, recorder, k, params, frame_log):
         if recorder:
             recorder.push(f)
         frame_log.row(frame_id, f)
-        outlet.offer(frame_id, frame_message(frame_id, f, k, params.encoding), host_wall_seconds() - f.timestamp)
+        outlet.offer(frame_id, f, host_wall_seconds() - f.timestamp)
         if time.monotonic() - last_report > 2.0:
             last_report = time.monotonic()
             log.info("captured %d frames (%.1f frames/s), sent %d, dropped %d, skipped late %d", outlet.offered,
@@ -119,6 +111,7 @@ def run_realsense(ctx):
     from ..device import RealSenseSource
     from .outlet import ConsumerWatch, LiveOutlet, announce_end_of_stream, wait_for_consumers
     from ..recorder import Recorder, save_intrinsics
+    from .sender import FrameSender, choose_transport
     from .service import PeerWatch
     from ..device import import_sdk
     params = Params(ctx.config)
@@ -126,8 +119,6 @@ def run_realsense(ctx):
     if params.playback and not os.path.isfile(params.playback):
         raise Error(f"{params.playback}: no such RealSense recording; give the path of a .bag file "
                     "(rekon-realsense-write makes one from a dataset)")
-    if params.transport_mode == "shm":
-        log.warning("transport.mode shm: rekon-realsense sends its frames inline over LCM (lcm)")
     watch = ConsumerWatch(ctx.bus)
     peers = PeerWatch(ctx.bus, ctx.lifecycle)
     # The device opens once its consumers listen: a camera cannot be paused,
@@ -136,7 +127,7 @@ def run_realsense(ctx):
     if ctx.stop_requested():
         return
     source = RealSenseSource(params)
-    outlet = recorder = None
+    outlet = recorder = sender = None
     frame_log = FrameLog(ctx.out_dir)
     try:
         k = source.intrinsics()
@@ -151,9 +142,11 @@ def run_realsense(ctx):
             save_intrinsics(k, os.path.join(ctx.out_dir, "camera.yaml"))  # the calibration in effect
         if params.record:
             recorder = Recorder(params.record, k, params.record_queue)
-        outlet = LiveOutlet(ctx, watch, params.wait_for, params.in_flight)
+        transport = choose_transport(params.transport_mode, params.wait_for, watch)
+        sender = FrameSender(ctx.bus, transport, params, k)
+        outlet = LiveOutlet(ctx, watch, params.wait_for, params.in_flight, sender.send)
         ctx.set_state("capturing")
-        lost, frames, first, last = capture(ctx, source, outlet, recorder, k, params, frame_log)
+        lost, frames, first, last = capture(ctx, source, outlet, recorder, params, frame_log)
         outlet.finish(params.wait_timeout_s)
         if recorder:
             recorder.close()
@@ -165,7 +158,7 @@ def run_realsense(ctx):
                  depth_units_m=info["depth_units_m"], emitter=info["emitter"], preset=info["preset"],
                  timestamp_domain=source.timestamp_domain, clock_resets=source.clock.resets,
                  frames_incomplete=source.incomplete, frames=outlet.sent, sequence_seconds=span,
-                 transport="lcm", encoding=params.encoding,
+                 transport=transport, encoding=params.encoding if transport == "lcm" else "",
                  end="end of stream" if not lost else "device lost: " + lost)
         if params.playback:
             s["playback"] = os.path.abspath(params.playback)
@@ -184,6 +177,8 @@ def run_realsense(ctx):
         frame_log.close()
         if outlet:
             outlet.close()
+        if sender:
+            sender.close()
         if recorder:
             recorder.close()
 

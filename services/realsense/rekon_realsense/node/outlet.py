@@ -8,7 +8,8 @@ newest sent frame goes out again when acknowledgements stall for a second,
 and frames the source itself was too late for are counted in
 frames_skipped_late. It also measures the capture-to-pose latency (capture
 time to the tracker's tracked_frame_t for it), with every sample a row of
-<out>/<service>_latency.csv."""
+<out>/<service>_latency.csv, with sent_ms (capture to the frame sent: in
+the ring or encoded, and published) and send_ms (the sending itself)."""
 import bisect
 import logging
 import os
@@ -85,6 +86,10 @@ class ConsumerWatch:
                 self._cv.wait(0.05)
         return self.STOPPED
 
+    def all_on_host(self, names, host):
+        with self._cv:
+            return all(self._hosts.get(n) == host for n in names)
+
     def set_acked(self, name, frame_id):
         with self._cv:
             self._acked[name] = frame_id
@@ -127,29 +132,31 @@ def quantile(sorted_values, q):
 
 
 class LiveOutlet:
-    """offer(message, frame_id, age_s): `message` is a ready frame_t; the
-    sender thread publishes it. Counts as LiveOutlet::Counts."""
+    """offer(frame_id, frame, age_s): the sender thread passes the newest
+    frame to send(frame_id, frame) (FrameSender.send). Counts as LiveOutlet::Counts."""
 
-    def __init__(self, ctx, watch, consumers, in_flight):
+    def __init__(self, ctx, watch, consumers, in_flight, send):
         self.ctx = ctx
+        self._send = send
         self.watch = watch
         self.consumers = list(consumers)
         self.in_flight = max(1, in_flight)
         self._cv = threading.Condition()
-        self._waiting = None  # (frame_id, message)
+        self._waiting = None  # (frame_id, frame)
         self._stopping = False
         self._error = None
         self.offered = self.sent = self.dropped = self.skipped_late = 0
         self.newest_sent = -1
         self._unacked = []
         self._capture = {}  # frame id -> monotonic capture time, sent and not yet tracked
+        self._sent_at = {}  # frame id -> (monotonic time send() returned, ms spent in it)
         self._latencies = []
         self._started = time.monotonic()
         self._csv = None
         self._csv_flushed = time.monotonic()
         if ctx.out_dir:
             self._csv = open(os.path.join(ctx.out_dir, f"{ctx.name}_latency.csv"), "w", encoding="utf-8")
-            self._csv.write("frame_id,captured_s,latency_ms\n")
+            self._csv.write("frame_id,captured_s,latency_ms,sent_ms,send_ms\n")
         ctx.bus.subscribe(TRACKED_FRAMES, tracked_frame_t, self._on_tracked)
         for key in ("frames_captured", "frames_sent", "frames_dropped", "frames_skipped_late"):
             ctx.set_live(key, 0)
@@ -164,12 +171,15 @@ class LiveOutlet:
                 ms = (now - captured) * 1e3
                 bisect.insort(self._latencies, ms)
                 if self._csv:
-                    self._csv.write(f"{msg.frame_id},{captured - self._started:.6f},{ms:.3f}\n")
+                    sent_at, send_ms = self._sent_at.get(msg.frame_id, (now, 0.0))
+                    self._csv.write(f"{msg.frame_id},{captured - self._started:.6f},{ms:.3f},"
+                                    f"{(sent_at - captured) * 1e3:.3f},{send_ms:.3f}\n")
                     if now - self._csv_flushed > 1.0:
                         self._csv.flush()
                         self._csv_flushed = now
             for k in [k for k in self._capture if k <= msg.frame_id]:
                 del self._capture[k]
+                self._sent_at.pop(k, None)
 
     def _room(self, newest_sent):
         with self._cv:
@@ -188,7 +198,7 @@ class LiveOutlet:
                 self.watch.set_acked(service, self.newest_sent)
         elif r == ConsumerWatch.STALLED and newest_sent is not None:
             log.debug("no acknowledgement for %.0f s: sending frame %d again", RESEND_AFTER_S, newest_sent[0])
-            self.ctx.bus.publish(FRAMES, newest_sent[1])
+            self._send(*newest_sent)
         return False
 
     def _run(self):
@@ -203,9 +213,12 @@ class LiveOutlet:
                     continue  # the waiting frame may have been replaced meanwhile
                 with self._cv:
                     newest_sent, self._waiting = self._waiting, None
-                self.ctx.bus.publish(FRAMES, newest_sent[1])
+                started = time.monotonic()
+                self._send(*newest_sent)
+                done = time.monotonic()
                 self.ctx.last_frame = newest_sent[0]
                 with self._cv:
+                    self._sent_at[newest_sent[0]] = (done, (done - started) * 1e3)
                     self._unacked.append(newest_sent[0])
                     self.sent += 1
                     self.newest_sent = newest_sent[0]
@@ -220,7 +233,7 @@ class LiveOutlet:
             e, self._error = self._error, None
             raise e
 
-    def offer(self, frame_id, message, age_s=0.0):
+    def offer(self, frame_id, frame, age_s=0.0):
         captured = time.monotonic() - min(max(age_s, 0.0), 10.0)
         with self._cv:
             self._raise_sender_error()
@@ -229,8 +242,9 @@ class LiveOutlet:
             self.offered += 1
             self._capture[frame_id] = captured
             if len(self._capture) > 4096:  # poses that never came
+                self._sent_at.pop(min(self._capture), None)
                 del self._capture[min(self._capture)]
-            self._waiting = (frame_id, message)
+            self._waiting = (frame_id, frame)
             self._cv.notify_all()
         self.ctx.set_live("frames_captured", self.offered)
         self.ctx.set_live("frames_dropped", self.dropped)
