@@ -5,6 +5,7 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <chrono>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -100,6 +101,7 @@ RecordJournal::~RecordJournal() {
 
 void RecordJournal::append(uint32_t tag, const std::string& bytes) {
   if (fd_ < 0) return;
+  const auto t0 = std::chrono::steady_clock::now();
   const auto size = static_cast<uint32_t>(bytes.size());
   buffer_.clear();
   buffer_.append(reinterpret_cast<const char*>(&tag), sizeof(tag));
@@ -107,7 +109,12 @@ void RecordJournal::append(uint32_t tag, const std::string& bytes) {
   buffer_.append(bytes);
   const uint32_t sum = fnv1a32(buffer_.data(), buffer_.size());
   buffer_.append(reinterpret_cast<const char*>(&sum), sizeof(sum));
-  if (writeAll(fd_, buffer_.data(), buffer_.size())) return;
+  if (writeAll(fd_, buffer_.data(), buffer_.size())) {
+    ++appended_.records;
+    appended_.bytes += static_cast<int64_t>(buffer_.size());
+    appended_.seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    return;
+  }
   spdlog::error("cannot append to the journal {} ({}; disk full?): no more journal, a restart rebuilds only what "
                 "came before",
                 path_, std::strerror(errno));

@@ -144,6 +144,13 @@ void runTrackerService(ServiceContext& ctx) {
       .set("keyframes_archived", state.archived())
       .set("archive_ms", state.archiveMs())
       .set("frames_before_resume", inbox.framesBeforeResume());
+  if (const RecordJournal* journal = state.journal()) {
+    const RecordJournal::Appended& a = journal->appended();
+    ctx.stats()
+        .set("journal_records", a.records)
+        .set("journal_bytes", a.bytes)
+        .set("journal_append_ms", 1e3 * a.seconds);
+  }
   if (restarted) ctx.stats().set("restart_first_pose", worker.resumedBy());
   writeOutputs(ctx, worker.totals(), inbox.framesSentAgain(), inbox.ackHeldSeconds(), loops.stats(), keyframes->stats(),
                session.localise_only);

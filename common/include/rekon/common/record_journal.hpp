@@ -69,12 +69,20 @@ class RecordJournal {
     append(tag, bytes);
   }
   bool open() const { return fd_ >= 0; }
+  // What this instance appended: records, bytes (framing included) and the
+  // wall time its appends took.
+  struct Appended {
+    int64_t records = 0, bytes = 0;
+    double seconds = 0.0;
+  };
+  const Appended& appended() const { return appended_; }
 
  private:
   std::string path_;
   int fd_ = -1;
   JournalRead contents_;
   std::string buffer_;  // one record, reused
+  Appended appended_;
 };
 
 }  // namespace rekon
