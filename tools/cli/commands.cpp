@@ -23,7 +23,7 @@ const std::vector<Command>& commands() {
       {"odometry", "dense RGB-D odometry (DVO) in-process on a dataset; writes a TUM trajectory", &odometryCommand},
       {"synth", "write a synthetic RGB-D sequence with exact ground truth", &synth::synthCommand},
       {"run", "run the whole pipeline on a dataset or a live camera (every service as its own process)", &runCommand},
-      {"cameras", "list the connected RGB-D cameras (OpenNI2, libfreenect) and their modes", &camerasCommand},
+      {"cameras", "list the connected RGB-D cameras (OpenNI2, libfreenect, RealSense) and their modes", &camerasCommand},
       {"view", "serve a live web page of the run on the bus (mesh, camera, keyframes, status); prints its URL", &viewCommand},
       {"demo", "run the whole pipeline on the built-in default scene", &demoCommand},
       {"chaos", "run a dataset twice, the second time killing a random service every few seconds; compare the two",

@@ -242,8 +242,7 @@ DatasetSpan checkBeforeStart(const Config& config, const RunOptions& opt) {
   DatasetSpan span;
   if (!opt.dataset.empty()) span = checkDataset(opt.dataset);
   if (!opt.record.empty()) camera::requireNoRecording(opt.record);  // the camera refused it after every service had started
-  if (!opt.camera.empty()) checkCameraSpec(opt.camera);
-  if (!opt.playback.empty()) checkRealSensePlayback(opt.playback);
+  if (!opt.camera.empty()) checkCameraSpec(opt.camera, opt.playback, config);  // with --playback: its recording
   const std::vector<std::string> listed = config.getStringList("run.services");
   if (opt.view || std::find(listed.begin(), listed.end(), "viewer") != listed.end()) checkViewerPort(config);
   if (!opt.session.empty()) store::requireNoSession(fs::absolute(opt.session).string());

@@ -23,6 +23,7 @@
 #include "rekon/optimiser/params.hpp"
 #include "rekon/player/player.hpp"
 #include "rekon/tracker/params.hpp"
+#include "realsense_probe.hpp"
 
 namespace rekon {
 namespace fs = std::filesystem;
@@ -88,12 +89,12 @@ DatasetSpan checkDataset(const std::string& dir) {
   return {static_cast<long long>(dataset.size()), dataset.duration()};
 }
 
-void checkCameraSpec(const std::string& spec) {
+void checkCameraSpec(const std::string& spec, const std::string& playback, const Config& config) {
   // The drivers rekon-camera's openCamera knows, and realsense (rekon-realsense,
-  // which finds its device through Intel's SDK and says in one line when it cannot).
+  // which finds its device through Intel's SDK).
   const size_t colon = spec.find(':');
   const std::string driver = spec.substr(0, colon), device = colon == std::string::npos ? "" : spec.substr(colon + 1);
-  if (driver == "realsense") return;
+  if (driver == "realsense") return checkRealSense(spec, playback, config);
   if (driver != "openni2" && driver != "freenect") {
     throw Error("--camera " + spec + ": unknown driver '" + driver +
                 "'; use realsense[:SERIAL], openni2[:URI|FILE.oni] or freenect[:INDEX] (rekon cameras lists what is "
@@ -119,10 +120,21 @@ void checkCameraSpec(const std::string& spec) {
   }
 }
 
-void checkRealSensePlayback(const std::string& path) {
-  if (!fs::is_regular_file(path))
-    throw Error("--playback " + path + ": no such RealSense recording; give the path of a .bag file (rekon-realsense-write "
-                "makes one from a dataset)");
+void checkRealSense(const std::string& spec, const std::string& playback, const Config& config) {
+  if (!playback.empty() && !fs::is_regular_file(playback))
+    throw Error("--playback " + playback + ": no such RealSense recording; give the path of a .bag file "
+                "(rekon-realsense-write makes one from a dataset)");
+  // The service's own check, through the SDK, with the mode and device the run gives it.
+  const size_t colon = spec.find(':');
+  std::vector<std::string> args;
+  for (const char* key : {"realsense.width", "realsense.height", "realsense.fps"})
+    args.insert(args.end(), {"--set", std::string(key) + "=" + std::to_string(config.getInt(key))});
+  for (const char* key : {"realsense.device", "realsense.playback"})
+    if (!config.getString(key).empty()) args.insert(args.end(), {"--set", std::string(key) + "=" + config.getString(key)});
+  if (colon != std::string::npos) args.insert(args.end(), {"--device", spec.substr(colon + 1)});
+  if (!playback.empty()) args.insert(args.end(), {"--playback", fs::absolute(playback).string()});
+  const std::string why = whyRealSenseCannotOpen(args);
+  if (!why.empty()) throw Error("--camera " + spec + ": " + why);
 }
 
 void checkViewerPort(const Config& config) {

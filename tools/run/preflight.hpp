@@ -23,11 +23,14 @@ struct DatasetSpan {
 DatasetSpan checkDataset(const std::string& dir);
 
 // A camera spec names a driver rekon-camera has, openni2[:URI|FILE.oni] or
-// freenect[:INDEX], and a device that driver sees now (or a recording that exists).
-void checkCameraSpec(const std::string& spec);
+// freenect[:INDEX], and a device that driver sees now (or a recording that
+// exists); or realsense[:SERIAL], checked by checkRealSense.
+void checkCameraSpec(const std::string& spec, const std::string& playback, const Config& config);
 
-// --playback FILE (rekon-realsense) is a file (what is in it, Intel's SDK judges).
-void checkRealSensePlayback(const std::string& path);
+// realsense[:SERIAL] (rekon-realsense): the camera Intel's SDK sees now, or
+// the --playback recording with depth and color at realsense.width/height/fps,
+// each refusal rekon-realsense's own line (rekon-realsense --check).
+void checkRealSense(const std::string& spec, const std::string& playback, const Config& config);
 
 // The viewer can listen on viewer.bind:viewer.port (a busy port used to fail
 // the viewer after every service had started).

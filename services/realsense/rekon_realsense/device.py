@@ -110,9 +110,8 @@ class RealSenseSource:
     """Opens a device (`serial`, "" for the only one) or a recording (`playback`)."""
 
     def __init__(self, params):
-        rs = self.rs = import_sdk()
-        self.params = params
-        self.playback = params.playback
+        config = self._resolve(params)
+        rs = self.rs
         self.clock = DeviceClock()
         self.replaced = 0
         self.incomplete = 0
@@ -120,12 +119,6 @@ class RealSenseSource:
         self._first_number = self._last_number = None
         self._taken = 0
         self._last_frame_at = time.monotonic()
-        self.pipeline = rs.pipeline()
-        config = rs.config()
-        if self.playback:
-            self._open_recording(config)
-        else:
-            self._open_device(config)
         try:
             self.queue = rs.frame_queue(QUEUE_FRAMESETS, keep_frames=True)
             self.profile = self.pipeline.start(config, self.queue)
@@ -147,7 +140,28 @@ class RealSenseSource:
             log.warning("%s: the color stream has %s distortion %s; rekon assumes a pinhole camera and ignores it",
                         self.what, str(self.k.model).split(".")[-1], [round(c, 5) for c in self.k.coeffs])
 
+    @classmethod
+    def check(cls, params):
+        """What would be opened (the device or the recording, and the mode),
+        found without starting it: rekon run's preflight. Each failure is the
+        service's own line."""
+        source = cls.__new__(cls)
+        source._resolve(params)
+        return f"{source.what}: {source.mode}"
+
     # ---- opening -------------------------------------------------------
+    def _resolve(self, params):
+        self.rs = import_sdk()
+        self.params = params
+        self.playback = params.playback
+        self.pipeline = self.rs.pipeline()
+        config = self.rs.config()
+        if self.playback:
+            self._open_recording(config)
+        else:
+            self._open_device(config)
+        return config
+
     def _open_recording(self, config):
         rs, path = self.rs, self.playback
         if not os.path.isfile(path):

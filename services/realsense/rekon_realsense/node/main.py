@@ -193,6 +193,9 @@ def add_options(parser):
     parser.add_argument("--record", help="record every captured frame into this new TUM folder; overrides "
                                          "realsense.record")
     parser.add_argument("--list", action="store_true", help="list the connected RealSense cameras and exit")
+    parser.add_argument("--check", action="store_true", help="find the camera (or the recording, with its depth, "
+                        "color and mode) without starting it, print what would be opened and exit: 0 when it "
+                        "can be, else 1 and one line saying why (rekon run's preflight)")
 
 
 def main(argv=None):
@@ -200,6 +203,8 @@ def main(argv=None):
     argv = sys.argv[1:] if argv is None else argv
     if "--list" in argv:
         return list_command()
+    if "--check" in argv:
+        return check_command(argv)
 
     def body(ctx):
         for key in ("device", "playback", "calibration", "record"):
@@ -214,6 +219,35 @@ def main(argv=None):
                               "  rekon run --camera realsense:123456789012 --set realsense.preset=high_accuracy --out OUT\n"
                               "  rekon run --camera realsense --playback scan.bag --out OUT\n"
                               "  rekon-realsense --list")
+
+
+def check_command(argv):
+    """--check: the options and config as the service reads them, the device or
+    recording resolved through the SDK, nothing started and no bus opened."""
+    import argparse
+    from ..config import Config
+    from ..device import RealSenseSource
+    parser = argparse.ArgumentParser(prog="rekon-realsense --check")
+    parser.add_argument("--check", action="store_true")
+    parser.add_argument("--config", default="")
+    parser.add_argument("--set", action="append", default=[])
+    parser.add_argument("--device")
+    parser.add_argument("--playback")
+    args, _ = parser.parse_known_args(argv)
+    try:
+        config = Config.load(args.config, args.set)
+        for key in ("device", "playback"):
+            if getattr(args, key) is not None:
+                config.set(f"realsense.{key}", getattr(args, key))
+        params = Params(config)
+        if params.playback and not os.path.isfile(params.playback):
+            raise Error(f"{params.playback}: no such RealSense recording; give the path of a .bag file "
+                        "(rekon-realsense-write makes one from a dataset)")
+        print(RealSenseSource.check(params))
+    except Error as e:
+        print(f"rekon-realsense: error: {e}", file=sys.stderr)
+        return 1
+    return 0
 
 
 def list_command():
