@@ -10,6 +10,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <utility>
 
 #include "rekon/common/error.hpp"
 
@@ -45,7 +46,7 @@ bool writeAll(int fd, const char* data, size_t n) {
 
 }  // namespace
 
-JournalRead readRecordJournal(const std::string& path) {
+JournalRead readRecordJournal(const std::string& path, const AcceptRecord& accept) {
   JournalRead out;
   std::ifstream in(path, std::ios::binary);
   if (!in) return out;
@@ -62,24 +63,26 @@ JournalRead readRecordJournal(const std::string& path) {
     if (left - kHeader < static_cast<size_t>(size) + kTrailer) break;
     const size_t end = offset + kHeader + size;
     if (at<uint32_t>(bytes, end) != fnv1a32(bytes.data() + offset, kHeader + size)) break;
-    out.records.push_back({at<uint32_t>(bytes, offset), bytes.substr(offset + kHeader, size)});
+    JournalRecord record{at<uint32_t>(bytes, offset), bytes.substr(offset + kHeader, size)};
+    if (accept && !accept(record)) break;
+    out.records.push_back(std::move(record));
     offset = end + kTrailer;
   }
   out.valid_bytes = offset;
   if (offset < bytes.size()) {
     out.torn = true;
-    spdlog::warn("{}: the record at byte {} is torn or damaged (a kill in mid-write?); it and the {} bytes after it "
-                 "are cut off, {} records kept",
+    spdlog::warn("{}: the record at byte {} is torn, damaged or unreadable (a kill in mid-write?); it and the {} bytes "
+                 "after it are cut off, {} records kept",
                  path, offset, bytes.size() - offset, out.records.size());
   }
   return out;
 }
 
-RecordJournal::RecordJournal(const std::string& path, bool restarted) : path_(path) {
+RecordJournal::RecordJournal(const std::string& path, bool restarted, const AcceptRecord& accept) : path_(path) {
   namespace fs = std::filesystem;
   std::error_code ec;
   if (const fs::path parent = fs::path(path).parent_path(); !parent.empty()) fs::create_directories(parent, ec);
-  if (restarted) contents_ = readRecordJournal(path);
+  if (restarted) contents_ = readRecordJournal(path, accept);
   const bool keep = restarted && contents_.valid_bytes > 0;
   fd_ = ::open(path.c_str(), O_WRONLY | O_CREAT | O_CLOEXEC | (keep ? 0 : O_TRUNC), 0644);
   if (fd_ < 0) throw Error("cannot write the journal " + path + " (" + std::strerror(errno) + "); check that the folder is writable");

@@ -3,7 +3,7 @@
 # tracker and the optimiser (no mapper: the optimiser's recovery is what is
 # measured), once uninterrupted and once with the optimiser killed (SIGKILL)
 # in the last quarter of the stream. rekon run restarts it; the new instance
-# rebuilds its graph from its journal (optimiser_journal.txt) and asks the
+# rebuilds its graph from its journal (optimiser_journal.rkj) and asks the
 # tracker only for what came after, batch by batch. Checks, and prints as one
 # markdown row per run:
 #   - the restart came in the last quarter (its journal held >= 75 % of the frames);
@@ -64,7 +64,7 @@ else
   echo "uninterrupted: $(run_clean) s"
 fi
 run_killed
-replayed=$(sed -n 's/.*rebuilt from optimiser_journal.txt: [0-9]* keyframes, [0-9]* constraints, \([0-9]*\) tracked frames.*/\1/p' \
+replayed=$(sed -n 's/.*rebuilt from optimiser_journal.rkj: [0-9]* keyframes, [0-9]* constraints, \([0-9]*\) tracked frames.*/\1/p' \
   "$out/killed/optimiser.log" | tail -1)
 grep -h "this optimiser is a restart" "$out/killed/optimiser.log" | sed 's/^.*\] //' >&2 || true
 echo "| run | frames | restart at frame | tracker keyframes / constraints | optimiser keyframes / constraints (kept + removed) | trajectory frames | ATE mm | vs uninterrupted ATE mm |"

@@ -176,7 +176,7 @@ void walkLive(StandIn& tracker, int first, int last) {
 
 // An optimiser killed in the middle of a scan (SIGKILL, once its journal
 // holds the first half) is restarted while the scan goes on: it rebuilds the
-// first half from optimiser_journal.txt and asks the tracker only for what
+// first half from optimiser_journal.rkj and asks the tracker only for what
 // came after it: its first replay request starts where the journal ends, not
 // after the newest frame it has heard live by then (which left the frames
 // in between to a full replay at the end), and its trajectory holds every frame.
@@ -220,7 +220,7 @@ TEST(OptimiserRecovery, ARestartRebuildsFromItsJournalAndAsksOnlyForWhatCameAfte
   EXPECT_EQ(request->second.next_frame_id, newest + 1);
   EXPECT_EQ(request->second.next_keyframe, static_cast<int64_t>(keyframes.size()));
   EXPECT_EQ(request->second.next_constraint, static_cast<int64_t>(constraints.size()));
-  EXPECT_NE(test::readText(dir / "optimiser.log").find("rebuilt from optimiser_journal.txt"), std::string::npos)
+  EXPECT_NE(test::readText(dir / "optimiser.log").find("rebuilt from optimiser_journal.rkj"), std::string::npos)
       << test::readText(dir / "optimiser.log");
 }
 

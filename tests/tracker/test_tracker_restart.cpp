@@ -13,6 +13,7 @@
 #include "rekon/common/bus.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/common/record_journal.hpp"
+#include "rekon/common/service.hpp"
 #include "rekon/tracker/keyframe_archive.hpp"
 #include "rekon/tracker/keyframe_cache.hpp"
 #include "rekon/tracker/tracker.hpp"
@@ -105,13 +106,35 @@ TEST(TrackerJournal, WhatWasPublishedComesBackInOrderAndATornLastRecordIsCutOff)
     EXPECT_EQ(history.restore(journal.contents()).last_frame_id, 28);
     journal.append(kTrackedFrameRecord, std::string(10, 'x'));
   }
-  const JournalRead again = readRecordJournal(path);
-  EXPECT_FALSE(again.torn);
-  ASSERT_EQ(again.records.size(), records);
-  EXPECT_EQ(again.records.back().bytes, std::string(10, 'x'));
-  // ...which does not decode as a tracked frame: restoring stops there, said in one line.
+  const JournalRead raw = readRecordJournal(path);
+  EXPECT_FALSE(raw.torn);
+  ASSERT_EQ(raw.records.size(), records);
+  EXPECT_EQ(raw.records.back().bytes, std::string(10, 'x'));
+  // ...which does not decode as a tracked frame: the tracker's reader cuts it off as it does a torn one.
+  const JournalRead read = readRecordJournal(path, History::readable);
+  EXPECT_TRUE(read.torn);
+  EXPECT_EQ(read.records.size(), records - 1);
   History history(*bus, nullptr);
-  EXPECT_EQ(history.restore(again).tracked_frames, 29);
+  EXPECT_EQ(history.restore(read).tracked_frames, 29);
+}
+
+// A tracker killed after its done_t: the restart finds the done in the
+// journal and says it again instead of waiting for a stream that has ended.
+TEST(TrackerJournal, ADoneInTheJournalComesBack) {
+  rekon::test::TempDir dir;
+  const auto bus = memoryBus();
+  {
+    RecordJournal journal(dir / "journal.rkj", false);
+    History history(*bus, &journal);
+    history.markDone(doneMessage("tracker", 89));
+    history.markDone(doneMessage("tracker", 89));  // journaled once
+  }
+  RecordJournal journal(dir / "journal.rkj", true, History::readable);
+  EXPECT_EQ(journal.contents().records.size(), 1u);
+  History history(*bus, nullptr);
+  const RestoredJournal restored = history.restore(journal.contents());
+  ASSERT_TRUE(restored.done.has_value());
+  EXPECT_EQ(restored.done->last_frame_id, 89);
 }
 
 TEST(TrackerJournal, AFileThatIsNoJournalIsOneClearError) {

@@ -62,7 +62,7 @@ pid_t spawnService(const std::string& name, const std::string& out, const std::s
 std::set<int64_t> journaledFrames(const std::string& out) {
   std::set<int64_t> ids;
   for (const rekon::JournalRecord& r : rekon::readRecordJournal(out + "/tracker_state/journal.rkj").records)
-    if (const auto tf = r.tag == 3 ? rekon::decodeRecord<rekon_msgs::tracked_frame_t>(r) : std::nullopt) ids.insert(tf->frame_id);
+    if (const auto tf = r.tag == rekon::kTrackedFrameRecord ? rekon::decodeRecord<rekon_msgs::tracked_frame_t>(r) : std::nullopt) ids.insert(tf->frame_id);
   return ids;
 }
 

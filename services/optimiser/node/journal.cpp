@@ -1,102 +1,69 @@
 #include "journal.hpp"
 
-#include <fmt/format.h>
-#include <spdlog/spdlog.h>
-
-#include <cmath>
 #include <filesystem>
-#include <sstream>
 #include <variant>
 
 #include "rekon/common/error.hpp"
+#include "rekon/common/messages.hpp"
+#include "rekon/optimiser/graph_messages.hpp"
+#include "rekon_msgs/constraint_t.hpp"
+#include "rekon_msgs/keyframe_t.hpp"
+#include "rekon_msgs/tracked_frame_t.hpp"
 
 namespace rekon::optimiser {
 namespace {
 
-void appendPose(const Pose& pose, std::string& out) {
-  for (int r = 0; r < 3; ++r)
-    for (int c = 0; c < 4; ++c) out += fmt::format(" {:.17g}", pose.matrix()(r, c));
+rekon_msgs::keyframe_t keyframeMsg(const KeyframeIn& kf) {
+  rekon_msgs::keyframe_t m{};
+  m.keyframe_id = kf.id;
+  m.pose_world = toMsg(kf.pose_world);
+  return m;
 }
 
-std::string lineOf(const GraphItem& item) {
-  std::string out;
-  if (const auto* kf = std::get_if<KeyframeIn>(&item)) {
-    out = fmt::format("K {}", kf->id);
-    appendPose(kf->pose_world, out);
-  } else {
-    const auto& c = std::get<Constraint>(item);
-    out = fmt::format("{} {} {}", c.kind == EdgeKind::Loop ? 'L' : 'O', c.from_id, c.to_id);
-    appendPose(c.relative, out);
-    for (int i = 0; i < 36; ++i) out += fmt::format(" {:.17g}", c.information(i / 6, i % 6));
-  }
-  return out + '\n';
+rekon_msgs::constraint_t constraintMsg(const Constraint& c) {
+  rekon_msgs::constraint_t m{};
+  m.kind = c.kind == EdgeKind::Loop ? rekon_msgs::constraint_t::KIND_LOOP : rekon_msgs::constraint_t::KIND_ODOMETRY;
+  m.from_id = c.from_id;
+  m.to_id = c.to_id;
+  m.relative = toMsg(c.relative);
+  toArray(c.information, m.information);
+  return m;
 }
 
-std::string lineOf(const TrackedFrame& f) {
-  std::string out = fmt::format("F {} {:.17g} {} {}", f.frame_id, f.timestamp, f.keyframe_id, f.lost ? 1 : 0);
-  appendPose(f.pose_in_keyframe, out);
-  return out + '\n';
+rekon_msgs::tracked_frame_t trackedFrameMsg(const TrackedFrame& f) {
+  rekon_msgs::tracked_frame_t m{};
+  m.frame_id = f.frame_id;
+  m.timestamp = f.timestamp;
+  m.keyframe_id = f.keyframe_id;
+  m.pose_in_keyframe = toMsg(f.pose_in_keyframe);
+  m.state = f.lost ? rekon_msgs::tracked_frame_t::STATE_LOST : rekon_msgs::tracked_frame_t::STATE_OK;
+  return m;
 }
 
-// Reads a line's fields in order; any that is missing or not finite, or one
-// too many, makes the line unreadable.
-class Fields {
- public:
-  explicit Fields(const std::string& line) : in_(line) {}
-  template <typename T>
-  T next() {
-    T v{};
-    if (!(in_ >> v)) ok_ = false;
-    if constexpr (std::is_floating_point_v<T>) ok_ = ok_ && std::isfinite(v);
-    return v;
-  }
-  Pose pose() {
-    Pose p = Pose::Identity();
-    for (int r = 0; r < 3; ++r)
-      for (int c = 0; c < 4; ++c) p.matrix()(r, c) = next<double>();
-    return p;
-  }
-  bool complete() {
-    std::string extra;
-    return ok_ && !(in_ >> extra);
-  }
-
- private:
-  std::istringstream in_;
-  bool ok_ = true;
-};
-
-// One line into `contents`; false when it is unreadable.
-bool readLine(const std::string& line, JournalContents& contents) {
-  Fields f(line);
-  const std::string tag = f.next<std::string>();
-  if (tag == "K") {
-    KeyframeIn kf;
-    kf.id = f.next<int64_t>();
-    kf.pose_world = f.pose();
-    if (!f.complete()) return false;
-    contents.items.emplace_back(kf);
-  } else if (tag == "O" || tag == "L") {
-    Constraint c;
-    c.kind = tag == "L" ? EdgeKind::Loop : EdgeKind::Odometry;
-    c.from_id = f.next<int64_t>();
-    c.to_id = f.next<int64_t>();
-    c.relative = f.pose();
-    for (int i = 0; i < 36; ++i) c.information(i / 6, i % 6) = f.next<double>();
-    if (!f.complete()) return false;
-    contents.items.emplace_back(c);
-  } else if (tag == "F") {
-    TrackedFrame t;
-    t.frame_id = f.next<int64_t>();
-    t.timestamp = f.next<double>();
-    t.keyframe_id = f.next<int64_t>();
-    t.lost = f.next<int>() != 0;
-    t.pose_in_keyframe = f.pose();
-    if (!f.complete()) return false;
-    contents.frames.push_back(t);
-  } else {
+// One record into `contents`, as the inbox converts what arrives (the
+// information as it was applied, so unscaled here); false when it is not what
+// its tag says.
+bool readRecord(const JournalRecord& r, JournalContents& contents) {
+  try {
+    if (r.tag == kKeyframeRecord) {
+      const auto m = decodeRecord<rekon_msgs::keyframe_t>(r);
+      if (!m) return false;
+      contents.items.emplace_back(keyframeFromMsg(*m));
+    } else if (r.tag == kConstraintRecord) {
+      const auto m = decodeRecord<rekon_msgs::constraint_t>(r);
+      if (!m) return false;
+      contents.items.emplace_back(constraintFromMsg(*m, 1.0));
+    } else if (r.tag == kTrackedFrameRecord) {
+      const auto m = decodeRecord<rekon_msgs::tracked_frame_t>(r);
+      if (!m) return false;
+      contents.frames.push_back(trackedFrameFromMsg(*m));
+    } else {
+      return false;
+    }
+  } catch (const Error&) {  // a non-finite pose or time
     return false;
   }
+  ++contents.records_read;
   return true;
 }
 
@@ -104,47 +71,27 @@ bool readLine(const std::string& line, JournalContents& contents) {
 
 JournalContents readJournal(const std::string& path) {
   JournalContents contents;
-  std::ifstream in(path);
-  std::string line;
-  while (std::getline(in, line)) {
-    // A line without its newline was cut short by a kill: unreadable too.
-    if (in.eof() || !readLine(line, contents)) {
-      spdlog::warn("{} line {} is torn or unreadable; what follows it is asked for from the tracker again", path,
-                   contents.lines_read + 1);
-      break;
-    }
-    ++contents.lines_read;
-    contents.bytes_read += line.size() + 1;
-  }
+  readRecordJournal(path, [&contents](const JournalRecord& r) { return readRecord(r, contents); });
   return contents;
 }
 
 Journal::Journal(const std::string& out_dir, bool restarted) {
   if (out_dir.empty()) return;
-  path_ = (std::filesystem::path(out_dir) / kJournalFile).string();
-  std::error_code ec;
-  if (restarted && std::filesystem::exists(path_)) {
-    contents_ = readJournal(path_);
-    // A restart appends after the last readable line: a torn one is cut off.
-    std::filesystem::resize_file(path_, contents_.bytes_read, ec);
-  }
-  out_.open(path_, restarted ? std::ios::app : std::ios::trunc);
-  if (ec || !out_) throw Error("cannot write the optimiser's journal " + path_ + "; check that the folder is writable");
+  // A restart appends after the last readable record: a torn one is cut off.
+  journal_ = std::make_unique<RecordJournal>((std::filesystem::path(out_dir) / kJournalFile).string(), restarted,
+                                             [this](const JournalRecord& r) { return readRecord(r, contents_); });
+  journal_->forgetContents();  // what it held is in contents_, converted
 }
 
 void Journal::append(const std::vector<GraphItem>& items, const std::vector<TrackedFrame>& frames) {
-  if (!out_.is_open() || (items.empty() && frames.empty())) return;
-  std::string text;
-  for (const auto& item : items) text += lineOf(item);
-  for (const auto& f : frames) text += lineOf(f);
-  out_ << text;
-  out_.flush();
-  if (!out_) {
-    spdlog::error("cannot append to {} (disk full?); no more journal: a restart of this optimiser asks the tracker "
-                  "for everything after it",
-                  path_);
-    out_.close();
+  if (!journal_) return;
+  for (const auto& item : items) {
+    if (const auto* kf = std::get_if<KeyframeIn>(&item))
+      journal_->append(kKeyframeRecord, keyframeMsg(*kf));
+    else
+      journal_->append(kConstraintRecord, constraintMsg(std::get<Constraint>(item)));
   }
+  for (const auto& f : frames) journal_->append(kTrackedFrameRecord, trackedFrameMsg(f));
 }
 
 bool applyArrived(const std::vector<GraphItem>& items, Inbox& inbox, GraphWorker& worker, Journal& journal) {

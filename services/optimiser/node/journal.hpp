@@ -1,33 +1,32 @@
 #pragma once
-// The optimiser's journal, <out>/optimiser_journal.txt: every keyframe,
-// constraint and tracked frame as it arrived, one line each, appended as the
-// run goes and flushed with each batch (doubles written exactly). A restarted
-// optimiser rebuilds its graph and frames from it and asks the tracker only
-// for what came after (recovery.hpp: journalCursor); a first instance starts
-// it empty. A torn or unreadable line (a kill in the middle of a write) ends
-// what is read, with a warning: what follows is asked for again.
-//
-//   K id  m00 m01 m02 m03  m10 .. m13  m20 .. m23           a keyframe (pose: top 3x4 of its matrix)
-//   O from to  <3x4 relative>  <36 information>            an odometry edge (information as applied)
-//   L from to  <3x4 relative>  <36 information>            a loop edge
-//   F frame_id timestamp keyframe_id lost  <3x4 pose in keyframe>
+// The optimiser's journal, <out>/optimiser_journal.rkj: every keyframe,
+// constraint and tracked frame as it arrived, appended as the run goes, each
+// record going to the kernel as it is appended. Its format is the tracker's
+// (rekon/common/record_journal.hpp): each record the LCM message of its kind
+// (keyframe_t with id and pose; constraint_t with the information as applied;
+// tracked_frame_t with id, time, keyframe, pose and lost as its state), the
+// poses as on the bus. A restarted optimiser rebuilds its graph and frames
+// from it and asks the tracker only for what came after (recovery.hpp:
+// journalCursor); a first instance starts it empty. A torn or unreadable
+// record (a kill in the middle of a write) ends what is read, with a warning,
+// and is cut off before the restart appends: what follows is asked for again.
 #include <cstdint>
-#include <fstream>
+#include <memory>
 #include <string>
 #include <vector>
 
 #include "graph_worker.hpp"
+#include "rekon/common/record_journal.hpp"
 #include "inbox.hpp"
 
 namespace rekon::optimiser {
 
-inline constexpr const char* kJournalFile = "optimiser_journal.txt";
+inline constexpr const char* kJournalFile = "optimiser_journal.rkj";
 
 struct JournalContents {
   std::vector<GraphItem> items;      // in arrival order
   std::vector<TrackedFrame> frames;  // in arrival order
-  size_t lines_read = 0;
-  size_t bytes_read = 0;  // of those lines, newlines included
+  size_t records_read = 0;
 };
 
 // What the journal at `path` holds (empty when there is none).
@@ -40,13 +39,12 @@ class Journal {
   // naming the file when it cannot be written.
   Journal(const std::string& out_dir, bool restarted);
   const JournalContents& contents() const { return contents_; }
-  // Appends and flushes; a failed write logs one error and stops the journal
-  // (the run goes on; a restart then asks for more).
+  // Appends; a failed write logs one error and stops the journal (the run
+  // goes on; a restart then asks for more).
   void append(const std::vector<GraphItem>& items, const std::vector<TrackedFrame>& frames);
 
  private:
-  std::string path_;
-  std::ofstream out_;
+  std::unique_ptr<RecordJournal> journal_;
   JournalContents contents_;
 };
 

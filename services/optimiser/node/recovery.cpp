@@ -81,7 +81,7 @@ ReplayCursor rebuildFromJournal(const JournalContents& journal, Inbox& inbox, Gr
   for (const TrackedFrame& f : journal.frames) newest = std::max(newest, f.frame_id);
   const ReplayCursor from{static_cast<int64_t>(worker.keyframesSeen() - keyframes_before),
                           static_cast<int64_t>(worker.constraintsSeen() - constraints_before), newest + 1};
-  if (journal.lines_read > 0)
+  if (journal.records_read > 0)
     spdlog::info("rebuilt from {}: {} keyframes, {} constraints, {} tracked frames; the tracker's replay starts after them",
                  kJournalFile, from.keyframe, from.constraint, journal.frames.size());
   return from;

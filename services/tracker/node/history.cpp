@@ -150,10 +150,20 @@ void History::noteGraphVersion(int64_t version) {
   graph_version_ = std::max(graph_version_, version);
 }
 
-void History::markDone(const rekon_msgs::done_t& done) {
+void History::markDone(const std::optional<rekon_msgs::done_t>& done) {
   std::lock_guard<std::mutex> lock(mutex_);
-  if (!done_) journal(kDoneRecord, done);
+  if (!done_ && done) journal(kDoneRecord, *done);
   done_ = true;
+}
+
+bool History::readable(const JournalRecord& r) {
+  switch (r.tag) {
+    case kKeyframeRecord: return decodeRecord<rekon_msgs::keyframe_t>(r).has_value();
+    case kConstraintRecord: return decodeRecord<rekon_msgs::constraint_t>(r).has_value();
+    case kTrackedFrameRecord: return decodeRecord<rekon_msgs::tracked_frame_t>(r).has_value();
+    case kDoneRecord: return decodeRecord<rekon_msgs::done_t>(r).has_value();
+    default: return false;
+  }
 }
 
 RestoredJournal History::restore(const JournalRead& read) {

@@ -23,10 +23,6 @@
 
 namespace rekon::tracker {
 
-// The tags of the journal's records (RecordJournal), each the LCM encoding of
-// the message that went out.
-enum JournalTag : uint32_t { kKeyframeRecord = 1, kConstraintRecord = 2, kTrackedFrameRecord = 3, kDoneRecord = 4 };
-
 // What a killed instance's journal held, beyond what restore() put back into the History.
 struct RestoredJournal {
   struct KeyframeEntry {
@@ -50,6 +46,8 @@ class History {
   // replays and frames sent again are answered as before. An undecodable
   // record ends what is taken (one log line).
   RestoredJournal restore(const JournalRead& journal);
+  // Whether a record of the tracker's journal decodes as its tag says (RecordJournal's `accept`).
+  static bool readable(const JournalRecord& record);
   // A keyframe the killed instance archived but never published, published
   // now (journaled first), with its odometry edge when it has one.
   void publishArchived(const rekon_msgs::keyframe_t& keyframe, const std::optional<OdometryConstraint>& incoming);
@@ -79,8 +77,9 @@ class History {
   // seen (a restarted optimiser numbers its updates past it) and whether the
   // tracker has finished.
   void noteGraphVersion(int64_t version);
-  // `done` journaled (a restart after it says done again), then replays say done.
-  void markDone(const rekon_msgs::done_t& done);
+  // Replays say done from now on; `done`, the message that says it, is
+  // journaled (a restart after it says done again).
+  void markDone(const std::optional<rekon_msgs::done_t>& done = std::nullopt);
   // A mapper process seen on the bus (its resume point, or its heartbeat
   // once running). A pid not seen before, after the first, is a restarted
   // mapper: a newer instance. A frame sent again goes out again only to a
@@ -92,7 +91,7 @@ class History {
   void serveBatch(const rekon_msgs::replay_request_t& request);
   // Under mutex_: into the journal (when there is one).
   template <class M>
-  void journal(JournalTag tag, const M& m) {
+  void journal(RecordTag tag, const M& m) {
     if (journal_) journal_->append(tag, m);
   }
   Bus& bus_;

@@ -45,7 +45,7 @@ TrackerState::TrackerState(const std::string& out_dir, bool restarted) {
     std::error_code ec;
     fs::remove_all(fs::path(root_) / "tracker", ec);  // an earlier run's, in the same folder
   }
-  journal_ = std::make_unique<RecordJournal>((fs::path(root_) / kJournalFile).string(), restarted);
+  journal_ = std::make_unique<RecordJournal>((fs::path(root_) / kJournalFile).string(), restarted, History::readable);
   archiving_ = true;
 }
 

@@ -7,17 +7,24 @@
 //   u32 tag   u32 size   size bytes (the message's LCM encoding)   u32 FNV-1a 32 of tag, size and bytes
 //
 // in the host's byte order (a journal is read on the machine that wrote it).
+// One format for every service that journals (the tracker's
+// OUT/tracker_state/journal.rkj, the optimiser's OUT/optimiser_journal.rkj).
 // Each record goes to the kernel in one write() as it is appended, so a
 // killed process loses nothing it appended; there is no fsync (a power cut
 // may lose the tail, which reads as a torn record). A record cut short by a
 // kill, or one whose checksum does not match, ends what is read: it and
-// everything after it are cut off, said in one log line.
+// everything after it are cut off, said in one log line; so is a record the
+// reader's `accept` refuses (one that does not decode as its tag says).
 #include <cstdint>
+#include <functional>
 #include <optional>
 #include <string>
 #include <vector>
 
 namespace rekon {
+
+// The tags of the records, one per message type: the same in every journal.
+enum RecordTag : uint32_t { kKeyframeRecord = 1, kConstraintRecord = 2, kTrackedFrameRecord = 3, kDoneRecord = 4 };
 
 struct JournalRecord {
   uint32_t tag = 0;
@@ -30,10 +37,13 @@ struct JournalRead {
   bool torn = false;                   // something after valid_bytes was cut off
 };
 
+// Whether a record is what its tag says (it decodes); the first refused one ends what is read.
+using AcceptRecord = std::function<bool(const JournalRecord&)>;
+
 // What the journal at `path` holds (no records when there is no file).
 // rekon::Error naming the file when it is not a journal (wrong magic) or
 // cannot be read.
-JournalRead readRecordJournal(const std::string& path);
+JournalRead readRecordJournal(const std::string& path, const AcceptRecord& accept = nullptr);
 
 // Decodes a record as message type M; nullopt when it does not decode whole.
 template <class M>
@@ -49,7 +59,7 @@ class RecordJournal {
   // `restarted`: an earlier instance's journal at `path` is read (contents())
   // and appended to after its last good record; else the file is started
   // empty. rekon::Error naming the file when it cannot be written.
-  RecordJournal(const std::string& path, bool restarted);
+  RecordJournal(const std::string& path, bool restarted, const AcceptRecord& accept = nullptr);
   ~RecordJournal();
   RecordJournal(const RecordJournal&) = delete;
   RecordJournal& operator=(const RecordJournal&) = delete;
