@@ -99,6 +99,7 @@ const std::map<std::string, std::string>& restartSettings() {
       {"mapper", "mapper.resume=true"},          // its keyframe store
       {"optimiser", "optimiser.restarted=true"},  // its journal and the tracker's replay
       {"player", "player.restarted=true"},        // where its consumers are
+      {"camera", "camera.restarted=true"},        // frame ids after its consumers' newest
   };
   return settings;
 }

@@ -2,8 +2,10 @@
 
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <chrono>
 #include <optional>
+#include <thread>
 
 #include "rekon/camera/device_clock.hpp"
 #include "rekon/camera/recorder.hpp"
@@ -15,41 +17,106 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-// How a capture ended: "" for the end of a recording or a stop, else the
-// one line that says what happened to the device and what to do.
+// How a capture went: "" for the end of a recording or a stop, else the
+// one line that says what happened to the device and what to do; the frame
+// ids (continued by a restarted camera), and the outages it came back from.
 struct CaptureEnd {
   std::string lost;
-  int64_t frames = 0;
+  int64_t first_id = 0, frames = 0;
   double first_timestamp = 0, last_timestamp = 0;
+  int64_t outages = 0, frames_missed = 0;  // frames the device would have sent while it was away (at its rate)
+  double outage_s = 0;
 };
 
-// Takes frames from the device until it ends, is lost, max_frames are
-// captured, or the run stops; every frame goes to the recorder and the outlet.
-CaptureEnd capture(ServiceContext& ctx, CameraSource& source, LiveOutlet& outlet, Recorder* recorder, int max_frames) {
+// The device again after it was lost at `since`: reopened with a doubling
+// wait (camera.reconnect_wait_s, at most 8 times that) until
+// camera.reconnect_timeout_s after `since`; nullptr when it stays away, the
+// run stops, or another camera (other intrinsics) answers.
+std::unique_ptr<CameraSource> reopen(ServiceContext& ctx, const CameraParams& params, const Intrinsics& k,
+                                     Clock::time_point since) {
+  double wait_s = params.reconnect_wait_s;
+  for (int attempt = 1; !ctx.stopRequested(); ++attempt) {
+    const double waited = std::chrono::duration<double>(Clock::now() - since).count();
+    if (waited + wait_s > params.reconnect_timeout_s) return nullptr;
+    std::this_thread::sleep_for(std::chrono::duration<double>(wait_s));
+    try {
+      std::unique_ptr<CameraSource> source = openCamera(params.device, params.source);
+      if (!sameCamera(source->intrinsics(), k)) {
+        spdlog::error("camera {} came back as another camera ({} instead of {}); not using it", params.device,
+                      describeCamera(source->intrinsics()), describeCamera(k));
+        return nullptr;
+      }
+      return source;
+    } catch (const Error& e) {
+      spdlog::info("camera {}: attempt {} to reopen it failed ({})", params.device, attempt, e.what());
+    }
+    wait_s = std::min(2 * wait_s, 8 * params.reconnect_wait_s);
+  }
+  return nullptr;
+}
+
+void noteOutages(ServiceContext& ctx, const CaptureEnd& end) {
+  ctx.stats()
+      .set("outages", static_cast<long long>(end.outages))
+      .set("frames_missed_in_outages", static_cast<long long>(end.frames_missed))
+      .set("outage_seconds", end.outage_s);
+}
+
+// Takes frames from the device until it ends, is lost for longer than
+// camera.reconnect_timeout_s, max_frames are captured, or the run stops;
+// every frame goes to the recorder and the outlet, its id after the last.
+CaptureEnd capture(ServiceContext& ctx, const CameraParams& params, std::unique_ptr<CameraSource>& source,
+                   LiveOutlet& outlet, Recorder* recorder, int64_t first_id) {
   CaptureEnd end;
-  const Intrinsics k = source.intrinsics();
+  end.first_id = first_id;
+  const Intrinsics k = source->intrinsics();
   auto last_report = Clock::now();
   const auto start = last_report;
   int64_t replaced_before = 0;
-  while (!ctx.stopRequested() && (max_frames <= 0 || end.frames < max_frames)) {
-    Capture c = source.next(0.5);
+  // Set while the device is away: until a frame comes again (one that opens
+  // but sends nothing is not back).
+  std::optional<std::pair<Clock::time_point, double>> lost_at;  // steady and host clock
+  while (!ctx.stopRequested() && (params.max_frames <= 0 || end.frames < params.max_frames)) {
+    Capture c = source->next(0.5);
     if (c.status == Capture::Status::kTimeout) continue;
     if (c.status == Capture::Status::kEnded) {
       spdlog::info("the recording has ended after {} frames", end.frames);
       break;
     }
     if (c.status == Capture::Status::kLost) {
-      spdlog::error("{}", c.reason);
-      end.lost = c.reason;
-      break;
+      outlet.skippedLate(source->framesReplaced() - replaced_before);
+      replaced_before = 0;
+      source.reset();  // the driver lets go of the device before it is opened again
+      if (params.reconnect_timeout_s > 0) {
+        if (!lost_at) {
+          lost_at.emplace(Clock::now(), hostWallSeconds());
+          spdlog::warn("{}; reopening it for up to {:.0f} s (camera.reconnect_timeout_s)", c.reason, params.reconnect_timeout_s);
+        }
+        source = reopen(ctx, params, k, lost_at->first);
+      }
+      if (!source) {
+        spdlog::error("{}", c.reason);
+        end.lost = c.reason;
+        break;
+      }
+      continue;
+    }
+    if (lost_at) {
+      const double away_s = hostWallSeconds() - lost_at->second;
+      const auto missed = static_cast<int64_t>(away_s * params.source.fps);
+      ++end.outages, end.frames_missed += missed, end.outage_s += away_s;
+      noteOutages(ctx, end);
+      spdlog::warn("camera {} is back after {:.1f} s (about {} frames missed); frame ids go on from {}", params.device,
+                   away_s, missed, end.first_id + end.frames);
+      lost_at.reset();
     }
     // Frames the driver replaced before this loop took them: the loop was
     // late for them (a starved process), as the player skips frames whose
     // time has passed.
-    const int64_t replaced = source.framesReplaced();
+    const int64_t replaced = source->framesReplaced();
     outlet.skippedLate(replaced - replaced_before);
     replaced_before = replaced;
-    c.frame.id = end.frames++;
+    c.frame.id = end.first_id + end.frames++;
     if (end.frames == 1) end.first_timestamp = c.frame.timestamp;
     end.last_timestamp = c.frame.timestamp;
     if (recorder) recorder->push(c.frame);
@@ -62,7 +129,7 @@ CaptureEnd capture(ServiceContext& ctx, CameraSource& source, LiveOutlet& outlet
                    n.dropped, n.skipped_late);
     }
   }
-  outlet.skippedLate(source.framesReplaced() - replaced_before);
+  if (source) outlet.skippedLate(source->framesReplaced() - replaced_before);
   return end;
 }
 
@@ -80,6 +147,8 @@ void writeStats(ServiceContext& ctx, const CameraParams& params, const CaptureEn
       .set("sequence_seconds", span)
       .set("transport", mode == TransportMode::kShm ? "shm" : "lcm")
       .set("end", end.lost.empty() ? "end of stream" : "device lost: " + end.lost);
+  noteOutages(ctx, end);
+  if (params.restarted) stats.set("restarted_at_frame", static_cast<long long>(end.first_id));
   if (recorder) {
     stats.set("record_folder", params.record)
         .set("frames_recorded", static_cast<long long>(recorder->written()))
@@ -112,6 +181,11 @@ CameraParams CameraParams::fromConfig(const Config& config) {
   p.wait_for = config.getStringList("camera.wait_for");
   p.wait_timeout_s = config.getDouble("camera.wait_timeout_s");
   p.max_frames = config.getInt("camera.max_frames");
+  p.reconnect_timeout_s = config.getDouble("camera.reconnect_timeout_s");
+  p.reconnect_wait_s = config.getDouble("camera.reconnect_wait_s");
+  if (!(p.reconnect_wait_s > 0)) throw Error("camera.reconnect_wait_s must be a positive number of seconds");
+  if (p.reconnect_timeout_s < 0) throw Error("camera.reconnect_timeout_s must be 0 (never reopen) or more seconds");
+  p.restarted = config.getBool("camera.restarted");
   p.transport_mode = config.getString("transport.mode");
   p.segment = config.getString("transport.segment");
   p.slots = config.getInt("transport.slots");
@@ -131,7 +205,7 @@ void runCamera(ServiceContext& ctx, const CameraParams& params) {
   // The device opens once its consumers listen: a camera cannot be paused,
   // so frames captured before would only be dropped.
   waitForConsumers(ctx, watch, params.wait_for, params.wait_timeout_s, "camera.wait_for");
-  const std::unique_ptr<CameraSource> source = openCamera(params.device, params.source);
+  std::unique_ptr<CameraSource> source = openCamera(params.device, params.source);
   const Intrinsics k = source->intrinsics();
   spdlog::info("camera {}: {}", params.device, source->describe());
   if (!ctx.outDir().empty()) saveIntrinsics(k, ctx.outDir() + "/camera.yaml");  // the calibration in effect
@@ -142,7 +216,15 @@ void runCamera(ServiceContext& ctx, const CameraParams& params) {
   FrameSender sender(ctx.bus(), mode, params.segment, FrameRingLayout{params.slots, params.max_width, params.max_height});
   LiveOutlet outlet(ctx, sender, watch, params.wait_for, params.in_flight);
   ctx.setState("capturing");
-  const CaptureEnd end = capture(ctx, *source, outlet, recorder ? &*recorder : nullptr, params.max_frames);
+  // A restarted camera (the launcher restarts a killed one) numbers its
+  // frames after the newest its consumers have: an id from 0 again would be
+  // taken for a frame they already had.
+  int64_t first_id = 0;
+  if (params.restarted) {
+    for (const auto& s : params.wait_for) first_id = std::max(first_id, watch.lastFrame(s) + 1);
+    spdlog::warn("restarted: the consumers have the frames up to {}; frame ids go on from {}", first_id - 1, first_id);
+  }
+  const CaptureEnd end = capture(ctx, params, source, outlet, recorder ? &*recorder : nullptr, first_id);
   outlet.finish(params.wait_timeout_s);
   if (recorder) recorder->close();
   writeStats(ctx, params, end, outlet, recorder ? &*recorder : nullptr, mode);

@@ -19,6 +19,9 @@ struct CameraParams {
   std::vector<std::string> wait_for;
   double wait_timeout_s = 60.0;
   int max_frames = 0;  // 0 = until the device ends or the run stops
+  double reconnect_timeout_s = 10.0;  // a lost device is reopened for this long (0: never)
+  double reconnect_wait_s = 0.25;     // first wait before reopening; doubled each attempt, to 8 times this
+  bool restarted = false;             // a new process after a killed one: ids go on after the consumers' newest
   std::string transport_mode = "auto";
   std::string segment;
   int slots = 8;

@@ -44,6 +44,12 @@ const char* const kNoDeviceHint = "check the USB cable/power; rekon cameras list
 
 using SteadyClock = std::chrono::steady_clock;
 
+// fakenect keeps its place in a recording in process-wide state: opened again
+// in the same process (rekon-camera reopening a lost device), it goes on from
+// the entry where it stopped, as a real device goes on streaming. The entries
+// played so far, across every source of this process.
+std::atomic<size_t> g_fakenect_entries_played{0};
+
 void logFromFreenect(freenect_context*, freenect_loglevel level, const char* message) {
   std::string text(message ? message : "");
   while (!text.empty() && (text.back() == '\n' || text.back() == '\r')) text.pop_back();
@@ -248,6 +254,7 @@ FreenectSource::FreenectSource(int index, const SourceOptions& options)
                 std::to_string(options.fps) + ")");
   }
   recording_ = checkReplayEnvironment(fakenectLoaded());
+  if (recording_) events_ = g_fakenect_entries_played.load();
   recording_clock_ = options.recording_clock;
   if (recording_clock_ && !recording_)
     throw Error(name_ + ": camera.clock is 'recording' but this is a live Kinect, which has only this computer's clock; "
@@ -351,6 +358,7 @@ void FreenectSource::eventLoop() {
       timeval wait{0, kEventWaitUs};
       const int rc = freenect_process_events_timeout(handles_.context, &wait);
       ++events_;
+      if (recording_) g_fakenect_entries_played.store(events_);
       if (rc == LIBUSB_ERROR_INTERRUPTED) continue;  // a signal woke libusb; not an error
       if (rc < 0) {
         finish(Capture::Status::kLost, stoppedReason(rc));
