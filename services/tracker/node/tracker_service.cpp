@@ -155,6 +155,7 @@ void runTrackerService(ServiceContext& ctx) {
   writeOutputs(ctx, worker.totals(), inbox.framesSentAgain(), inbox.ackHeldSeconds(), loops.stats(), keyframes->stats(),
                session.localise_only);
   if (const auto failure = worker.failure()) throw Error(*failure);  // after the outputs: what was tracked is kept
+  if (ended && !ctx.stopRequested()) state.removeArchive();
 }
 
 }  // namespace rekon::tracker

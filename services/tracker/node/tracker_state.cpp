@@ -49,9 +49,9 @@ TrackerState::TrackerState(const std::string& out_dir, bool restarted) {
   archiving_ = true;
 }
 
-void TrackerState::archive(const Keyframe& keyframe, const std::optional<OdometryConstraint>& incoming,
+bool TrackerState::archive(const Keyframe& keyframe, const std::optional<OdometryConstraint>& incoming,
                            const Intrinsics& camera) {
-  if (!archiving_) return;
+  if (!archiving_) return false;
   const auto t0 = std::chrono::steady_clock::now();
   try {
     saveKeyframe(root_, keyframe, incoming, camera);
@@ -61,6 +61,15 @@ void TrackerState::archive(const Keyframe& keyframe, const std::optional<Odometr
     archiving_ = false;
   }
   archive_ms_ += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  return archiving_;
+}
+
+void TrackerState::removeArchive() {
+  if (root_.empty()) return;
+  std::error_code ec;
+  const auto removed = fs::remove_all(fs::path(root_) / "tracker", ec);
+  if (ec) spdlog::warn("cannot remove the keyframe archive {}/tracker ({})", root_, ec.message());
+  else if (removed > 0) spdlog::debug("removed the keyframe archive {}/tracker: the run is over", root_);
 }
 
 rekon_msgs::resume_point_t restoreAfterRestart(ServiceContext& ctx, TrackerState& state, History& history,

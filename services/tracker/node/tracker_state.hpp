@@ -32,9 +32,13 @@ class TrackerState {
   RecordJournal* journal() { return journal_.get(); }
   // The archive root (its keyframes are ROOT/tracker/dvo_NNNNNN.rkd); "" when none.
   const std::string& archiveRoot() const { return root_; }
-  // Writes a new keyframe into the archive. A failed write logs one error and
-  // stops the archive (the run goes on; a restart relocalises against fewer).
-  void archive(const Keyframe& keyframe, const std::optional<OdometryConstraint>& incoming, const Intrinsics& camera);
+  // Writes a new keyframe into the archive; true when it is there. A failed
+  // write logs one error and stops the archive (the run goes on; a restart
+  // relocalises against fewer).
+  bool archive(const Keyframe& keyframe, const std::optional<OdometryConstraint>& incoming, const Intrinsics& camera);
+  // The run is over (the tracker ends cleanly, after its consumers): the
+  // keyframe archive goes (0.6 MB a keyframe at 640x480); the journal stays.
+  void removeArchive();
   int64_t archived() const { return archived_; }
   double archiveMs() const { return archive_ms_; }
 

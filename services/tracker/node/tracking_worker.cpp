@@ -37,7 +37,8 @@ TrackerSession TrackerSession::fromConfig(const Config& config) {
 
 TrackingWorker::TrackingWorker(const TrackerParams& params, const TrackerSession& session, History& history,
                                LoopClosureWorker& loops, std::shared_ptr<KeyframeCache> keyframes, TrackerState* state)
-    : session_(session), state_(state), history_(history), loops_(loops), tracker_(params, std::move(keyframes)) {
+    : session_(session), state_(state), history_(history), loops_(loops), keyframes_(keyframes),
+      tracker_(params, std::move(keyframes)) {
   if (session_.continued) continueSession(params);
 }
 
@@ -156,7 +157,9 @@ bool TrackingWorker::trackLocked(const rekon_msgs::frame_t& msg) {
                  r.relocalised_from ? "relocalised against keyframe " + std::to_string(r.relocalised_from->from_id)
                                     : std::string("a new keyframe at the last pose before it (none validated)"));
   }
-  if (state_ && r.new_keyframe && !session_.localise_only) state_->archive(*tracker_.currentKeyframe(), r.odometry, k);
+  // Archived before it is published; from then on the cache reads it back from there when it leaves memory.
+  if (state_ && r.new_keyframe && !session_.localise_only && state_->archive(*tracker_.currentKeyframe(), r.odometry, k))
+    keyframes_->noteArchived(r.keyframe_id, state_->archiveRoot());
   if (session_.localise_only) {
     // Poses only: no back end runs, and the edges name the session's keyframes, never announced on the bus.
     TrackResult poses = r;

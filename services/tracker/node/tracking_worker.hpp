@@ -92,6 +92,7 @@ class TrackingWorker {
   std::string resumed_by_;
   History& history_;
   LoopClosureWorker& loops_;
+  std::shared_ptr<KeyframeCache> keyframes_;
   mutable std::mutex mutex_;
   Tracker tracker_;
   FrameReceiver receiver_;

@@ -102,6 +102,14 @@ void KeyframeCache::addArchived(int64_t id, const Pose& pose_world, const std::s
   ++stats_.keyframes;
 }
 
+void KeyframeCache::noteArchived(int64_t id, const std::string& root) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const auto it = slots_.find(id);
+  if (it == slots_.end() || it->second.on_disk) return;
+  it->second.on_disk = true;
+  it->second.archive = root;
+}
+
 std::shared_ptr<const Keyframe> KeyframeCache::get(int64_t id) {
   std::lock_guard<std::mutex> lock(mutex_);
   const auto it = slots_.find(id);

@@ -43,6 +43,10 @@ class KeyframeCache {
   // check first needs it (a restarted tracker's earlier keyframes). The file
   // is never removed by the cache. Again: ignored.
   void addArchived(int64_t id, const Pose& pose_world, const std::string& root);
+  // Keyframe `id`, added before, now also in the archive at `root`: when it
+  // leaves memory it is read back from there, never written to the spill
+  // folder. Unknown or already on disk: ignored.
+  void noteArchived(int64_t id, const std::string& root);
   // The keyframe with its pyramid and reference, read back when on disk;
   // null for an id never added.
   std::shared_ptr<const Keyframe> get(int64_t id);
