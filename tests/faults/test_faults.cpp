@@ -236,31 +236,45 @@ void expectStoppedNaming(const std::string& service, const std::string& sets = "
   EXPECT_EQ(leftoverSegments(out), std::vector<std::string>{});
 }
 
-TEST(Faults, KilledTrackerStopsTheRunNamingItAndKeepsTheOutputsSoFar) { expectStoppedNaming("tracker"); }
-
 TEST(Faults, KilledPlayerNotListedInRunRestartStopsTheRunNamingIt) {
   expectStoppedNaming("player", "--set run.restart=[mapper,optimiser]");
 }
 
-// The player killed mid-stream and restarted: the new instance asks its
-// consumers' heartbeats where they are, goes on after that, and the run ends
-// with every frame tracked and the same map as without the kill.
-TEST(Faults, KilledPlayerIsRestartedAndGoesOnWhereItsConsumersAre) {
+// `service` killed mid-stream (2 KF keyframes stored) and restarted by rekon
+// run: every frame tracked once, ATE and the mesh's CORR against the room's
+// ground truth within `ate_bound_m` and `corr_bound_m` of the uninterrupted run's.
+void expectRestartedWithinBounds(const std::string& service, const std::string& log_line, double ate_bound_m,
+                                 double corr_bound_m) {
   rekon::test::TempDir dir;
   const std::string out = dir / "run";
-  const Faulty f = runKilling("player", out);
-  ASSERT_NE(f.output.find("killed rekon-player"), std::string::npos) << f.output;
+  const Faulty f = runKilling(service, out);
+  ASSERT_NE(f.output.find("killed rekon-" + service), std::string::npos) << f.output;
   ASSERT_EQ(f.rc, 0) << f.output;
-  EXPECT_NE(readText(out + "/stats.json").find("\"restarts\": {\"player\":1}"), std::string::npos) << f.output;
-  const std::string player_log = readText(out + "/player.log");
-  EXPECT_NE(player_log.find("restarted: the consumers have the frames up to"), std::string::npos) << player_log;
+  EXPECT_NE(readText(out + "/stats.json").find("\"restarts\": {\"" + service + "\":1}"), std::string::npos) << f.output;
+  const std::string log = readText(out + "/" + service + ".log");
+  EXPECT_NE(log.find(log_line), std::string::npos) << log;
   EXPECT_EQ(lineCount(out + "/trajectory.txt"), static_cast<size_t>(kFrames)) << f.output;
-  // The same frames tracked and fused in the same order: the result of the
-  // uninterrupted run, to a bound of 0.01 mm (measured: ATE and CORR equal to the
-  // uninterrupted run's to 1 nm, 0.2265 and 1.6685 mm).
-  EXPECT_NEAR(ateOf(out), ateOf(baseline().run), 0.00001);
-  EXPECT_NEAR(corrOf(out), corrOf(baseline().run), 0.00001);
+  EXPECT_NEAR(ateOf(out), ateOf(baseline().run), ate_bound_m);
+  EXPECT_NEAR(corrOf(out), corrOf(baseline().run), corr_bound_m);
   EXPECT_EQ(leftoverSegments(out), std::vector<std::string>{});
+}
+
+// The player: the new instance asks its consumers' heartbeats where they are
+// and goes on after that; the same frames are tracked and fused in the same
+// order. Measured: ATE and CORR equal to the uninterrupted run's to 1 nm
+// (0.2265 and 1.6685 mm). Bounds 0.01 mm.
+TEST(Faults, KilledPlayerIsRestartedAndGoesOnWhereItsConsumersAre) {
+  expectRestartedWithinBounds("player", "restarted: the consumers have the frames up to", 0.00001, 0.00001);
+}
+
+// The tracker: rebuilt from its journal and keyframe archive, its first frame
+// relocalised (or a new keyframe), the frames from its resume point sent
+// again. Measured in 4 runs (resume at frames 42-83): ATE -0.009..+0.072 mm
+// and CORR -0.25..+0.36 mm against the uninterrupted run (a different
+// keyframe after the restart moves the map a little). Bounds: twice the
+// largest difference, 0.15 and 0.7 mm.
+TEST(Faults, KilledTrackerIsRestartedFromItsJournalAndGoesOn) {
+  expectRestartedWithinBounds("tracker", "restarted: the journal holds", 0.00015, 0.0007);
 }
 
 TEST(Faults, MapperKilledMoreOftenThanMaxRestartsStopsTheRun) {

@@ -100,6 +100,7 @@ const std::map<std::string, std::string>& restartSettings() {
       {"optimiser", "optimiser.restarted=true"},  // its journal and the tracker's replay
       {"player", "player.restarted=true"},        // where its consumers are
       {"camera", "camera.restarted=true"},        // frame ids after its consumers' newest
+      {"tracker", "tracker.restarted=true"},      // its journal and keyframe archive (OUT/tracker_state)
   };
   return settings;
 }
