@@ -1,8 +1,8 @@
 // `rekon chaos`: how far kill -9 moves a run. A dataset at its recorded rate,
 // once as it is and once with a random service (seeded) killed every few
 // seconds; prints kills, restarts, poses, ATE and the mesh's CORR against the
-// uninterrupted run, writes them to OUT/chaos.json, and exits 1 when an
-// outcome is out of its bounds.
+// uninterrupted run (aligned by their trajectories), writes them to
+// OUT/chaos.json, and exits 1 when an outcome is out of its bounds.
 #include <signal.h>
 #include <fmt/format.h>
 #include <fmt/ranges.h>
@@ -213,6 +213,18 @@ void writeJson(const ChaosOptions& opt, const Outcome& clean, const Outcome& cha
   j.save(opt.out + "/chaos.json");
 }
 
+// CORR of run `a`'s mesh against run `b`'s, `a`'s moved by the rigid
+// alignment of its trajectory onto `b`'s (as docs/faults.md compares two
+// runs): what differs in shape, not a shift of the whole map.
+double meshDistance(const std::string& a, const std::string& b) {
+  Mesh mesh = readPly(a + "/mesh.ply");
+  const Eigen::Isometry3f to_b =
+      eval::evaluateTrajectory(readTumTrajectory(b + "/trajectory.txt"), readTumTrajectory(a + "/trajectory.txt"))
+          .alignment.cast<float>();
+  for (auto& v : mesh.vertices) v = to_b * v;
+  return eval::evaluateSurface(mesh, readPly(b + "/mesh.ply")).corr_m;
+}
+
 int chaos(const ChaosOptions& opt) {
   createOutputFolder(opt.out);
   signal(SIGINT, onChaosInterrupt);
@@ -235,7 +247,7 @@ int chaos(const ChaosOptions& opt) {
   if (g_chaos_interrupted.load()) return 130;
   double corr_m = std::numeric_limits<double>::infinity();
   try {
-    corr_m = eval::evaluateSurface(readPly(killed.folder + "/mesh.ply"), readPly(clean.folder + "/mesh.ply")).corr_m;
+    corr_m = meshDistance(killed.folder, clean.folder);
   } catch (const Error& e) {
     spdlog::error("the meshes could not be compared: {}", e.what());
   }
