@@ -61,19 +61,19 @@ pid_t spawnService(const std::string& name, const std::string& out, const std::s
 // Frame ids of the tracked frames the tracker's journal holds, each once.
 std::set<int64_t> journaledFrames(const std::string& out) {
   std::set<int64_t> ids;
-  for (const rekon::JournalRecord& r : rekon::readRecordJournal(out + "/tracker_state/journal.rkj").records)
-    if (const auto tf = r.tag == rekon::kTrackedFrameRecord ? rekon::decodeRecord<rekon_msgs::tracked_frame_t>(r) : std::nullopt) ids.insert(tf->frame_id);
+  for (const rekon::JournalRecord& r : rekon::readRecordJournal(out + "/tracker_state/journal.rkj").records) {
+    if (r.tag != rekon::kTrackedFrameRecord) continue;
+    if (const auto tf = rekon::decodeRecord<rekon_msgs::tracked_frame_t>(r)) ids.insert(tf->frame_id);
+  }
   return ids;
 }
 
 // Every thread of `pid` stopped by SIGSTOP (alive and still), within 2 s.
 bool stopped(pid_t pid) {
+  const std::string all_stopped = "test \"$(sed 's/.*) //' /proc/" + std::to_string(pid) +
+                                  "/task/*/stat 2>/dev/null | cut -d' ' -f1 | sort -u)\" = T";
   for (int i = 0; i < 100; ++i) {
-    std::string states = runCommand("test \"$(sed 's/.*) //' /proc/" + std::to_string(pid) +
-                                    "/task/*/stat 2>/dev/null | cut -d' ' -f1 | sort -u)\" = T") == 0
-                             ? "T"
-                             : "";
-    if (states == "T") return true;
+    if (runCommand(all_stopped) == 0) return true;
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   }
   return false;
@@ -99,7 +99,11 @@ PipelineRun runPipeline(const std::string& out, bool kill) {
     const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double>(kWaitS);
     while (std::chrono::steady_clock::now() < until) {
       std::this_thread::sleep_for(std::chrono::milliseconds(20));
-      if (::kill(tracker, SIGSTOP) != 0 || !stopped(tracker)) break;  // ended (or hung): nothing to kill
+      if (::kill(tracker, SIGSTOP) != 0) break;  // ended: nothing to kill
+      if (!stopped(tracker)) {                   // exiting (a zombie): let it go
+        ::kill(tracker, SIGCONT);
+        break;
+      }
       r.frames_at_kill = journaledFrames(out).size();
       if (r.frames_at_kill >= static_cast<size_t>(kKillAfterFrames)) {
         ::kill(tracker, SIGKILL);
