@@ -10,6 +10,12 @@
 #include <fstream>
 
 #include "history.hpp"
+#include "inbox.hpp"
+#include "rekon/common/cli.hpp"
+#include "rekon/common/config.hpp"
+#include "rekon/common/messages.hpp"
+#include "tracker_state.hpp"
+#include "tracking_worker.hpp"
 #include "rekon/common/bus.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/common/record_journal.hpp"
@@ -215,6 +221,69 @@ TEST(TrackerRestart, AFirstFrameThatValidatesAgainstNothingStartsANewKeyframeAtT
   EXPECT_FALSE(r.odometry.has_value());
   EXPECT_EQ(r.keyframe_id, again.highest + 1);
   EXPECT_LT(translationDistance(r.pose_world, first.results.back().pose_world), 1e-9);
+}
+
+// Killed between archiving keyframe K and publishing it (its frame's result
+// never went out): the restart publishes K with its odometry edge, journals
+// it, and numbers new keyframes past it; the frames resume after the last
+// journaled one.
+TEST(TrackerRestart, AKeyframeArchivedButNeverPublishedIsPublishedByTheRestart) {
+  const test::RoomViews views;
+  rekon::test::TempDir dir;
+  const std::string url = "memory://tracker_restart_state";
+  const Config config = Config::load("", {"lcm.url=" + url});
+  const auto bus = makeBus(BusOptions::fromConfig(config));
+  const Trajectory truth = views.trajectory(600);
+  int64_t last_published = -1, unpublished = -1, journaled_keyframes = 0;
+  {
+    const auto first_bus = memoryBus();  // the killed instance's messages are not the restart's
+    TrackerState state(dir.path(), false);
+    History history(*first_bus, state.journal());
+    Tracker tracker;
+    for (int i = 0; i < 60 && unpublished < 0; ++i) {
+      const TrackResult r = tracker.track(views.render(truth[static_cast<size_t>(i)].pose, synth::Noise::None, i),
+                                          views.intrinsics());
+      if (r.new_keyframe) state.archive(*tracker.currentKeyframe(), r.odometry, views.intrinsics());
+      if (r.new_keyframe && r.keyframe_id == 3) {
+        unpublished = r.keyframe_id;  // killed here: archived, not published
+        break;
+      }
+      history.publishResult(r);
+      last_published = r.frame_id;
+      journaled_keyframes += r.new_keyframe;
+    }
+  }
+  ASSERT_EQ(unpublished, 3) << "the room's first 60 frames make at least 4 keyframes";
+
+  std::vector<rekon_msgs::keyframe_t> heard;
+  bus->subscribe<rekon_msgs::keyframe_t>(channel::kKeyframes, [&](const rekon_msgs::keyframe_t& m) { heard.push_back(m); });
+  ArgParser args("rekon-tracker", "in-process");
+  ServiceContext ctx("tracker", config, dir.path(), args);
+  const TrackerParams params;
+  TrackerState state(dir.path(), true);
+  History history(ctx.bus(), state.journal());
+  const auto cache = std::make_shared<KeyframeCache>(params);
+  LoopClosureWorker loops(params, [](const LoopConstraint&) {}, false, cache);
+  TrackingWorker worker(params, TrackerSession::fromConfig(config), history, loops, cache, &state);
+  Inbox inbox(ctx, worker, history, loops, false);
+  const rekon_msgs::resume_point_t resume =
+      restoreAfterRestart(ctx, state, history, *cache, worker, loops, inbox, params.aligner);
+  loops.start();
+  EXPECT_EQ(resume.service, "tracker");
+  EXPECT_EQ(resume.first_missing_frame, last_published + 1);
+  EXPECT_EQ(cache->stats().keyframes, journaled_keyframes + 1);  // all indexed,
+  EXPECT_EQ(cache->stats().loaded, 0);                           // none read into memory
+  while (bus->handle(0)) {
+  }
+  ASSERT_EQ(heard.size(), 1u);
+  EXPECT_EQ(heard[0].keyframe_id, unpublished);
+  // ...and journaled: a second restart finds it published.
+  const JournalRead again = readRecordJournal(dir / "tracker_state/journal.rkj", History::readable);
+  History replay(*bus, nullptr);
+  const RestoredJournal restored = replay.restore(again);
+  ASSERT_EQ(restored.keyframes.size(), static_cast<size_t>(journaled_keyframes + 1));
+  EXPECT_EQ(restored.keyframes.back().keyframe.keyframe_id, unpublished);
+  EXPECT_TRUE(restored.keyframes.back().incoming.has_value());  // its odometry edge went out with it
 }
 
 }  // namespace
