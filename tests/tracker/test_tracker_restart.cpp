@@ -226,7 +226,7 @@ TEST(TrackerRestart, AFirstFrameThatValidatesAgainstNothingStartsANewKeyframeAtT
 // Killed between archiving keyframe K and publishing it (its frame's result
 // never went out): the restart publishes K with its odometry edge, journals
 // it, and numbers new keyframes past it; the frames resume after the last
-// journaled one.
+// journaled one, and the loop checks the killed one had not settled are made.
 TEST(TrackerRestart, AKeyframeArchivedButNeverPublishedIsPublishedByTheRestart) {
   const test::RoomViews views;
   rekon::test::TempDir dir;
@@ -268,11 +268,14 @@ TEST(TrackerRestart, AKeyframeArchivedButNeverPublishedIsPublishedByTheRestart) 
   Inbox inbox(ctx, worker, history, loops, false);
   const rekon_msgs::resume_point_t resume =
       restoreAfterRestart(ctx, state, history, *cache, worker, loops, inbox, params.aligner);
-  loops.start();
   EXPECT_EQ(resume.service, "tracker");
   EXPECT_EQ(resume.first_missing_frame, last_published + 1);
   EXPECT_EQ(cache->stats().keyframes, journaled_keyframes + 1);  // all indexed,
   EXPECT_EQ(cache->stats().loaded, 0);                           // none read into memory
+  // No loop check of the killed instance was settled (it ran none): each keyframe is checked now.
+  loops.start();
+  ASSERT_TRUE(loops.waitUntilDrained(120000));
+  EXPECT_EQ(loops.checkedKeyframes(), (std::vector<int64_t>{0, 1, 2, 3}));
   while (bus->handle(0)) {
   }
   ASSERT_EQ(heard.size(), 1u);

@@ -75,6 +75,14 @@ void History::publishLoopConstraint(const LoopConstraint& l) {
                l.coarse_ratio, l.fine_ratio, l.valid_pixels);
 }
 
+void History::noteLoopChecked(int64_t id) {
+  rekon_msgs::keyframe_t kf{};
+  kf.keyframe_id = id;
+  kf.pose_world = toMsg(Pose::Identity());
+  std::lock_guard<std::mutex> lock(mutex_);
+  journal(kLoopCheckedRecord, kf);
+}
+
 bool History::republishResult(int64_t frame_id) {
   std::lock_guard<std::mutex> lock(mutex_);
   auto tf = tracked_.find(frame_id);
@@ -158,7 +166,8 @@ void History::markDone(const std::optional<rekon_msgs::done_t>& done) {
 
 bool History::readable(const JournalRecord& r) {
   switch (r.tag) {
-    case kKeyframeRecord: return decodeRecord<rekon_msgs::keyframe_t>(r).has_value();
+    case kKeyframeRecord:
+    case kLoopCheckedRecord: return decodeRecord<rekon_msgs::keyframe_t>(r).has_value();
     case kConstraintRecord: return decodeRecord<rekon_msgs::constraint_t>(r).has_value();
     case kTrackedFrameRecord: return decodeRecord<rekon_msgs::tracked_frame_t>(r).has_value();
     case kDoneRecord: return decodeRecord<rekon_msgs::done_t>(r).has_value();
@@ -220,11 +229,19 @@ RestoredJournal History::restore(const JournalRead& read) {
       tracked_[tf->frame_id] = *tf;
       published_for_[tf->frame_id] = mapper_instance_;
       ++out.tracked_frames;
+      const auto kf = keyframe_pose.find(tf->keyframe_id);
+      if (kf != keyframe_pose.end()) out.odometry.push_back({tf->timestamp, kf->second * *in_keyframe});
       if (tf->frame_id > out.last_frame_id) {
         out.last_frame_id = tf->frame_id;
-        const auto kf = keyframe_pose.find(tf->keyframe_id);
         if (kf != keyframe_pose.end()) out.last_pose_world = kf->second * *in_keyframe;
       }
+    } else if (record.tag == kLoopCheckedRecord) {
+      const auto kf = decodeRecord<rekon_msgs::keyframe_t>(record);
+      if (!kf) {
+        undecodable(i, "a loop check");
+        return out;
+      }
+      out.loop_checked.insert(kf->keyframe_id);
     } else if (record.tag == kDoneRecord) {
       const auto done = decodeRecord<rekon_msgs::done_t>(record);
       if (!done) {

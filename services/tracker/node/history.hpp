@@ -34,6 +34,8 @@ struct RestoredJournal {
   int64_t last_frame_id = -1;          // the newest tracked frame
   std::optional<Pose> last_pose_world;  // ...its world pose by odometry
   std::optional<rekon_msgs::done_t> done;  // the killed instance had finished the stream
+  std::set<int64_t> loop_checked;          // keyframes whose loop-closure check was settled
+  Trajectory odometry;                     // the tracked frames' world poses by odometry, in order
 };
 
 class History {
@@ -58,6 +60,10 @@ class History {
   void publishResult(const TrackResult& r);
   // An accepted loop closure, from the loop-closure worker.
   void publishLoopConstraint(const LoopConstraint& l);
+  // Keyframe `id`'s loop-closure check is settled (LoopClosureWorker::onSettled):
+  // journaled only, so that a restart checks again the keyframes whose check
+  // the kill cut short.
+  void noteLoopChecked(int64_t id);
   // A frame sent again (the player rewinds for a restarted mapper): its
   // stored result goes out again on the live channels, keyframe first as
   // before, when the mapper has restarted since it went out. The optimiser

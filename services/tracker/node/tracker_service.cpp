@@ -122,6 +122,7 @@ void runTrackerService(ServiceContext& ctx) {
   PeerWatch peers(ctx.bus(), ctx.lifecycle());
   Inbox inbox(ctx, worker, history, loops, params.loop.when_behind == LoopClosureParams::WhenBehind::kHold);
   std::optional<rekon_msgs::resume_point_t> resume_point;
+  loops.onSettled([&history](int64_t id) { history.noteLoopChecked(id); });
   if (restarted)
     resume_point = restoreAfterRestart(ctx, state, history, *keyframes, worker, loops, inbox, params.aligner);
   loops.start();
@@ -151,7 +152,8 @@ void runTrackerService(ServiceContext& ctx) {
         .set("journal_bytes", a.bytes)
         .set("journal_append_ms", 1e3 * a.seconds);
   }
-  if (restarted) ctx.stats().set("restart_first_pose", worker.resumedBy());
+  if (restarted)
+    ctx.stats().set("restart_first_pose", worker.resumedBy()).set("frames_restored", worker.totals().restored_frames);
   writeOutputs(ctx, worker.totals(), inbox.framesSentAgain(), inbox.ackHeldSeconds(), loops.stats(), keyframes->stats(),
                session.localise_only);
   if (const auto failure = worker.failure()) throw Error(*failure);  // after the outputs: what was tracked is kept

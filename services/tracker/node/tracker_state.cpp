@@ -8,6 +8,8 @@
 #include <filesystem>
 #include <map>
 #include <set>
+#include <utility>
+#include <vector>
 
 #include "inbox.hpp"
 #include "rekon/common/error.hpp"
@@ -85,6 +87,8 @@ rekon_msgs::resume_point_t restoreAfterRestart(ServiceContext& ctx, TrackerState
   const std::string& root = state.archiveRoot();
   std::set<int64_t> archived = archivedIds(root);
   int64_t highest = -1, missing = 0;
+  // Published keyframes whose loop check the kill cut short (or never began): checked again.
+  std::vector<std::pair<int64_t, std::optional<OdometryConstraint>>> recheck;
   const auto index = [&](int64_t id, const Pose& pose, const std::optional<OdometryConstraint>& incoming) {
     highest = std::max(highest, id);
     if (!archived.count(id)) {
@@ -93,11 +97,19 @@ rekon_msgs::resume_point_t restoreAfterRestart(ServiceContext& ctx, TrackerState
     }
     cache.addArchived(id, pose, root);
     worker.addIndexedKeyframe(id, pose, incoming);
-    loops.addIndexed(id, pose, incoming);
+    if (restored.loop_checked.count(id)) loops.addIndexed(id, pose, incoming);
+    else recheck.emplace_back(id, incoming);
   };
   for (const auto& entry : restored.keyframes) {
     const std::optional<Pose> pose = fromMsg(entry.keyframe.pose_world);
     if (pose) index(entry.keyframe.keyframe_id, *pose, entry.incoming);
+  }
+  for (const auto& [id, incoming] : recheck) {
+    try {
+      loops.submit(loadKeyframe(root, id, aligner).keyframe, incoming);
+    } catch (const Error& e) {
+      spdlog::error("{}; keyframe {}'s loop check is not made again", e.what(), id);
+    }
   }
   if (missing > 0)
     spdlog::warn("{}: {} of the {} journaled keyframes have no archive file; they are not relocalisation or loop "
@@ -124,17 +136,19 @@ rekon_msgs::resume_point_t restoreAfterRestart(ServiceContext& ctx, TrackerState
     highest = std::max(highest, id);
     cache.addArchived(id, stored.keyframe->pose_world, root);
     worker.addIndexedKeyframe(id, stored.keyframe->pose_world, stored.incoming);
-    loops.addIndexed(id, stored.keyframe->pose_world, stored.incoming);
+    loops.submit(stored.keyframe, stored.incoming);  // published now: checked now
   }
   worker.continueIdsFrom(highest + 1);
+  worker.restoreOdometry(restored.odometry);
   if (restored.last_pose_world) worker.resumeAt(*restored.last_pose_world);
   resume.first_missing_frame = restored.last_frame_id < 0 ? -1 : restored.last_frame_id + 1;
   inbox.resumeFrom(resume.first_missing_frame);
   if (restored.done) inbox.endAt(restored.done->last_frame_id);
   spdlog::info("restarted: the journal holds {} keyframes, {} constraints and {} tracked frames (the last frame {}){}; "
-               "{} keyframes archived ({} published now); new keyframe ids from {}; frames resume at {}",
+               "{} keyframes archived ({} published now, {} loop checks made again); new keyframe ids from {}; frames "
+               "resume at {}",
                restored.keyframes.size(), restored.constraints, restored.tracked_frames, restored.last_frame_id,
-               restored.done ? ", and its done" : "", archived.size(), published_now, highest + 1,
+               restored.done ? ", and its done" : "", archived.size(), published_now, recheck.size(), highest + 1,
                resume.first_missing_frame);
   return resume;
 }

@@ -59,6 +59,12 @@ void TrackingWorker::resumeAt(const Pose& last_pose_world) {
   resuming_ = true;
 }
 
+void TrackingWorker::restoreOdometry(const Trajectory& odometry) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  totals_.odometry.insert(totals_.odometry.begin(), odometry.begin(), odometry.end());
+  totals_.restored_frames = static_cast<int64_t>(odometry.size());
+}
+
 std::string TrackingWorker::resumedBy() const {
   std::lock_guard<std::mutex> lock(mutex_);
   return resumed_by_;

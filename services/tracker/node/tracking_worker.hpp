@@ -25,6 +25,7 @@
 namespace rekon::tracker {
 
 struct TrackingCounts {
+  int64_t restored_frames = 0;  // a restart: tracked by the killed instances (their journal), not in `frames`
   int64_t frames = 0, lost = 0, keyframes = 0, constraints = 0, undecodable = 0, relocalisations = 0;
   int64_t reanchored = 0;  // session.localise_only: due keyframes placed by the map (not in relocalisations)
 };
@@ -61,6 +62,8 @@ class TrackingWorker {
   void addIndexedKeyframe(int64_t id, const Pose& pose_world, const std::optional<OdometryConstraint>& incoming);
   void continueIdsFrom(int64_t next_id);
   void resumeAt(const Pose& last_pose_world);
+  // The killed instances' odometry (their journal), before this one's in odometry.txt.
+  void restoreOdometry(const Trajectory& odometry);
   // How the restart's first pose came: "relocalised", "new keyframe" (none
   // validated); "" before it, or when this is no restart.
   std::string resumedBy() const;

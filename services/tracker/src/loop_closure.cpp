@@ -515,6 +515,7 @@ void LoopClosureWorker::run() {
     // so that the tracker's memory follows what it keeps.
     const int64_t id = job.keyframe->id;
     job.keyframe.reset();
+    if (on_settled_ && job.kind != Kind::kStored) on_settled_(id);
     const bool trimmed = heap_slack_bytes_ > 0 && releaseFreedMemoryBeyond(heap_slack_bytes_);
     const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     {

@@ -23,8 +23,16 @@
 
 namespace rekon {
 
-// The tags of the records, one per message type: the same in every journal.
-enum RecordTag : uint32_t { kKeyframeRecord = 1, kConstraintRecord = 2, kTrackedFrameRecord = 3, kDoneRecord = 4 };
+// The tags of the records, one per message type, the same in every journal
+// (kLoopCheckedRecord: the tracker's note that a keyframe's loop check was
+// settled, a keyframe_t with its id).
+enum RecordTag : uint32_t {
+  kKeyframeRecord = 1,
+  kConstraintRecord = 2,
+  kTrackedFrameRecord = 3,
+  kDoneRecord = 4,
+  kLoopCheckedRecord = 5,
+};
 
 struct JournalRecord {
   uint32_t tag = 0;

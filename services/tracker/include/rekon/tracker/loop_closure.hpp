@@ -211,6 +211,11 @@ class LoopClosureWorker {
   LoopClosureWorker& operator=(const LoopClosureWorker&) = delete;
 
   void start();
+  // Called on the worker thread with a new keyframe's id once its check is
+  // settled: run (its accepted constraints already handed to `on_accept`) or
+  // dropped by a full queue (it was then only added as a candidate). Set
+  // before start().
+  void onSettled(std::function<void(int64_t)> settled) { on_settled_ = std::move(settled); }
   // Queues a new keyframe's check; when queue_capacity checks already wait,
   // the oldest waiting one is dropped with a warning (its keyframe still waits,
   // to be added as a candidate). When queue_capacity such keyframes wait too
@@ -255,6 +260,7 @@ class LoopClosureWorker {
 
   LoopClosureDetector detector_;
   AcceptFn on_accept_;
+  std::function<void(int64_t)> on_settled_;
   const size_t heap_slack_bytes_;  // 0: never hand freed memory back
   mutable std::mutex mutex_;
   std::condition_variable wake_, drained_;
