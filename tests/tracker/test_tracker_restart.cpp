@@ -143,6 +143,25 @@ TEST(TrackerJournal, ADoneInTheJournalComesBack) {
   EXPECT_EQ(restored.done->last_frame_id, 89);
 }
 
+// A tracker that stopped on an error it cannot get past (a continued session
+// not relocalised in time) is not restarted past it: the restart stops on the
+// same error at once. A new run starts clean.
+TEST(TrackerJournal, ARestartOfATrackerThatStoppedOnAnErrorStopsOnItAgain) {
+  rekon::test::TempDir dir;
+  TrackerState(dir.path(), false).markFailed("none of the first 20 frames relocalised");
+  try {
+    TrackerState restarted(dir.path(), true);
+    FAIL() << "a restart went on past the error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("none of the first 20 frames relocalised (the killed tracker had stopped on "
+                                         "this"),
+              std::string::npos)
+        << e.what();
+  }
+  TrackerState fresh(dir.path(), false);
+  EXPECT_NO_THROW(TrackerState(dir.path(), true));
+}
+
 TEST(TrackerJournal, AFileThatIsNoJournalIsOneClearError) {
   rekon::test::TempDir dir;
   std::ofstream(dir / "journal.rkj") << "K 0 1 0 0 0\n";

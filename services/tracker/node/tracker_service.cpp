@@ -156,7 +156,10 @@ void runTrackerService(ServiceContext& ctx) {
     ctx.stats().set("restart_first_pose", worker.resumedBy()).set("frames_restored", worker.totals().restored_frames);
   writeOutputs(ctx, worker.totals(), inbox.framesSentAgain(), inbox.ackHeldSeconds(), loops.stats(), keyframes->stats(),
                session.localise_only);
-  if (const auto failure = worker.failure()) throw Error(*failure);  // after the outputs: what was tracked is kept
+  if (const auto failure = worker.failure()) {  // after the outputs: what was tracked is kept
+    state.markFailed(*failure);
+    throw Error(*failure);
+  }
   if (ended && !ctx.stopRequested()) state.removeArchive();
 }
 

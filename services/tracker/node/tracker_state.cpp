@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <chrono>
 #include <filesystem>
+#include <fstream>
 #include <map>
 #include <set>
 #include <utility>
@@ -43,9 +44,16 @@ TrackerState::TrackerState(const std::string& out_dir, bool restarted) {
     return;
   }
   root_ = (fs::path(out_dir) / kStateFolder).string();
+  const fs::path failed = fs::path(root_) / kFailedFile;
+  std::error_code ec;
   if (!restarted) {
-    std::error_code ec;
     fs::remove_all(fs::path(root_) / "tracker", ec);  // an earlier run's, in the same folder
+    fs::remove(failed, ec);
+  } else if (fs::exists(failed)) {
+    std::ifstream in(failed);
+    std::string why;
+    std::getline(in, why);
+    throw Error(why + " (the killed tracker had stopped on this, " + failed.string() + "; a restart does not go on past it)");
   }
   journal_ = std::make_unique<RecordJournal>((fs::path(root_) / kJournalFile).string(), restarted, History::readable);
   archiving_ = true;
@@ -64,6 +72,13 @@ bool TrackerState::archive(const Keyframe& keyframe, const std::optional<Odometr
   }
   archive_ms_ += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   return archiving_;
+}
+
+void TrackerState::markFailed(const std::string& why) {
+  if (root_.empty()) return;
+  std::error_code ec;
+  fs::create_directories(root_, ec);
+  std::ofstream((fs::path(root_) / kFailedFile).string()) << why << '\n';
 }
 
 void TrackerState::removeArchive() {

@@ -22,11 +22,13 @@ namespace rekon::tracker {
 
 inline constexpr const char* kStateFolder = "tracker_state";
 inline constexpr const char* kJournalFile = "journal.rkj";
+inline constexpr const char* kFailedFile = "failed.txt";
 
 class TrackerState {
  public:
   // `out_dir` "": nothing is kept (a restart then starts afresh, said once).
-  // rekon::Error naming the file when the journal cannot be written.
+  // rekon::Error naming the file when the journal cannot be written, and for
+  // a restart of a tracker that had stopped on an error (markFailed), that error.
   TrackerState(const std::string& out_dir, bool restarted);
   bool kept() const { return journal_ != nullptr; }
   RecordJournal* journal() { return journal_.get(); }
@@ -36,6 +38,10 @@ class TrackerState {
   // write logs one error and stops the archive (the run goes on; a restart
   // relocalises against fewer).
   bool archive(const Keyframe& keyframe, const std::optional<OdometryConstraint>& incoming, const Intrinsics& camera);
+  // The tracker stops on an error it cannot get past (a continued session not
+  // relocalised): kept in failed.txt, so that a restart stops on it again at
+  // once instead of going on as if it had not happened.
+  void markFailed(const std::string& why);
   // The run is over (the tracker ends cleanly, after its consumers): the
   // keyframe archive goes (0.6 MB a keyframe at 640x480); the journal stays.
   void removeArchive();
