@@ -51,8 +51,9 @@ double Inbox::secondsSinceLastFrame() const {
   return std::chrono::duration<double>(Clock::now() - t).count();
 }
 
-void Inbox::resumeFrom(int64_t first_missing) {
+void Inbox::resumeFrom(int64_t first_missing, double rewind_wait_s) {
   if (first_missing < 0) return;
+  rewind_wait_s_ = rewind_wait_s;
   last_handled_.store(first_missing - 1);
   resume_from_ = first_missing;
   resume_since_ = Clock::now();
@@ -61,13 +62,13 @@ void Inbox::resumeFrom(int64_t first_missing) {
 void Inbox::onFrame(const rekon_msgs::frame_t& msg) {
   last_frame_at_.store(Clock::now().time_since_epoch().count());
   if (resume_from_ >= 0 && msg.frame_id > resume_from_) {
-    if (std::chrono::duration<double>(Clock::now() - resume_since_).count() < kRewindWaitS) {
+    if (std::chrono::duration<double>(Clock::now() - resume_since_).count() < rewind_wait_s_) {
       ++before_resume_;
       return;
     }
     spdlog::warn("the frame source did not rewind to frame {} within {} s; going on from frame {} (frames {}..{} are "
                  "not tracked)",
-                 resume_from_, kRewindWaitS, msg.frame_id, resume_from_, msg.frame_id - 1);
+                 resume_from_, rewind_wait_s_, msg.frame_id, resume_from_, msg.frame_id - 1);
   }
   if (msg.frame_id >= resume_from_) resume_from_ = -1;
   bool tracked = false;
