@@ -101,6 +101,7 @@ const std::map<std::string, std::string>& restartSettings() {
       {"player", "player.restarted=true"},        // where its consumers are
       {"camera", "camera.restarted=true"},        // frame ids after its consumers' newest
       {"tracker", "tracker.restarted=true"},      // its journal and keyframe archive (OUT/tracker_state)
+      {"realsense", "realsense.restarted=true"},  // frame ids after its consumers' newest
   };
   return settings;
 }

@@ -4,6 +4,7 @@ pyrealsense2: color and depth at one mode, depth aligned to color by the SDK
 recording), never typed in; each frame stamped with the device's own
 timestamp mapped onto the host's wall clock (DeviceClock, as rekon-camera's).
 Every failure to open is one line naming the device or file and what to do."""
+import datetime
 import logging
 import os
 import time
@@ -22,6 +23,19 @@ LOST_AFTER_S = 5.0
 # it is full the SDK drops a frameset (a gap in the frame numbers: skipped
 # late), never blocks the device.
 QUEUE_FRAMESETS = 3
+# A playback that stops further than this before its recorded duration, in a
+# file that no longer opens, was cut short: to rekon a device that vanished.
+# One that plays to its end has read to within microseconds of its duration
+# (3.885679 s of 3.885676 s measured); a cut one stops where the file ends
+# (1.8 s of 3.9 s for a file cut to half its bytes). The file is asked as well
+# because the position is read as frames are taken: a loop stalled for the
+# last half second of a recording has not seen its reader reach the end.
+RECORDING_END_SLACK_S = 0.5
+# A restarted playback seeks to this long before the frame after the one its
+# consumers have, by the device clock: the seek lands within the SDK's read-ahead
+# (a queue of 3 framesets, 0.1-0.2 s) of the time asked for, and the frames up
+# to that one are then not taken (forward-only frame numbers), so none is missed.
+RESUME_EARLY_S = 0.5
 PRESETS = {"custom": 0, "default": 1, "hand": 2, "high_accuracy": 3, "high_density": 4, "medium_density": 5}
 COLOR_FORMATS = ("rgb8", "bgr8")
 
@@ -118,6 +132,8 @@ class RealSenseSource:
         self.timestamp_domain = ""
         self._first_number = self._last_number = None
         self._taken = 0
+        self._position_s = 0.0  # a playback's furthest position read, from its start
+        self._resume = None  # a restarted playback: (device frame number, device ms) its consumers have
         self._last_frame_at = time.monotonic()
         try:
             self.queue = rs.frame_queue(QUEUE_FRAMESETS, keep_frames=True)
@@ -265,6 +281,37 @@ class RealSenseSource:
             v = int(sensor.get_option(rs.option.visual_preset))
             self.preset = {n: k for k, n in PRESETS.items()}.get(v, str(v))
 
+    def go_on_from(self, lost):
+        """This source reopened after `lost` (the same device or recording)
+        vanished: the device clock goes on, and a recording plays on from where
+        it stopped, as a camera goes on streaming, its frames forward of the
+        last one taken."""
+        self.clock = lost.clock
+        self.incomplete = lost.incomplete
+        self.timestamp_domain = lost.timestamp_domain
+        if self.playback and lost._position_s > 0:
+            self.pb.seek(datetime.timedelta(seconds=lost._position_s))
+            self._position_s = lost._position_s
+            self._last_number = lost._last_number
+
+    def _recording_opens(self):
+        """Whether the SDK can open the recording now (a .bag cut short cannot:
+        its index is at the end)."""
+        try:
+            config = self.rs.config()
+            config.enable_device_from_file(self.playback, repeat_playback=False)
+            return config.can_resolve(self.rs.pipeline_wrapper(self.rs.pipeline()))
+        except RuntimeError:
+            return False
+
+    def resume_after(self, number, device_ms):
+        """A restarted playback goes on after device frame `number` (at
+        `device_ms`), the newest its consumers have from the killed instance:
+        from a file nothing is missed. The first frameset tells where the
+        recording is; it then seeks to just before that frame."""
+        if self.playback:
+            self._resume = (number, device_ms)
+
     # ---- what it is -----------------------------------------------------
     def info(self):
         rs, dev = self.rs, self.profile.get_device()
@@ -303,13 +350,21 @@ class RealSenseSource:
         if not ok:
             if self.playback:
                 if self.pb.current_status() == self.rs.playback_status.stopped:
+                    duration_s = self.pb.get_duration().total_seconds()
+                    if duration_s - self._position_s > RECORDING_END_SLACK_S and not self._recording_opens():
+                        return Capture(Capture.LOST, reason=(
+                            f"{self.what}: the recording stopped at {self._position_s:.1f} s of its {duration_s:.1f} s "
+                            "(the file was cut short or cannot be read); check the file, or record it again"))
                     return Capture(Capture.ENDED)
+                self._position_s = max(self._position_s, self.pb.get_position() / 1e9)
             elif time.monotonic() - self._last_frame_at > LOST_AFTER_S:
                 return Capture(Capture.LOST, reason=f"{self.what} delivered no frame for {LOST_AFTER_S:.0f} s; it was "
                                                     "unplugged or reset: check the USB cable and port, then start again")
             return Capture(Capture.TIMEOUT)
         arrival = host_wall_seconds()
         self._last_frame_at = time.monotonic()
+        if self.playback:
+            self._position_s = max(self._position_s, self.pb.get_position() / 1e9)
         frameset = frames.as_frameset()
         if not frameset.get_depth_frame() or not frameset.get_color_frame():
             self.incomplete += 1
@@ -319,10 +374,15 @@ class RealSenseSource:
         # syncer let it through late, after a burst) is not sent: a live
         # source's frames go forward in time. Both are skipped late.
         number = frameset.get_color_frame().get_frame_number()
+        if self._resume is not None:
+            (self._last_number, resume_ms), self._resume = self._resume, None
+            ahead_s = (resume_ms - frameset.get_color_frame().get_timestamp()) / 1e3 - RESUME_EARLY_S
+            if ahead_s > 0:
+                self.pb.seek(datetime.timedelta(seconds=self.pb.get_position() / 1e9 + ahead_s))
+        if self._last_number is not None and number <= self._last_number:
+            return Capture(Capture.TIMEOUT)
         if self._first_number is None:
             self._first_number = number
-        elif number <= self._last_number:
-            return Capture(Capture.TIMEOUT)
         self._last_number = number
         self._taken += 1
         self.replaced = (number - self._first_number + 1) - self._taken

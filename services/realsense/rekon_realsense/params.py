@@ -25,6 +25,9 @@ class Params:
         self.wait_for = g.get_string_list("realsense.wait_for")
         self.wait_timeout_s = g.get_double("realsense.wait_timeout_s")
         self.max_frames = g.get_int("realsense.max_frames")
+        self.reconnect_timeout_s = g.get_double("realsense.reconnect_timeout_s")
+        self.reconnect_wait_s = g.get_double("realsense.reconnect_wait_s")
+        self.restarted = g.get_bool("realsense.restarted")
         self.transport_mode = g.get_string("transport.mode")
         self.segment = g.get_string("transport.segment")
         self.slots = g.get_int("transport.slots")
@@ -49,5 +52,9 @@ class Params:
             raise Error("transport.live_in_flight must be 1 or more")
         if self.record_queue < 1:
             raise Error("realsense.record_queue must be 1 or more (frames)")
+        if not self.reconnect_wait_s > 0:
+            raise Error("realsense.reconnect_wait_s must be a positive number of seconds")
+        if self.reconnect_timeout_s < 0:
+            raise Error("realsense.reconnect_timeout_s must be 0 (never reopen) or more seconds")
         if self.transport_mode not in ("auto", "lcm", "shm"):
             raise Error(f"transport mode '{self.transport_mode}' is unknown; use shm, lcm or auto")

@@ -52,9 +52,14 @@ class FrameLog:
     and the copies); the rest of it is in realsense_latency.csv (sent_ms,
     send_ms: the outlet's)."""
 
-    def __init__(self, out_dir):
-        self.f = open(os.path.join(out_dir, "realsense_frames.csv"), "w", encoding="utf-8") if out_dir else None
-        if self.f:
+    def __init__(self, out_dir, append=False):
+        path = os.path.join(out_dir, "realsense_frames.csv") if out_dir else ""
+        # A restarted source adds its rows to the killed one's, which wrote
+        # each row through at once (line-buffered: 30 writes a second) so that
+        # a SIGKILL loses none of them.
+        fresh = not (append and os.path.exists(path) and os.path.getsize(path) > 0)
+        self.f = open(path, "w" if fresh else "a", encoding="utf-8", buffering=1) if out_dir else None
+        if self.f and fresh:
             self.f.write("frame_id,device_frame_number,device_timestamp_ms,timestamp,delivery_ms,align_ms\n")
 
     def row(self, frame_id, frame):
@@ -67,34 +72,119 @@ class FrameLog:
             self.f.close()
 
 
-def capture(ctx, source, outlet, recorder, params, frame_log):
-    """Takes frames until the recording ends, the device is lost, max_frames
-    are captured, or the run stops. Returns (lost line or "", frames, first, last timestamp)."""
+class CaptureEnd:
+    """How a capture went: `lost` "" for the end of a recording or a stop, else
+    the one line that says what happened to the device and what to do; the
+    frame ids (continued by a restarted source); the outages it came back
+    from; and `source`, the device as last opened (reopened after an outage)."""
+
+    def __init__(self, source, first_id):
+        self.source, self.first_id = source, first_id
+        self.lost, self.frames, self.first, self.last = "", 0, 0.0, 0.0
+        self.outages, self.frames_missed, self.outage_s = 0, 0, 0.0  # missed: at the device's rate while away
+
+    def note_outages(self, ctx):
+        for key, value in self.outage_stats().items():
+            ctx.set_live(key, value)
+
+    def outage_stats(self):
+        return {"outages": self.outages, "outage_seconds": self.outage_s,
+                "frames_missed_in_outages": self.frames_missed}
+
+
+def reopen(ctx, params, lost, device_k, since):
+    """The device (or recording) again after it was lost at `since`
+    (monotonic): reopened with a doubling wait (realsense.reconnect_wait_s, at
+    most 8 times that) until realsense.reconnect_timeout_s after `since`; None
+    when it stays away, the run stops, or another camera (other intrinsics)
+    answers. A recording plays on from where it stopped."""
+    from ..device import RealSenseSource
+    wait_s = params.reconnect_wait_s
+    attempt = 0
+    while not ctx.stop_requested():
+        attempt += 1
+        if time.monotonic() - since + wait_s > params.reconnect_timeout_s:
+            return None
+        if ctx.sleep(wait_s):
+            return None
+        try:
+            source = RealSenseSource(params)
+        except (Error, RuntimeError) as e:
+            log.info("%s: attempt %d to reopen it failed (%s)", lost.what, attempt, e)
+            wait_s = min(2 * wait_s, 8 * params.reconnect_wait_s)
+            continue
+        if source.intrinsics() != device_k:
+            log.error("%s came back as another camera (intrinsics %s instead of %s); not using it", lost.what,
+                      source.intrinsics(), device_k)
+            source.stop()
+            return None
+        try:
+            source.go_on_from(lost)
+        except RuntimeError as e:
+            log.info("%s: attempt %d to go on where it stopped failed (%s)", lost.what, attempt, e)
+            source.stop()
+            wait_s = min(2 * wait_s, 8 * params.reconnect_wait_s)
+            continue
+        return source
+    return None
+
+
+def capture(ctx, end, outlet, recorder, params, frame_log):
+    """Takes frames until the recording ends, the device is lost for longer
+    than realsense.reconnect_timeout_s, max_frames are captured, or the run
+    stops; each frame's id after the last (end.first_id + frames so far)."""
     from ..device import Capture, host_wall_seconds
-    frames, first, last, lost = 0, 0.0, 0.0, ""
     start = last_report = time.monotonic()
     replaced_before = 0
-    while not ctx.stop_requested() and (params.max_frames <= 0 or frames < params.max_frames):
+    device_k = end.source.intrinsics()
+    # Set while the device is away: until a frame comes again (one that opens
+    # but sends nothing is not back). (monotonic, host wall clock)
+    lost_at = None
+    while not ctx.stop_requested() and (params.max_frames <= 0 or end.frames < params.max_frames):
+        source = end.source
         c = source.next(0.5)
         if c.status == Capture.TIMEOUT:
             continue
         if c.status == Capture.ENDED:
-            log.info("the recording has ended after %d frames", frames)
+            log.info("the recording has ended after %d frames", end.frames)
             break
         if c.status == Capture.LOST:
-            log.error("%s", c.reason)
-            lost = c.reason
-            break
+            outlet.skipped(source.replaced - replaced_before)
+            replaced_before = source.replaced
+            source.stop()  # the SDK lets go of the device (or file) before it is opened again
+            reopened = None
+            if params.reconnect_timeout_s > 0:
+                if lost_at is None:
+                    lost_at = (time.monotonic(), host_wall_seconds())
+                    log.warning("%s; reopening it for up to %.0f s (realsense.reconnect_timeout_s)", c.reason,
+                                params.reconnect_timeout_s)
+                reopened = reopen(ctx, params, source, device_k, lost_at[0])
+            if reopened is None:
+                log.error("%s", c.reason)
+                end.lost = c.reason
+                break
+            end.source, replaced_before = reopened, 0
+            continue
+        if lost_at is not None:
+            away_s = host_wall_seconds() - lost_at[1]
+            missed = int(away_s * params.fps)
+            end.outages += 1
+            end.frames_missed += missed
+            end.outage_s += away_s
+            end.note_outages(ctx)
+            log.warning("%s is back after %.1f s (about %d frames missed); frame ids go on from %d", source.what,
+                        away_s, missed, end.first_id + end.frames)
+            lost_at = None
         # Frames the SDK delivered that a newer one replaced before this loop
         # took them (gaps in the device's frame numbers): skipped late.
         outlet.skipped(source.replaced - replaced_before)
         replaced_before = source.replaced
         f = c.frame
-        frame_id = frames
-        frames += 1
-        if frames == 1:
-            first = f.timestamp
-        last = f.timestamp
+        frame_id = end.first_id + end.frames
+        end.frames += 1
+        if end.frames == 1:
+            end.first = f.timestamp
+        end.last = f.timestamp
         if recorder:
             recorder.push(f)
         frame_log.row(frame_id, f)
@@ -103,8 +193,25 @@ def capture(ctx, source, outlet, recorder, params, frame_log):
             last_report = time.monotonic()
             log.info("captured %d frames (%.1f frames/s), sent %d, dropped %d, skipped late %d", outlet.offered,
                      outlet.offered / (last_report - start), outlet.sent, outlet.dropped, outlet.skipped_late)
-    outlet.skipped(source.replaced - replaced_before)
-    return lost, frames, first, last
+    outlet.skipped(end.source.replaced - replaced_before)
+    return end
+
+
+def sent_before(out_dir, frame_id):
+    """(device frame number, device ms) of frame `frame_id` in
+    <out_dir>/realsense_frames.csv, as the instance that sent it last wrote it
+    (a later instance reuses the ids an earlier one offered and never got
+    across); None when it is not there."""
+    found = None
+    try:
+        with open(os.path.join(out_dir, "realsense_frames.csv"), encoding="utf-8") as f:
+            for line in f.read().splitlines()[1:]:
+                cells = line.split(",")
+                if len(cells) >= 3 and cells[0] == str(frame_id):
+                    found = (int(cells[1]), float(cells[2]))
+    except (OSError, ValueError):
+        return None
+    return found
 
 
 def run_realsense(ctx):
@@ -127,8 +234,9 @@ def run_realsense(ctx):
     if ctx.stop_requested():
         return
     source = RealSenseSource(params)
+    end = CaptureEnd(source, 0)
     outlet = recorder = sender = None
-    frame_log = FrameLog(ctx.out_dir)
+    frame_log = FrameLog(ctx.out_dir, append=params.restarted)
     try:
         k = source.intrinsics()
         if params.calibration:
@@ -144,9 +252,29 @@ def run_realsense(ctx):
             recorder = Recorder(params.record, k, params.record_queue)
         transport = choose_transport(params.transport_mode, params.wait_for, watch)
         sender = FrameSender(ctx.bus, transport, params, k)
-        outlet = LiveOutlet(ctx, watch, params.wait_for, params.in_flight, sender.send)
+        outlet = LiveOutlet(ctx, watch, params.wait_for, params.in_flight, sender.send, append=params.restarted)
         ctx.set_state("capturing")
-        lost, frames, first, last = capture(ctx, source, outlet, recorder, params, frame_log)
+        # A restarted source (rekon run restarts a killed one) numbers its
+        # frames after the newest its consumers have: an id from 0 again would
+        # be taken for a frame they already had.
+        if params.restarted:
+            end.first_id = max([watch.last_frame(name) + 1 for name in params.wait_for] + [0])
+            log.warning("restarted: the consumers have the frames up to %d; frame ids go on from %d", end.first_id - 1,
+                        end.first_id)
+            # A recording goes on after the frame they have (the killed
+            # instance's realsense_frames.csv says which): nothing of a file
+            # is missed. A camera sends what it sees now.
+            had = sent_before(ctx.out_dir, end.first_id - 1) if params.playback and ctx.out_dir else None
+            if had:
+                log.info("the recording goes on after its frame %d (%.3f ms), the consumers' newest", *had)
+                source.resume_after(*had)
+            elif params.playback:
+                log.info("the recording plays from its start: frame %d is not in realsense_frames.csv",
+                         end.first_id - 1)
+        end.note_outages(ctx)
+        capture(ctx, end, outlet, recorder, params, frame_log)
+        source = end.source
+        lost, frames, first, last = end.lost, end.frames, end.first, end.last
         outlet.finish(params.wait_timeout_s)
         if recorder:
             recorder.close()
@@ -159,7 +287,9 @@ def run_realsense(ctx):
                  timestamp_domain=source.timestamp_domain, clock_resets=source.clock.resets,
                  frames_incomplete=source.incomplete, frames=outlet.sent, sequence_seconds=span,
                  transport=transport, encoding=params.encoding if transport == "lcm" else "",
-                 end="end of stream" if not lost else "device lost: " + lost)
+                 end="end of stream" if not lost else "device lost: " + lost, **end.outage_stats())
+        if params.restarted:
+            s["restarted_at_frame"] = end.first_id
         if params.playback:
             s["playback"] = os.path.abspath(params.playback)
         if recorder:
@@ -173,7 +303,7 @@ def run_realsense(ctx):
         ctx.set_state("lingering")
         peers.wait_until_finished(params.wait_for, ctx)
     finally:
-        source.stop()
+        end.source.stop()
         frame_log.close()
         if outlet:
             outlet.close()

@@ -38,6 +38,7 @@ class ConsumerWatch:
         self._pids = {}
         self._superseded = {}
         self._acked = {}
+        self._last_frames = {}
         self._restarted = set()
         self._last_ack = time.monotonic()
         bus.subscribe(HEARTBEAT, heartbeat_t, self._on_heartbeat)
@@ -55,6 +56,7 @@ class ConsumerWatch:
                 self._restarted.add(hb.service)
             self._pids[hb.service] = hb.pid
             self._hosts[hb.service] = hb.host
+            self._last_frames[hb.service] = hb.last_frame_id
             self._cv.notify_all()
 
     def _on_ack(self, ack):
@@ -85,6 +87,11 @@ class ConsumerWatch:
                     return self.STALLED
                 self._cv.wait(0.05)
         return self.STOPPED
+
+    def last_frame(self, name):
+        """The newest frame `name` has had, as its heartbeat says (-1: none, or not heard)."""
+        with self._cv:
+            return self._last_frames.get(name, -1)
 
     def all_on_host(self, names, host):
         with self._cv:
@@ -133,9 +140,10 @@ def quantile(sorted_values, q):
 
 class LiveOutlet:
     """offer(frame_id, frame, age_s): the sender thread passes the newest
-    frame to send(frame_id, frame) (FrameSender.send). Counts as LiveOutlet::Counts."""
+    frame to send(frame_id, frame) (FrameSender.send). Counts as LiveOutlet::Counts.
+    `append`: a restarted source adds its latency rows to the killed one's."""
 
-    def __init__(self, ctx, watch, consumers, in_flight, send):
+    def __init__(self, ctx, watch, consumers, in_flight, send, append=False):
         self.ctx = ctx
         self._send = send
         self.watch = watch
@@ -155,8 +163,11 @@ class LiveOutlet:
         self._csv = None
         self._csv_flushed = time.monotonic()
         if ctx.out_dir:
-            self._csv = open(os.path.join(ctx.out_dir, f"{ctx.name}_latency.csv"), "w", encoding="utf-8")
-            self._csv.write("frame_id,captured_s,latency_ms,sent_ms,send_ms\n")
+            path = os.path.join(ctx.out_dir, f"{ctx.name}_latency.csv")
+            fresh = not (append and os.path.exists(path) and os.path.getsize(path) > 0)
+            self._csv = open(path, "w" if fresh else "a", encoding="utf-8")
+            if fresh:
+                self._csv.write("frame_id,captured_s,latency_ms,sent_ms,send_ms\n")
         ctx.bus.subscribe(TRACKED_FRAMES, tracked_frame_t, self._on_tracked)
         for key in ("frames_captured", "frames_sent", "frames_dropped", "frames_skipped_late"):
             ctx.set_live(key, 0)

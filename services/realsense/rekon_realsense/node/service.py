@@ -106,6 +106,10 @@ class ServiceContext:
     def stop_requested(self):
         return self._stop.is_set()
 
+    def sleep(self, seconds):
+        """Waits `seconds`, or less when a stop is requested meanwhile (then True)."""
+        return self._stop.wait(seconds)
+
     def request_stop(self):
         self._stop.set()
 
