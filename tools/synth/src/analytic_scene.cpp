@@ -22,7 +22,8 @@ std::unique_ptr<Scene> Scene::make(const std::string& name) {
   if (name == "tabletop") return makeTabletopScene();
   if (name == "room") return makeRoomScene();
   if (name == "corridor") return makeCorridorScene();
-  throw Error("unknown scene '" + name + "'; choose room, corridor or tabletop");
+  if (name == "building") return makeBuildingScene();
+  throw Error("unknown scene '" + name + "'; choose room, corridor, tabletop or building");
 }
 
 AnalyticScene::AnalyticScene(std::string name, SceneModel model, std::vector<Material> materials, int default_frames,
@@ -46,7 +47,7 @@ AnalyticScene::AnalyticScene(std::string name, SceneModel model, std::vector<Mat
 
 void AnalyticScene::checkLaps(int laps) const {
   if (laps < 1) throw Error("scene " + name_ + ": " + std::to_string(laps) + " laps; give 1 or more");
-  if (laps > 1 && !has_laps_) throw Error("scene " + name_ + " is walked once; --laps is for the corridor");
+  if (laps > 1 && !has_laps_) throw Error("scene " + name_ + " is walked once; --laps is for the corridor and the building");
   // The walk is integrated at 600 Hz in memory; 1000 laps (about 42 h) is far beyond any use.
   if (laps > 1000) throw Error("scene " + name_ + ": " + std::to_string(laps) + " laps is too many; give at most 1000");
 }

@@ -53,6 +53,7 @@ class AnalyticScene : public Scene {
 std::unique_ptr<AnalyticScene> makeTabletopScene();
 std::unique_ptr<AnalyticScene> makeRoomScene();
 std::unique_ptr<AnalyticScene> makeCorridorScene();
+std::unique_ptr<AnalyticScene> makeBuildingScene();
 
 // Triangulates every visible surface of the model with vertices about
 // `spacing_m` apart, colored by the texture filtered at that spacing.

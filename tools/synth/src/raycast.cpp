@@ -1,5 +1,6 @@
 #include "raycast.hpp"
 
+#include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <limits>
@@ -18,6 +19,7 @@ constexpr float kMinFootprintCos = 0.2f;
 struct ScreenRect {
   int index;
   int x0, x1, y0, y1;
+  float near_m;  // distance from the camera to the primitive's bounding box: no hit is nearer
 };
 
 struct Camera {
@@ -54,7 +56,7 @@ bool screenRect(const Camera& cam, const Aabb& b, int width, int height, ScreenR
   }
   if (behind == 8) return false;
   if (behind > 0) {  // straddles the camera plane: anywhere on screen
-    *out = {0, 0, width - 1, 0, height - 1};
+    *out = {0, 0, width - 1, 0, height - 1, 0.0f};
     return true;
   }
   out->x0 = std::max(0, static_cast<int>(std::floor(u0)) - 1);
@@ -70,17 +72,32 @@ struct Hit {
   int part;
 };
 
+// `cands` are sorted by near_m: once a candidate's box lies farther than the
+// nearest hit so far, so do the rest (a building's walls hide most of what
+// is in the view). The nearest hit wins, ties going to the shell and then to
+// the lowest primitive index, whatever order the candidates come in.
 inline Hit castRay(const SceneModel& scene, const ScreenRect* cands, int n_cands, int px, V3 o, V3 d) {
   Hit h{0, kShellId, 0};
   h.t = intersectShell(scene.shell, o, d, &h.part);
+  const float len = norm(d);
   for (int c = 0; c < n_cands; ++c) {
     const ScreenRect& r = cands[c];
+    // Distance along the ray is t |d|; the margin covers float rounding of both sides.
+    if (r.near_m > h.t * len * (1.0f + 1e-5f) + 1e-5f) break;
     if (px < r.x0 || px > r.x1) continue;
     int part = 0;
-    const float t = intersect(scene.primitives[static_cast<size_t>(r.index)], o, d, kNearM, h.t, &part);
-    if (t < h.t) h = {t, r.index, part};
+    const float t = intersect(scene.primitives[static_cast<size_t>(r.index)], o, d, kNearM,
+                              std::nextafter(h.t, std::numeric_limits<float>::infinity()), &part);
+    if (t < h.t || (t == h.t && h.id != kShellId && r.index < h.id)) h = {t, r.index, part};
   }
   return h;
+}
+
+float distanceToBox(V3 p, const Aabb& b) {
+  const float dx = std::max({b.lo.x - p.x, p.x - b.hi.x, 0.0f});
+  const float dy = std::max({b.lo.y - p.y, p.y - b.hi.y, 0.0f});
+  const float dz = std::max({b.lo.z - p.z, p.z - b.hi.z, 0.0f});
+  return std::sqrt(dx * dx + dy * dy + dz * dz);
 }
 
 inline SurfacePoint surfaceAt(const SceneModel& scene, const Hit& h, V3 o, V3 d) {
@@ -139,9 +156,11 @@ RayCastImage rayCast(const SceneModel& scene, const std::vector<Material>& mater
     ScreenRect r{};
     if (screenRect(cam, scene.primitives[i].bounds, w, h, &r)) {
       r.index = static_cast<int>(i);
+      r.near_m = distanceToBox(cam.origin, scene.primitives[i].bounds);
       rects.push_back(r);
     }
   }
+  std::stable_sort(rects.begin(), rects.end(), [](const ScreenRect& a, const ScreenRect& b) { return a.near_m < b.near_m; });
 
   RayCastImage out;
   out.width = w;

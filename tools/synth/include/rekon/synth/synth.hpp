@@ -21,24 +21,26 @@ Intrinsics defaultIntrinsics();
 
 class Scene {
  public:
-  // "room", "corridor" or "tabletop"; throws rekon::Error naming the choices otherwise.
+  // "room", "corridor", "tabletop" or "building"; throws rekon::Error naming the choices otherwise.
   static std::unique_ptr<Scene> make(const std::string& name);
   virtual ~Scene() = default;
 
   virtual std::string name() const = 0;
   virtual int defaultFrames() const = 0;
   // Frames of `laps` walks round the scene's path (the corridor: out, back,
-  // and again; the other scenes are walked once and throw for laps > 1).
+  // and again; the building: its three laps in turn; the other scenes are
+  // walked once and throw for laps > 1).
   virtual int defaultFrames(int laps) const = 0;
   // Camera-to-world poses at 30 Hz (timestamps i / 30); deterministic for a seed.
   virtual Trajectory trajectory(int frames, uint64_t seed) const = 0;
   // The same over `laps` laps; the first lap's poses equal the one-lap
-  // trajectory's until it slows down for its end.
+  // trajectory's until it slows down for its end. The building walks further
+  // laps when `frames` asks for more than `laps` give.
   virtual Trajectory trajectory(int frames, uint64_t seed, int laps) const = 0;
   // The exact scene surface with colors: every surface a camera inside the
   // scene can see (faces resting on the floor or against a wall, and the floor
   // under objects, are left out), triangulated with vertices a scene-specific
-  // spacing apart (tabletop and room 2 cm, corridor 3 cm). Planar faces are
+  // spacing apart (tabletop and room 2 cm, corridor 3 cm, building 5 cm). Planar faces are
   // exact; curved ones are within 0.2 mm. Vertex colors are the texture of
   // render() (Noise::None) filtered at the vertex spacing.
   virtual Mesh groundTruthMesh() const = 0;
@@ -52,6 +54,18 @@ class Scene {
   virtual RgbdFrame render(const Intrinsics& k, const Pose& camera_to_world, Noise noise, uint64_t seed,
                            int threads) const = 0;
 };
+
+// The voxel blocks a TSDF map of `mesh` holds at most: every block within
+// the truncation band of a triangle whose centroid lies at or below max_z_m
+// (the building's walk never sees its ceiling within the depth range).
+// Exact for axis-aligned faces; a slanted triangle counts its bounding box.
+struct BandOptions {
+  double voxel_m = 0.01;
+  double truncation_m = 0.04;
+  int block_voxels = 8;
+  double max_z_m = 1e9;
+};
+int64_t surfaceBandBlocks(const Mesh& mesh, const BandOptions& options);
 
 // "none" or "kinect"; throws rekon::Error otherwise.
 Noise parseNoise(const std::string& text);
