@@ -172,5 +172,7 @@ def test_a_killed_rekon_realsense_is_restarted_and_its_frame_ids_go_on(bag, tmp_
     # instance's frames its outlet replaced while the kill script held it
     # stopped have ids but no pose: 0-1 measured, 2 allowed (as rekon-camera's test).
     tracked = poses(out)
+    print(f"restarted at frame {first} after device frame {had}, the restart's first {restart_numbers[0]}; "
+          f"{len(tracked)} poses of {first} + {s['frames_sent']} sent")
     assert len(set(tracked)) == len(tracked), "a timestamp twice"
     assert len(tracked) >= first + s["frames_sent"] - 2
