@@ -292,6 +292,7 @@ RunPlan planRun(const RunOptions& opt) {
   if (!opt.camera.empty() || config.getString("player.pacing") == "live") {
     config.set("mapper.when_full", "drop");
     config.set("tracker.loop_when_behind", "fewer");
+    config.set("tracker.rewind_wait_s", "0");  // a live source never sends a frame again
     config.set("mapper.nice", "10");
     config.set("optimiser.nice", "10");
   }
@@ -432,8 +433,11 @@ class Supervisor {
   }
 
   // A child that ended: the player's clean end starts the shutdown clock; a
-  // restartable service is restarted while it has restarts left; any other
-  // death stops the run.
+  // restartable service killed by a signal (kill -9, a crash, the OOM killer)
+  // is restarted while it has restarts left; any other end stops the run. A
+  // service that exits with a status stopped on an error it named (bad
+  // config, a refused session, a device gone for good): a restart would meet
+  // the same error.
   void onEnded(ChildProcess& c, int status, bool& any_running) {
     if (isFrameSourceService(c.name()) && status == 0 && !source_done_) {
       source_done_ = Clock::now();
@@ -447,7 +451,7 @@ class Supervisor {
       return;
     }
     const std::string how = "rekon-" + c.name() + " " + describeExit(status) + (error.empty() ? "" : " (" + error + ")");
-    const bool restartable = plan_.restartable.count(c.name()) > 0;
+    const bool restartable = plan_.restartable.count(c.name()) > 0 && killedBySignal(status);
     if (restartable && c.restarts() < plan_.max_restarts) {
       spdlog::warn("{}; restarting it ({} of at most {} restarts, run.max_restarts)", how, c.restarts() + 1,
                    plan_.max_restarts);

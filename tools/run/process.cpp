@@ -61,8 +61,10 @@ std::optional<double> ChildProcess::rssMb() const {
   return static_cast<double>(resident) * static_cast<double>(sysconf(_SC_PAGESIZE)) / (1024.0 * 1024.0);
 }
 
+bool killedBySignal(int status) { return status > 128; }
+
 std::string describeExit(int status) {
-  if (status > 128) return "was killed by signal " + std::to_string(status - 128) + " (" + strsignal(status - 128) + ")";
+  if (killedBySignal(status)) return "was killed by signal " + std::to_string(status - 128) + " (" + strsignal(status - 128) + ")";
   return "exited with status " + std::to_string(status);
 }
 

@@ -44,6 +44,8 @@ class ChildProcess {
 // "exited with status 1", "was killed by signal 9 (Killed)": how a child ended,
 // from poll()'s status.
 std::string describeExit(int status);
+// Whether poll()'s status is a death by a signal (kill -9, a crash, the OOM killer).
+bool killedBySignal(int status);
 
 // Folder of the running executable (where the service binaries are built).
 std::string executableDir();

@@ -38,10 +38,6 @@ class Inbox {
   // A restarted tracker whose killed instance had finished: the stream ended at `last_frame_id`.
   void endAt(int64_t last_frame_id) { end_frame_.store(last_frame_id); }
   int64_t framesBeforeResume() const { return before_resume_.load(); }
-  // A player notices a restarted consumer by its heartbeat (lifecycle.heartbeat_s)
-  // and waits up to 3 s for its resume point: a source that rewinds does so
-  // within this (times lifecycle.load_factor).
-  static constexpr double kRewindWaitS = 3.0;
 
   // The last frame id of the end of stream; kNoEndYet before it came.
   int64_t endFrame() const { return end_frame_.load(); }
@@ -81,7 +77,7 @@ class Inbox {
   double held_s_ = 0.0;
   int64_t resume_from_ = -1;  // resumeFrom(): waiting for this frame; -1: not waiting
   Clock::time_point resume_since_;
-  double rewind_wait_s_ = kRewindWaitS;
+  double rewind_wait_s_ = 0.0;
   std::atomic<int64_t> before_resume_{0};
 };
 

@@ -157,7 +157,9 @@ rekon_msgs::resume_point_t restoreAfterRestart(ServiceContext& ctx, TrackerState
   worker.restoreOdometry(restored.odometry);
   if (restored.last_pose_world) worker.resumeAt(*restored.last_pose_world);
   resume.first_missing_frame = restored.last_frame_id < 0 ? -1 : restored.last_frame_id + 1;
-  inbox.resumeFrom(resume.first_missing_frame, Inbox::kRewindWaitS * ctx.config().getDouble("lifecycle.load_factor"));
+  const double rewind_wait_s = ctx.config().getDouble("tracker.rewind_wait_s");
+  if (rewind_wait_s < 0) throw Error("tracker.rewind_wait_s must be 0 or more seconds");
+  inbox.resumeFrom(resume.first_missing_frame, rewind_wait_s * ctx.config().getDouble("lifecycle.load_factor"));
   if (restored.done) inbox.endAt(restored.done->last_frame_id);
   spdlog::info("restarted: the journal holds {} keyframes, {} constraints and {} tracked frames (the last frame {}){}; "
                "{} keyframes archived ({} published now, {} loop checks made again); new keyframe ids from {}; frames "
