@@ -12,6 +12,8 @@ namespace rekon::synth {
 
 Intrinsics defaultIntrinsics() { return Intrinsics{}; }
 
+uint64_t frameSeed(uint64_t seed, int64_t frame) { return mixSeed(seed, static_cast<uint64_t>(frame) + 1); }
+
 Noise parseNoise(const std::string& text) {
   if (text == "none") return Noise::None;
   if (text == "kinect") return Noise::Kinect;

@@ -90,7 +90,7 @@ SequenceReport writeSequence(const SequenceOptions& options, const std::string& 
       if (i >= frames) return;
       try {
         const auto& sp = trajectory[static_cast<size_t>(i)];
-        const RgbdFrame f = scene->render(k, sp.pose, options.noise, mixSeed(options.seed, static_cast<uint64_t>(i) + 1), 1);
+        const RgbdFrame f = scene->render(k, sp.pose, options.noise, frameSeed(options.seed, i), 1);
         const std::string name = stamp(sp.timestamp) + ".png";
         writeBytes((fs::path(out_dir) / "rgb" / name).string(), encodePngFast(f.color));
         writeBytes((fs::path(out_dir) / "depth" / name).string(), encodePngFast(f.depth));

@@ -67,6 +67,11 @@ struct BandOptions {
 };
 int64_t surfaceBandBlocks(const Mesh& mesh, const BandOptions& options);
 
+// The noise seed of frame `frame` of a sequence of seed `seed`: what
+// writeSequence renders frame `frame` with, so a source that renders on the
+// fly sends the frames a written sequence holds.
+uint64_t frameSeed(uint64_t seed, int64_t frame);
+
 // "none" or "kinect"; throws rekon::Error otherwise.
 Noise parseNoise(const std::string& text);
 
