@@ -234,6 +234,7 @@ int run(const Options& o) {
   removeFrameRing(config.getString("transport.segment"));
   store::KeyframeStore::remove(config.getString("mapper.store_segment"));
   const double end_of_run = stream_end && source_done && failure.empty() && !g_interrupted ? since(*stream_end) : -1;
+  std::ofstream(o.out + "/longrun_end_of_run_s.txt") << end_of_run << "\n";
   writeTables(o, end_of_run, header);
   std::ifstream summary(o.out + "/summary.txt");
   std::cout << summary.rdbuf();
@@ -258,6 +259,7 @@ int benchLongrunCommand(int argc, char** argv) {
       .option("pace", "live (30 Hz; what the consumers are not ready for is dropped) or max (unpaced)", "live")
       .option("bucket-s", "seconds per row of longrun.csv and per point of the plots", "60")
       .option("render-threads", "threads that ray cast each frame of --scene", "1")
+      .option("tabulate", "only write the tables, plots and summary of this earlier run folder again")
       .option("config", "YAML config laid over config/default.yaml")
       .repeated("set", "override one config key, e.g. --set mapper.host_mb=512")
       .examples("rekon bench longrun --out out/longrun60 --minutes 60          # issue 49's hour (about 70 min)\n"
@@ -265,6 +267,18 @@ int benchLongrunCommand(int argc, char** argv) {
                 "rekon bench longrun --dataset out/room --out out/room_longrun --bucket-s 5");
   if (!args.parse(argc, argv)) return 0;
   Options o;
+  if (!args.get("tabulate").empty()) {  // the tables of a run folder again (a stopped run's, or after a change here)
+    o.out = args.get("tabulate");
+    o.bucket_s = args.getDouble("bucket-s");
+    if (!(o.bucket_s >= 1)) throw Error("--bucket-s must be 1 or more");
+    if (!fs::exists(fs::path(o.out) / "config.yaml")) throw Error(o.out + " holds no rekon bench longrun run (no config.yaml)");
+    double end_of_run = -1;
+    std::ifstream(o.out + "/longrun_end_of_run_s.txt") >> end_of_run;
+    writeTables(o, end_of_run, "rekon bench longrun --tabulate " + o.out + fmt::format(", buckets of {:.0f} s", o.bucket_s));
+    std::ifstream summary(o.out + "/summary.txt");
+    std::cout << summary.rdbuf();
+    return 0;
+  }
   o.scene = args.get("scene");
   o.dataset = args.get("dataset");
   o.out = args.get("out");

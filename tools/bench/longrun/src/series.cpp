@@ -109,12 +109,13 @@ std::vector<Bucket> readBuckets(const std::string& dir, double bucket_s, double 
   }
   {  // the source's cumulative counts, once a second
     const Table t = readTable((d / "source_counts.csv").string());
-    const int sec = t.column("seconds"), due = t.column("frames_due"), sent = t.column("sent"), drop = t.column("dropped"),
+    const int due = t.column("frames_due"), sent = t.column("sent"), drop = t.column("dropped"),
               skip = t.column("skipped_late"), ren = t.column("render_ms_mean");
     double p_due = 0, p_sent = 0, p_drop = 0, p_skip = 0;
     std::vector<std::vector<double>> render;
     for (size_t r = 0; r < t.rows.size(); ++r) {
-      Bucket& k = at(t.number(r, sec));
+      // On the frames' axis (the next frame due / fps), as the other tables: seconds of play, not since the start.
+      Bucket& k = at(std::max(0.0, t.number(r, due) - 1) / fps);
       k.frames_due += t.number(r, due) - p_due;
       k.frames_sent += t.number(r, sent) - p_sent;
       k.frames_dropped += t.number(r, drop) - p_drop;
@@ -135,11 +136,12 @@ std::vector<Bucket> readBuckets(const std::string& dir, double bucket_s, double 
       samples(time).integrate.push_back(t.number(r, ms));
     }
   }
-  {  // correction rounds (the final pass is the end of run, not a round)
+  {  // correction rounds that re-integrated something (the final pass is the end of run, not a round)
     const Table t = readTable((d / "mapper_reintegration.csv").string());
-    const int time = t.column("time_s"), ms = t.column("ms"), fin = t.column("final_pass");
+    const int time = t.column("time_s"), ms = t.column("ms"), fin = t.column("final_pass"),
+              kfs = t.column("keyframes_reintegrated");
     for (size_t r = 0; r < t.rows.size(); ++r)
-      if (t.number(r, fin) == 0) samples(t.number(r, time)).round.push_back(t.number(r, ms));
+      if (t.number(r, fin) == 0 && t.number(r, kfs) > 0) samples(t.number(r, time)).round.push_back(t.number(r, ms));
   }
   {  // optimiser solves, at the frame they followed
     const Table t = readTable((d / "optimiser_timing.csv").string());
