@@ -351,10 +351,10 @@ TEST(Faults, RestartPolicyNamingAServiceThatCannotRecoverIsAnError) {
   rekon::test::TempDir dir;
   std::string out;
   const int rc = runCommand(bin() + "/rekon run --dataset " + dir.path() + " --out " + (dir / "out") +
-                                " --set run.restart=[mapper,realsense]",
+                                " --set run.restart=[mapper,viewer]",
                             &out);
   EXPECT_EQ(rc, 1);
-  EXPECT_NE(out.find("run.restart lists 'realsense', which cannot be restarted"), std::string::npos) << out;
+  EXPECT_NE(out.find("run.restart lists 'viewer', which cannot be restarted"), std::string::npos) << out;
   EXPECT_FALSE(fs::exists(dir / "out")) << "a refused run leaves no folder";
 }
 
