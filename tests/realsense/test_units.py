@@ -82,12 +82,13 @@ def test_the_defaults_are_the_issues_mode():
 class _Frames:
     """A source double: `frames` frames 33 ms apart, then `end` (LOST or ENDED)."""
 
-    def __init__(self, frames, end, reason=""):
+    def __init__(self, frames, end, reason="", device_ms=None):
         from rekon_realsense.device import Capture, Frame
         self.replaced = 0
         self.what = "RealSense D435 123"
+        device_ms = device_ms or [i * 33.333 for i in range(frames)]
         self._script = [Capture(Capture.FRAME, Frame(np.zeros((480, 640), np.uint16), np.zeros((480, 640, 3), np.uint8),
-                                                     1000.0 + i / 30, i * 33.333, i + 1)) for i in range(frames)]
+                                                     1000.0 + i / 30, device_ms[i], i + 1)) for i in range(frames)]
         self._script.insert(1, Capture(Capture.TIMEOUT))  # a wait without a frame changes nothing
         self._script.append(Capture(end, reason=reason))
 
@@ -123,21 +124,26 @@ def _capture(source, tmp_path, *settings):
     outlet, log = _Outlet(), FrameLog(str(tmp_path))
     end = capture(_Ctx(), CaptureEnd(source, 0), outlet, None, Params(Config.load("", list(settings))), log)
     log.close()
-    return (end.lost, end.frames, end.first, end.last), outlet
+    return (end.lost, end.frames, end.device_span_s), outlet
 
 
 def test_a_lost_device_ends_the_capture_with_its_line_after_every_frame_before_it(tmp_path):
     line = "RealSense D435 123 stopped delivering frames (SDK: ...); check the USB cable and port, then start again"
     # Not reopened (realsense.reconnect_timeout_s 0): tests/realsense/test_crash_only.py reopens a recording.
-    (lost, frames, first, last), outlet = _capture(_Frames(4, "lost", line), tmp_path,
-                                                   "realsense.reconnect_timeout_s=0")
+    (lost, frames, span), outlet = _capture(_Frames(4, "lost", line), tmp_path, "realsense.reconnect_timeout_s=0")
     assert lost == line
     assert frames == 4 and outlet.ids == [0, 1, 2, 3]
-    assert (first, last) == (1000.0, pytest.approx(1000.1))
+    assert span == pytest.approx(0.1, abs=1e-5)  # the device's steps between the 4 frames (33.333 ms each)
     with open(tmp_path / "realsense_frames.csv") as f:
         assert len(f.readlines()) == 1 + 4  # header and every frame taken
 
 
+def test_the_span_is_the_devices_steps_so_a_clock_reset_never_stretches_it(tmp_path):
+    # 3 frames, the device's clock back to 0 (a reset), 2 more: 2 + 1 steps of 33 ms.
+    (_, frames, span), _ = _capture(_Frames(5, "ended", device_ms=[0, 33.333, 66.667, 0, 33.333]), tmp_path)
+    assert frames == 5 and span == pytest.approx(0.1, abs=1e-5)
+
+
 def test_the_end_of_a_recording_is_a_clean_end(tmp_path):
-    (lost, frames, _, _), outlet = _capture(_Frames(3, "ended"), tmp_path)
+    (lost, frames, _), outlet = _capture(_Frames(3, "ended"), tmp_path)
     assert lost == "" and frames == 3 and outlet.offered == 3

@@ -80,7 +80,11 @@ class CaptureEnd:
 
     def __init__(self, source, first_id):
         self.source, self.first_id = source, first_id
-        self.lost, self.frames, self.first, self.last = "", 0, 0.0, 0.0
+        self.lost, self.frames = "", 0
+        # The device time the frames span: the sum of its steps between them
+        # (a step back or over 10 s is a clock reset, left out), so a stalled
+        # host or SDK that made the host stamps jump never stretches it.
+        self.device_span_s, self.last_device_ms = 0.0, None
         self.outages, self.frames_missed, self.outage_s = 0, 0, 0.0  # missed: at the device's rate while away
 
     def note_outages(self, ctx):
@@ -182,9 +186,9 @@ def capture(ctx, end, outlet, recorder, params, frame_log):
         f = c.frame
         frame_id = end.first_id + end.frames
         end.frames += 1
-        if end.frames == 1:
-            end.first = f.timestamp
-        end.last = f.timestamp
+        if end.last_device_ms is not None and 0.0 < f.device_ms - end.last_device_ms < 10000.0:
+            end.device_span_s += (f.device_ms - end.last_device_ms) / 1000.0
+        end.last_device_ms = f.device_ms
         if recorder:
             recorder.push(f)
         frame_log.row(frame_id, f)
@@ -274,13 +278,13 @@ def run_realsense(ctx):
         end.note_outages(ctx)
         capture(ctx, end, outlet, recorder, params, frame_log)
         source = end.source
-        lost, frames, first, last = end.lost, end.frames, end.first, end.last
+        lost, frames = end.lost, end.frames
         outlet.finish(params.wait_timeout_s)
         if recorder:
             recorder.close()
         s = ctx.stats
         outlet.write_stats(s)
-        span = (last - first) * frames / (frames - 1) if frames > 1 else 0.0
+        span = end.device_span_s * frames / (frames - 1) if frames > 1 else 0.0
         s.update(device=params.playback or params.device or info["serial"], serial=info["serial"],
                  name=info["name"], firmware=info["firmware"], usb=info["usb"], mode=info["mode"],
                  depth_units_m=info["depth_units_m"], emitter=info["emitter"], preset=info["preset"],
@@ -299,7 +303,7 @@ def run_realsense(ctx):
                  "the SDK before they were taken)%s", outlet.offered, outlet.sent, outlet.dropped, outlet.skipped_late,
                  f", {recorder.written} recorded, {recorder.dropped + recorder.failed} not recorded (the disk did not "
                  "keep up)" if recorder else "")
-        announce_end_of_stream(ctx.bus, outlet.newest_sent, outlet.sent, last - first)
+        announce_end_of_stream(ctx.bus, outlet.newest_sent, outlet.sent, end.device_span_s)
         ctx.set_state("lingering")
         peers.wait_until_finished(params.wait_for, ctx)
     finally:
