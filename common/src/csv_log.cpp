@@ -2,13 +2,19 @@
 
 #include <spdlog/spdlog.h>
 
+#include <filesystem>
+
 #include "rekon/common/error.hpp"
 
 namespace rekon {
 
-CsvLog::CsvLog(const std::string& path, const std::string& header)
-    : path_(path), out_(path), flushed_(std::chrono::steady_clock::now()) {
-  out_ << header << '\n' << std::flush;
+CsvLog::CsvLog(const std::string& path, const std::string& header, bool append)
+    : path_(path), flushed_(std::chrono::steady_clock::now()) {
+  std::error_code ec;
+  const bool has_rows = append && std::filesystem::file_size(path, ec) > 0 && !ec;
+  out_.open(path, append ? std::ios::app : std::ios::trunc);
+  if (!has_rows) out_ << header << '\n';
+  out_ << std::flush;
   if (!out_) throw Error("cannot write " + path + "; check that the output folder exists and is writable");
 }
 

@@ -180,6 +180,15 @@ void expectOptimiserRebuilt(const std::string& sets) {
   // (the rebuilt graph has the same edges). 0.002 mm (1 % of ATE) leaves room for another
   // machine's timing; a missing or doubled edge moves it by more.
   EXPECT_NEAR(ateOf(out), ateOf(baseline().run), 0.000002);
+  // optimiser_timing.csv grows as the run goes: the killed instance's rows
+  // stay and the restart's follow them (one header, more rows than the
+  // restart's own optimisations).
+  const std::string timing = readText(out + "/optimiser_timing.csv");
+  const std::string stats = readText(out + "/optimiser_stats.json");
+  EXPECT_EQ(timing.find("frame_id,ms,keyframes,graph_version"), 0u) << timing;
+  EXPECT_EQ(timing.find("frame_id", 1), std::string::npos) << timing;
+  EXPECT_GT(lineCount(out + "/optimiser_timing.csv") - 1, static_cast<size_t>(rekon::test::jsonInt(stats, "optimisations")))
+      << timing << stats;
   EXPECT_EQ(leftoverSegments(out), std::vector<std::string>{});
 }
 

@@ -146,7 +146,7 @@ rekon_msgs::graph_update_t GraphWorker::optimise(bool final, int64_t last_frame_
   if (r.loop_edges_removed > 0)
     spdlog::info("removed {} outlier loop edge(s); {} loop edges kept", r.loop_edges_removed, graph_.numLoopEdges());
   optimise_ms_ += r.ms;
-  timing_.push_back({last_frame_id, r.ms, graph_.numKeyframes(), version_ + 1});
+  if (timing_) timing_->row(last_frame_id, r.ms, graph_.numKeyframes(), version_ + 1);
   spdlog::debug("optimised {} keyframes / {} edges: {} iterations, cost {:.3g} -> {:.3g}, {} loop edges removed, "
                 "{:.1f} ms",
                 r.keyframes_optimised, r.edges_used, r.iterations, r.initial_cost, r.final_cost, r.loop_edges_removed,

@@ -4,6 +4,7 @@
 // constraint whose keyframes have not arrived (lost on the way) waits for
 // them. Optimisations are counted and timed for the outputs.
 #include <cstdint>
+#include <optional>
 #include <set>
 #include <string>
 #include <utility>
@@ -11,6 +12,7 @@
 #include <vector>
 
 #include "inbox.hpp"
+#include "rekon/common/csv_log.hpp"
 #include "rekon/optimiser/g2o.hpp"
 #include "rekon/optimiser/params.hpp"
 #include "rekon/optimiser/pose_graph.hpp"
@@ -20,14 +22,15 @@ namespace rekon::optimiser {
 
 class GraphWorker {
  public:
-  struct Timing {
-    int64_t last_frame_id;  // the newest tracked frame at the time
-    double ms;
-    size_t keyframes;
-    int64_t version;
-  };
-
   explicit GraphWorker(const PoseGraphParams& params) : graph_(params) {}
+
+  // Each optimisation from now on is a row of `path` as it happens
+  // (frame_id: the newest tracked frame then, ms, keyframes, graph_version;
+  // the report reads it), added to the killed instance's rows for a
+  // restarted optimiser: a long or killed run keeps them all.
+  void logTimingTo(const std::string& path, bool append) {
+    timing_.emplace(path, "frame_id,ms,keyframes,graph_version", append);
+  }
 
   // Adds queued keyframes and constraints in arrival order, each once; true
   // when an edge was added.
@@ -61,7 +64,6 @@ class GraphWorker {
   double optimiseMsMean() const;
   int64_t rejected() const { return rejected_; }
   int64_t version() const { return version_; }
-  const std::vector<Timing>& timing() const { return timing_; }
 
  private:
   bool addConstraint(const Constraint& c, const std::string& origin = "");
@@ -82,7 +84,7 @@ class GraphWorker {
   double optimise_ms_ = 0.0;
   int64_t rejected_ = 0;
   int64_t version_ = 0;
-  std::vector<Timing> timing_;
+  std::optional<CsvLog> timing_;
 };
 
 }  // namespace rekon::optimiser

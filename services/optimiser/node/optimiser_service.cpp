@@ -111,6 +111,8 @@ void runOptimiserService(ServiceContext& ctx) {
                params.graph.loop_outlier_chi2, params.graph.max_iterations);
 
   GraphWorker worker(params.graph);
+  if (!ctx.outDir().empty())
+    worker.logTimingTo(ctx.outDir() + "/optimiser_timing.csv", ctx.config().getBool("optimiser.restarted"));
   SessionGraph session(ctx.config());
   continueSession(ctx, inbox, worker, session);
   Journal journal(ctx.outDir(), ctx.config().getBool("optimiser.restarted"));
@@ -131,7 +133,7 @@ void runOptimiserService(ServiceContext& ctx) {
   session.afterOptimisation(worker.graph(), true);
   const Inbox::Final final_state = inbox.takeFinal();
   worker.countRejected(final_state.rejected);
-  const size_t trajectory_frames = writeTrajectoryAndTiming(ctx, worker, final_state.frames);
+  const size_t trajectory_frames = writeTrajectory(ctx, worker, final_state.frames);
 
   const rekon_msgs::done_t done = doneMessage(ctx.name(), final_state.last_frame_id);
   publishFinal(ctx.bus(), final_update, done, params);

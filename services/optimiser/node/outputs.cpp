@@ -4,7 +4,6 @@
 
 #include <algorithm>
 #include <filesystem>
-#include <sstream>
 #include <string>
 
 #include "rekon/common/error.hpp"
@@ -13,13 +12,6 @@
 
 namespace rekon::optimiser {
 namespace {
-
-void writeTiming(const std::vector<GraphWorker::Timing>& timing, const std::string& path) {
-  std::ostringstream out;
-  out << "frame_id,ms,keyframes,graph_version\n";
-  for (const auto& t : timing) out << t.last_frame_id << ',' << t.ms << ',' << t.keyframes << ',' << t.version << '\n';
-  writeFileAtomically(path, out.str());
-}
 
 // A restarted optimiser's trajectory replaces the one its predecessor wrote
 // only when it covers at least as many frames (a replay cut short by a
@@ -45,7 +37,7 @@ bool keepsTheBetter(const ServiceContext& ctx, const Trajectory& trajectory, con
 
 }  // namespace
 
-size_t writeTrajectoryAndTiming(const ServiceContext& ctx, const GraphWorker& worker,
+size_t writeTrajectory(const ServiceContext& ctx, const GraphWorker& worker,
                                 const std::vector<TrackedFrame>& frames) {
   size_t missing = 0;
   const Trajectory trajectory = frameTrajectory(worker.graph(), frames, &missing);
@@ -54,7 +46,6 @@ size_t writeTrajectoryAndTiming(const ServiceContext& ctx, const GraphWorker& wo
   const std::filesystem::path path = std::filesystem::path(ctx.outDir()) / "trajectory.txt";
   if (!keepsTheBetter(ctx, trajectory, path)) return trajectory.size();
   writeTumTrajectory(trajectory, path.string());
-  writeTiming(worker.timing(), (std::filesystem::path(ctx.outDir()) / "optimiser_timing.csv").string());
   spdlog::info("wrote {} optimised frame poses to {}", trajectory.size(), path.string());
   return trajectory.size();
 }

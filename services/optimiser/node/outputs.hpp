@@ -1,8 +1,8 @@
 #pragma once
 // What the optimiser leaves at the end: <out>/trajectory.txt (every tracked
-// frame at its keyframe's optimised pose), <out>/optimiser_timing.csv (one
-// row per optimisation, in the report's format: tools/report run_files.hpp)
-// and its stats (written by the service context).
+// frame at its keyframe's optimised pose) and its stats (written by the
+// service context). <out>/optimiser_timing.csv (a row per optimisation, in the
+// report's format: tools/report run_files.hpp) grows as the run goes (GraphWorker).
 #include <chrono>
 #include <cstddef>
 #include <optional>
@@ -18,7 +18,7 @@ namespace rekon::optimiser {
 
 // Returns how many frames the trajectory holds (frames whose keyframe the
 // graph never received are left out, with an error in the log).
-size_t writeTrajectoryAndTiming(const ServiceContext& ctx, const GraphWorker& worker,
+size_t writeTrajectory(const ServiceContext& ctx, const GraphWorker& worker,
                                 const std::vector<TrackedFrame>& frames);
 void setStats(ServiceContext& ctx, const GraphWorker& worker, size_t trajectory_frames);
 

@@ -13,9 +13,11 @@ namespace rekon {
 
 class CsvLog {
  public:
-  // Creates (truncates) `path` with its header line; rekon::Error naming the
-  // file when it cannot be written.
-  CsvLog(const std::string& path, const std::string& header);
+  // Creates (truncates) `path` with its header line, or with `append` adds to
+  // the rows already there (a restarted service's table goes on; the header
+  // only when the file is new or empty); rekon::Error naming the file when it
+  // cannot be written.
+  CsvLog(const std::string& path, const std::string& header, bool append = false);
 
   // One row of the values, comma-separated, in the order given.
   template <typename First, typename... Rest>
