@@ -58,14 +58,19 @@ class Player {
       : ctx_(ctx), params_(params), dataset_(openDataset(params)), first_(params.first_frame),
         end_(static_cast<int64_t>(dataset_.size())), count_(dataset_.size() - static_cast<size_t>(first_)),
         ahead_(dataset_, params.decode_threads, end_), watch_(ctx.bus()), peers_(ctx.bus(), ctx.lifecycle()), stop_threads_(ctx),
-        acked_pacing_(!params.wait_for.empty()) {
+        consumers_(params.wait_for), acked_pacing_(!params.wait_for.empty()) {
     spdlog::info("dataset {}: {} frames, {}x{}, {:.1f} s", params.dataset, count_, dataset_.intrinsics().width,
                  dataset_.intrinsics().height, dataset_.timestamp(dataset_.size() - 1) - dataset_.timestamp(first_));
   }
 
   void run() {
-    waitForConsumers(ctx_, watch_, params_.wait_for, params_.wait_timeout_s, "player.wait_for");
-    mode_ = chooseTransport(params_.transport_mode, params_.wait_for, watch_);
+    if (params_.restarted) forgetFinishedConsumers();
+    else waitForConsumers(ctx_, watch_, consumers_, params_.wait_timeout_s, "player.wait_for");
+    if (params_.restarted && consumers_.empty() && !params_.wait_for.empty()) {
+      spdlog::info("every consumer has finished with the stream: nothing left to play");
+      return;
+    }
+    mode_ = chooseTransport(params_.transport_mode, consumers_, watch_);
     sender_.emplace(ctx_.bus(), mode_, params_.segment, FrameRingLayout{params_.slots, params_.max_width, params_.max_height});
     // Keep at most slots-1 frames unacknowledged so the ring never overwrites
     // a frame a consumer has not read; inline frames (~0.5 MB each) keep two
@@ -87,19 +92,32 @@ class Player {
   }
 
  private:
+  // Consumers a restarted player does not hear within lifecycle.silence_s
+  // have finished with the stream while it was dead (its end was announced)
+  // and exited: it no longer waits for them (the launcher restarts one that
+  // died, whose heartbeat then comes in time).
+  void forgetFinishedConsumers() {
+    const double silence_s = ctx_.lifecycle().silence_s;
+    for (const auto& gone : watch_.waitForHeartbeats(consumers_, silence_s, ctx_)) {
+      spdlog::warn("rekon-{} was not heard within {:.0f} s of this restart: it has finished; not waiting for it", gone,
+                   silence_s);
+      std::erase(consumers_, gone);
+    }
+  }
+
   // A restarted player (player.restarted: the launcher restarts a killed
   // one) goes on where its consumers are: after the oldest of the newest
   // frames they said they have (their heartbeats; waitForConsumers heard one
   // of each). What one had beyond that comes again and is taken for a copy.
   // The frames before count as played (by the killed instance).
   int64_t whereTheConsumersAre() {
-    if (params_.wait_for.empty()) {
+    if (consumers_.empty()) {
       spdlog::warn("restarted without consumers to ask where they are (player.wait_for is empty): playing from frame {}",
                    first_);
       return first_;
     }
     int64_t from = end_;
-    for (const auto& s : params_.wait_for) {
+    for (const auto& s : consumers_) {
       const int64_t last = watch_.lastFrame(s);
       watch_.setAcked(s, last);
       from = std::min(from, last + 1);
@@ -144,7 +162,7 @@ class Player {
   // caller rewinds first). Throws when they stay silent beyond wait_timeout_s.
   bool waitForAcks(int64_t frame_id) {
     while (true) {
-      switch (watch_.waitForAck(params_.wait_for, frame_id, kResendAfterS, ctx_)) {
+      switch (watch_.waitForAck(consumers_, frame_id, kResendAfterS, ctx_)) {
         case ConsumerWatch::Wait::kAcked:
         case ConsumerWatch::Wait::kStopped:
           return true;
@@ -153,7 +171,7 @@ class Player {
         case ConsumerWatch::Wait::kStalled:
           break;
       }
-      const std::string silent = watch_.lagging(params_.wait_for, frame_id);
+      const std::string silent = watch_.lagging(consumers_, frame_id);
       if (watch_.silentSeconds() > params_.wait_timeout_s) {
         throw Error("rekon-" + silent + " acknowledged no frame for " + std::to_string(int(params_.wait_timeout_s)) +
                     " s (last acknowledged: " + std::to_string(watch_.acked(silent)) + "); is it alive? see its log");
@@ -178,7 +196,7 @@ class Player {
   // continue its odometry from old frames anyway). Returns where to go on.
   int64_t handleRestarts(int64_t next) {
     for (const auto& service : watch_.takeRestarts()) {
-      if (std::find(params_.wait_for.begin(), params_.wait_for.end(), service) == params_.wait_for.end()) continue;
+      if (std::find(consumers_.begin(), consumers_.end(), service) == consumers_.end()) continue;
       ++restarts_;
       const std::optional<int64_t> point =
           newest_sent_ < 0 ? std::nullopt : watch_.resumePoint(service, kResumePointWaitS, ctx_);
@@ -202,7 +220,7 @@ class Player {
   // sent: the ring's slots are about to be reused out of order.
   void waitForTheOthers(const std::string& restarted) {
     std::vector<std::string> others;
-    for (const auto& s : params_.wait_for)
+    for (const auto& s : consumers_)
       if (s != restarted) others.push_back(s);
     const auto since = Clock::now();
     while (!ctx_.stopRequested() && ConsumerWatch::secondsSince(since) < params_.wait_timeout_s &&
@@ -252,7 +270,7 @@ class Player {
   // decoded, and the newest one due is sent. A restarted consumer goes on
   // from the next frame.
   void playLive(int64_t from) {
-    LiveOutlet outlet(ctx_, *sender_, watch_, params_.wait_for, params_.live_in_flight);
+    LiveOutlet outlet(ctx_, *sender_, watch_, consumers_, params_.live_in_flight);
     int64_t last = -1;
     for (int64_t id = from; id < end_ && !ctx_.stopRequested(); ++id) {
       sleepUntilRecorded(id);
@@ -349,7 +367,7 @@ class Player {
   // frames again (from the ring, which lives as long as the sender).
   void linger() {
     ctx_.setState("lingering");
-    while (acked_pacing_ && !ctx_.stopRequested() && !peers_.finished(params_.wait_for)) {
+    while (acked_pacing_ && !ctx_.stopRequested() && !peers_.finished(consumers_)) {
       const int64_t restarts = restarts_;
       const int64_t next = params_.live ? end_ : handleRestarts(end_);  // a live source does not rewind
       // Also when nothing is left to send (a consumer restarted after it had
@@ -368,6 +386,7 @@ class Player {
   ConsumerWatch watch_;
   PeerWatch peers_;
   StopThreadsOnExit stop_threads_;  // after `watch_` and `peers_`: their handlers run on the bus thread
+  std::vector<std::string> consumers_;  // player.wait_for, less those a restart found finished
   const bool acked_pacing_;
   TransportMode mode_ = TransportMode::kLcm;
   std::optional<FrameSender> sender_;
