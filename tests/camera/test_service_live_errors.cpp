@@ -182,15 +182,22 @@ TEST(LiveErrors, NoDeviceIsOneLineNamingIt) {
   EXPECT_NE(lastLine(out).find("--dataset plays a recorded sequence and --camera runs a live camera; give one of them"), std::string::npos) << out;
 }
 
-// The room's 60 frames as a fakenect recording (slowed down 2x) whose 40th
-// depth image is cut in half; returns that file's name ("" on failure).
-std::string truncatedRecording(const rekon::test::TempDir& dir, const std::string& fk) {
+// The room's 60 frames as a fakenect recording in `fk` (slowed down 2x);
+// false (a test failure with the tools' output) when it could not be made.
+bool fakenectRoom(const rekon::test::TempDir& dir, const std::string& fk) {
   std::string out;
   if (runCommand(binDir() + "/rekon synth --scene room --frames 60 --out " + (dir / "room"), &out) != 0 ||
       runCommand(binDir() + "/rekon-fakenect-write --dataset " + (dir / "room") + " --out " + fk + " --slowdown 2", &out) != 0) {
     ADD_FAILURE() << out;
-    return "";
+    return false;
   }
+  return true;
+}
+
+// fakenectRoom whose 40th depth image is cut in half (the whole one kept as
+// dir/whole.pgm); returns that file's name ("" on failure).
+std::string truncatedRecording(const rekon::test::TempDir& dir, const std::string& fk) {
+  if (!fakenectRoom(dir, fk)) return "";
   std::ifstream index(fk + "/INDEX.txt");
   std::string line, cut;
   for (int depth_seen = 0; std::getline(index, line);) {
@@ -292,10 +299,8 @@ namespace {
 TEST(LiveErrors, AKilledCameraIsRestartedAndItsFrameIdsGoOn) {
   rekon::test::TempDir dir;
   const std::string fk = dir / "fakenect", out_dir = dir / "live";
+  ASSERT_TRUE(fakenectRoom(dir, fk));
   std::string out;
-  ASSERT_EQ(runCommand(binDir() + "/rekon synth --scene room --frames 60 --out " + (dir / "room"), &out), 0) << out;
-  ASSERT_EQ(runCommand(binDir() + "/rekon-fakenect-write --dataset " + (dir / "room") + " --out " + fk + " --slowdown 2", &out), 0)
-      << out;
   const int rc = runCommand("FAKENECT_PATH=" + fk + " LD_LIBRARY_PATH=/usr/lib/x86_64-linux-gnu/fakenect " + inNetns() + " " +
                                 rekon::test::sourceDir() + "/tests/faults/kill_during_run.sh " + binDir() + " camera 1 " +
                                 out_dir + " --camera freenect",

@@ -108,6 +108,22 @@ std::optional<Kill> killOne(const std::vector<std::string>& victims, const std::
   return Kill{at_s, service, pid};
 }
 
+// What the run in o.folder left: its poses, their ATE against the
+// dataset's ground truth (when it has one), the restarts rekon run counted.
+void readResults(Outcome& o, const std::string& dataset) {
+  o.poses = poseCount(o.folder + "/trajectory.txt");
+  const fs::path gt = fs::path(dataset) / "groundtruth.txt";
+  if (fs::exists(gt) && o.poses >= 2) {
+    o.ate_m = eval::evaluateTrajectory(readTumTrajectory(gt.string()), readTumTrajectory(o.folder + "/trajectory.txt"))
+                  .ate_rmse_m;
+  }
+  try {
+    const YAML::Node restarts = YAML::LoadFile(o.folder + "/stats.json")["restarts"];
+    for (const auto& kv : restarts) o.restarts[kv.first.as<std::string>()] = kv.second.as<long long>();
+  } catch (const YAML::Exception&) {
+  }
+}
+
 // One `rekon run` of the dataset at its recorded rate into `folder`; with
 // victims, one of them killed every every_min_s..every_max_s seconds.
 Outcome runOnce(const ChaosOptions& opt, const std::string& folder, bool with_kills, std::mt19937_64& rng) {
@@ -143,16 +159,7 @@ Outcome runOnce(const ChaosOptions& opt, const std::string& folder, bool with_ki
     }
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   }
-  o.poses = poseCount(folder + "/trajectory.txt");
-  const fs::path gt = fs::path(opt.dataset) / "groundtruth.txt";
-  if (fs::exists(gt) && o.poses >= 2) {
-    o.ate_m = eval::evaluateTrajectory(readTumTrajectory(gt.string()), readTumTrajectory(folder + "/trajectory.txt")).ate_rmse_m;
-  }
-  try {
-    const YAML::Node restarts = YAML::LoadFile(folder + "/stats.json")["restarts"];
-    for (const auto& kv : restarts) o.restarts[kv.first.as<std::string>()] = kv.second.as<long long>();
-  } catch (const YAML::Exception&) {
-  }
+  readResults(o, opt.dataset);
   return o;
 }
 
@@ -238,9 +245,7 @@ int chaos(const ChaosOptions& opt) {
   } else {
     clean.folder = opt.baseline;
     clean.rc = 0;
-    clean.poses = poseCount(opt.baseline + "/trajectory.txt");
-    const fs::path gt = fs::path(opt.dataset) / "groundtruth.txt";
-    if (fs::exists(gt)) clean.ate_m = eval::evaluateTrajectory(readTumTrajectory(gt.string()), readTumTrajectory(opt.baseline + "/trajectory.txt")).ate_rmse_m;
+    readResults(clean, opt.dataset);
   }
   if (g_chaos_interrupted.load()) return 130;
   const Outcome killed = runOnce(opt, opt.out + "/chaos", true, rng);
