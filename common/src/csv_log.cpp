@@ -9,7 +9,7 @@
 namespace rekon {
 
 CsvLog::CsvLog(const std::string& path, const std::string& header, bool append)
-    : path_(path), flushed_(std::chrono::steady_clock::now()) {
+    : path_(path) {
   std::error_code ec;
   const bool has_rows = append && std::filesystem::file_size(path, ec) > 0 && !ec;
   out_.open(path, append ? std::ios::app : std::ios::trunc);
@@ -18,11 +18,9 @@ CsvLog::CsvLog(const std::string& path, const std::string& header, bool append)
   if (!out_) throw Error("cannot write " + path + "; check that the output folder exists and is writable");
 }
 
-void CsvLog::flushOncePerSecond() {
-  const auto now = std::chrono::steady_clock::now();
-  if (now - flushed_ < std::chrono::seconds(1) || failed_) return;
+void CsvLog::flushRow() {
+  if (failed_) return;
   out_.flush();
-  flushed_ = now;
   // A table is not worth the run: one line, and the rows after it are lost.
   if (!out_) {
     failed_ = true;

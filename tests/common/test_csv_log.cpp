@@ -1,11 +1,9 @@
-// CsvLog (common/csv_log.hpp): rows reach the file while it is still open
-// (a run killed later keeps them), a folder that cannot be written is one
+// CsvLog (common/csv_log.hpp): each row reaches the file as it is written
+// (a service killed later keeps it), a folder that cannot be written is one
 // error naming the file.
 #include <gtest/gtest.h>
 
-#include <chrono>
 #include <string>
-#include <thread>
 
 #include "rekon/common/csv_log.hpp"
 #include "rekon/common/error.hpp"
@@ -14,16 +12,18 @@
 namespace rekon {
 namespace {
 
-TEST(CsvLog, RowsReachTheFileWithinASecondWhileItIsStillOpen) {
+// Each row at once: the optimiser's timing rows of a killed instance were once
+// held for up to a second and lost with it (CI of c1f4193,
+// Faults.KilledOptimiserRebuildsItsGraphFromTheTrackerAndTheTrajectoryMatches).
+TEST(CsvLog, EachRowReachesTheFileAtOnceWhileItIsStillOpen) {
   test::TempDir dir;
   const std::string path = dir / "t.csv";
   CsvLog log(path, "frame_id,ms");
   EXPECT_EQ(test::readText(path), "frame_id,ms\n") << "the header at once";
   log.row(0, 1.5);
+  EXPECT_EQ(test::readText(path), "frame_id,ms\n0,1.5\n");
   log.row(1, 2.25);
-  std::this_thread::sleep_for(std::chrono::milliseconds(1100));
-  log.row(2, 3);  // a second after the last flush: everything so far goes to the file
-  EXPECT_EQ(test::readText(path), "frame_id,ms\n0,1.5\n1,2.25\n2,3\n");
+  EXPECT_EQ(test::readText(path), "frame_id,ms\n0,1.5\n1,2.25\n");
 }
 
 TEST(CsvLog, AFolderThatIsNotThereIsOneErrorNamingTheFile) {
