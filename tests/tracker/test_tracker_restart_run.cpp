@@ -129,11 +129,14 @@ size_t poses(const std::string& trajectory) {
   return n;
 }
 
-// Measured (2-core VM, 9 runs, 3 of them beside two CPU hogs): uninterrupted
-// ATE 0.2265 mm every time; killed after 45-48 frames and restarted (the first
-// frame relocalised every time) 0.2155-0.2365 mm, at most 0.010 mm from it.
-// The bound, 0.05 mm above the uninterrupted run, is five times that: room
-// for other kill points under load.
+// Measured (2-core VM, loaded by two other sessions): uninterrupted ATE
+// 0.2265 mm every time; killed after 45-49 frames and restarted, the first
+// frame tracked by odometry against the killed instance's keyframe: 0.2265 mm
+// in 3 of 3 runs (before the restart resumed odometry it relocalised the
+// first frame: 0.2155-0.2365 mm in 9 runs). The bound, 0.002 mm above the
+// uninterrupted run (1 % of it), leaves room for a kill between archiving a
+// keyframe and publishing it (the restart makes that keyframe again); a
+// relocalised first frame moves it by up to 0.010 mm.
 TEST(TrackerRestartRun, KilledMidRunAndRestartedTheRunGoesOnToTheSameTrajectory) {
   if (!rekon::test::insideNetns()) return;
   rekon::test::TempDir dir;
@@ -154,14 +157,17 @@ TEST(TrackerRestartRun, KilledMidRunAndRestartedTheRunGoesOnToTheSameTrajectory)
   EXPECT_EQ(killed.optimiser, 0) << logs;
   const std::string restarted_log = readText(killed.out + "/tracker_restarted.log");
   EXPECT_NE(restarted_log.find("restarted: the journal holds"), std::string::npos) << logs;
-  EXPECT_NE(restarted_log.find("first pose after the restart"), std::string::npos) << logs;
+  EXPECT_NE(restarted_log.find("first pose after the restart: frame " + std::to_string(killed.frames_at_kill)),
+            std::string::npos)
+      << logs;
+  EXPECT_NE(restarted_log.find(", as before the kill"), std::string::npos) << logs;  // by odometry
   // Every frame tracked once, by one instance or the other.
   EXPECT_EQ(journaledFrames(killed.out).size(), static_cast<size_t>(kFrames)) << logs;
   EXPECT_EQ(poses(killed.out + "/trajectory.txt"), static_cast<size_t>(kFrames)) << logs;
   const double base_ate = ateOf(base.out), killed_ate = ateOf(killed.out);
   std::printf("ATE uninterrupted %.4f mm, killed after %zu frames and restarted %.4f mm\n", 1e3 * base_ate,
               killed.frames_at_kill, 1e3 * killed_ate);
-  EXPECT_LT(killed_ate, base_ate + 0.00005) << logs;
+  EXPECT_LT(killed_ate, base_ate + 0.000002) << logs;
 }
 
 }  // namespace

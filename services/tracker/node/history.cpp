@@ -175,11 +175,75 @@ bool History::readable(const JournalRecord& r) {
   }
 }
 
+namespace {
+
+// Where odometry stood after the newest journaled frame (OdometryState),
+// followed frame by frame as the journal is read.
+class OdometryFollower {
+ public:
+  // A tracked frame newer than every one before it; `keyframe_pose` null when its keyframe is unknown.
+  void newest(const rekon_msgs::tracked_frame_t& tf, const Pose& in_keyframe, const Pose* keyframe_pose) {
+    std::optional<Pose> world;
+    if (tf.state == rekon_msgs::tracked_frame_t::STATE_OK && keyframe_pose) world = *keyframe_pose * in_keyframe;
+    state_.reset();
+    if (world) {
+      OdometryState s;
+      s.keyframe_id = tf.keyframe_id;
+      s.in_keyframe = in_keyframe;
+      s.timestamp = tf.timestamp;
+      if (last_world_) {
+        s.velocity = last_world_->inverse() * *world;
+        s.velocity_dt = tf.timestamp - last_timestamp_;
+      }
+      state_ = s;
+    }
+    last_world_ = world;
+    last_timestamp_ = tf.timestamp;
+  }
+  // Any tracked frame: the first one aligned against each keyframe sets that
+  // keyframe's reference entropy (a keyframe's own frame has no covariance).
+  void aligned(const rekon_msgs::tracked_frame_t& tf) {
+    if (tf.state != rekon_msgs::tracked_frame_t::STATE_OK) return;
+    const auto covariance = matrix6FromArray(tf.covariance);
+    if (covariance && !covariance->isZero())
+      first_entropy_.try_emplace(tf.keyframe_id, entropyOfInformation(covariance->inverse()));
+  }
+  // At the end: the newest frame made keyframe `own_keyframe` (-1: none), whose incoming edge has `own_entropy`.
+  std::optional<OdometryState> state(int64_t own_keyframe, std::optional<double> own_entropy) const {
+    if (!state_) return std::nullopt;
+    OdometryState s = *state_;
+    const auto reference = first_entropy_.find(s.keyframe_id);
+    if (reference != first_entropy_.end()) s.reference_entropy = reference->second;
+    if (own_keyframe == s.keyframe_id) s.keyframe_entropy = own_entropy;
+    return s;
+  }
+
+ private:
+  std::optional<OdometryState> state_;
+  std::optional<Pose> last_world_;
+  double last_timestamp_ = 0.0;
+  std::map<int64_t, double> first_entropy_;
+};
+
+}  // namespace
+
 RestoredJournal History::restore(const JournalRead& read) {
   std::lock_guard<std::mutex> lock(mutex_);
   RestoredJournal out;
   std::map<int64_t, size_t> keyframe_index;  // id -> index in out.keyframes
   std::map<int64_t, Pose> keyframe_pose;
+  OdometryFollower odometry;
+  // What was read, with where odometry stood after it (also when an undecodable record ends the read).
+  const auto finish = [&]() {
+    const auto own = keyframe_of_frame_.find(out.last_frame_id);
+    const auto index = own == keyframe_of_frame_.end() ? keyframe_index.end() : keyframe_index.find(own->second.keyframe_id);
+    std::optional<double> own_entropy;
+    if (index != keyframe_index.end() && out.keyframes[index->second].incoming)
+      own_entropy = out.keyframes[index->second].incoming->entropy;
+    out.odometry_state =
+        odometry.state(own == keyframe_of_frame_.end() ? -1 : own->second.keyframe_id, own_entropy);
+    return std::move(out);
+  };
   const auto undecodable = [&](size_t i, const char* what) {
     spdlog::error("{}: record {} of {} does not decode as {}; the {} records after it are not restored",
                   journal_ ? journal_->path() : std::string("journal"), i + 1, read.records.size(), what,
@@ -192,7 +256,7 @@ RestoredJournal History::restore(const JournalRead& read) {
       const auto pose = kf ? fromMsg(kf->pose_world) : std::nullopt;
       if (!pose) {
         undecodable(i, "a keyframe");
-        return out;
+        return finish();
       }
       keyframes_.push_back(*kf);
       keyframe_of_frame_[kf->frame_id] = *kf;
@@ -203,7 +267,7 @@ RestoredJournal History::restore(const JournalRead& read) {
       const auto c = decodeRecord<rekon_msgs::constraint_t>(record);
       if (!c) {
         undecodable(i, "a constraint");
-        return out;
+        return finish();
       }
       constraints_.push_back(*c);
       ++out.constraints;
@@ -224,40 +288,42 @@ RestoredJournal History::restore(const JournalRead& read) {
       const auto in_keyframe = tf ? fromMsg(tf->pose_in_keyframe) : std::nullopt;
       if (!in_keyframe) {
         undecodable(i, "a tracked frame");
-        return out;
+        return finish();
       }
       tracked_[tf->frame_id] = *tf;
       published_for_[tf->frame_id] = mapper_instance_;
       ++out.tracked_frames;
       const auto kf = keyframe_pose.find(tf->keyframe_id);
       if (kf != keyframe_pose.end()) out.odometry.push_back({tf->timestamp, kf->second * *in_keyframe});
+      odometry.aligned(*tf);
       if (tf->frame_id > out.last_frame_id) {
         out.last_frame_id = tf->frame_id;
         if (kf != keyframe_pose.end()) out.last_pose_world = kf->second * *in_keyframe;
+        odometry.newest(*tf, *in_keyframe, kf != keyframe_pose.end() ? &kf->second : nullptr);
       }
     } else if (record.tag == kLoopCheckedRecord) {
       const auto kf = decodeRecord<rekon_msgs::keyframe_t>(record);
       if (!kf) {
         undecodable(i, "a loop check");
-        return out;
+        return finish();
       }
       out.loop_checked.insert(kf->keyframe_id);
     } else if (record.tag == kDoneRecord) {
       const auto done = decodeRecord<rekon_msgs::done_t>(record);
       if (!done) {
         undecodable(i, "done");
-        return out;
+        return finish();
       }
       out.done = *done;
       done_ = true;
     } else {
       {
         undecodable(i, "a tracker record (unknown tag)");
-        return out;
+        return finish();
       }
     }
   }
-  return out;
+  return finish();
 }
 
 void History::publishArchived(const rekon_msgs::keyframe_t& kf, const std::optional<OdometryConstraint>& incoming) {

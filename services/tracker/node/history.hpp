@@ -33,6 +33,7 @@ struct RestoredJournal {
   int64_t constraints = 0, tracked_frames = 0;
   int64_t last_frame_id = -1;          // the newest tracked frame
   std::optional<Pose> last_pose_world;  // ...its world pose by odometry
+  std::optional<OdometryState> odometry_state;  // ...when it was tracked: where odometry stood
   std::optional<rekon_msgs::done_t> done;  // the killed instance had finished the stream
   std::set<int64_t> loop_checked;          // keyframes whose loop-closure check was settled
   Trajectory odometry;                     // the tracked frames' world poses by odometry, in order

@@ -89,6 +89,26 @@ void TrackerState::removeArchive() {
   else if (removed > 0) spdlog::debug("removed the keyframe archive {}/tracker: the run is over", root_);
 }
 
+namespace {
+
+// Odometry goes on against the keyframe the killed instance tracked its last
+// frame against; when that frame was lost or its keyframe cannot be read,
+// the first frame is relocalised near the last pose instead.
+void resumeTracking(const RestoredJournal& restored, const std::string& root, const AlignerParams& aligner,
+                    TrackingWorker& worker) {
+  if (const auto& state = restored.odometry_state) {
+    try {
+      worker.resumeOdometry(loadKeyframe(root, state->keyframe_id, aligner).keyframe, *state);
+      return;
+    } catch (const Error& e) {
+      spdlog::warn("{}; the first frame is relocalised near the last pose instead", e.what());
+    }
+  }
+  if (restored.last_pose_world) worker.resumeAt(*restored.last_pose_world);
+}
+
+}  // namespace
+
 rekon_msgs::resume_point_t restoreAfterRestart(ServiceContext& ctx, TrackerState& state, History& history,
                                                KeyframeCache& cache, TrackingWorker& worker, LoopClosureWorker& loops,
                                                Inbox& inbox, const AlignerParams& aligner) {
@@ -155,7 +175,7 @@ rekon_msgs::resume_point_t restoreAfterRestart(ServiceContext& ctx, TrackerState
   }
   worker.continueIdsFrom(highest + 1);
   worker.restoreOdometry(restored.odometry);
-  if (restored.last_pose_world) worker.resumeAt(*restored.last_pose_world);
+  resumeTracking(restored, root, aligner, worker);
   resume.first_missing_frame = restored.last_frame_id < 0 ? -1 : restored.last_frame_id + 1;
   const double rewind_wait_s = ctx.config().getDouble("tracker.rewind_wait_s");
   if (rewind_wait_s < 0) throw Error("tracker.rewind_wait_s must be 0 or more seconds");

@@ -59,6 +59,12 @@ void TrackingWorker::resumeAt(const Pose& last_pose_world) {
   resuming_ = true;
 }
 
+void TrackingWorker::resumeOdometry(std::shared_ptr<const Keyframe> keyframe, const OdometryState& state) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  tracker_.resumeOdometry(std::move(keyframe), state);
+  resuming_ = true;
+}
+
 void TrackingWorker::restoreOdometry(const Trajectory& odometry) {
   std::lock_guard<std::mutex> lock(mutex_);
   totals_.odometry.insert(totals_.odometry.begin(), odometry.begin(), odometry.end());
@@ -131,6 +137,17 @@ bool TrackingWorker::track(const rekon_msgs::frame_t& msg) {
   }
 }
 
+void TrackingWorker::noteFirstPoseAfterRestart(const TrackResult& r) {
+  resuming_ = false;
+  resumed_by_ = r.relocalised_from ? "relocalised" : r.keyframe_reset ? "new keyframe" : "odometry";
+  const std::string how =
+      r.relocalised_from ? "relocalised against keyframe " + std::to_string(r.relocalised_from->from_id)
+      : r.keyframe_reset ? std::string("a new keyframe at the last pose before it (none validated)")
+                         : fmt::format("odometry against keyframe {}, as before the kill",
+                                       r.odometry ? r.odometry->from_id : r.keyframe_id);
+  spdlog::info("first pose after the restart: frame {}, {}", r.frame_id, how);
+}
+
 bool TrackingWorker::trackLocked(const rekon_msgs::frame_t& msg) {
   Intrinsics k;
   std::optional<RgbdFrame> frame = receiver_.receive(msg, &k);
@@ -156,13 +173,7 @@ bool TrackingWorker::trackLocked(const rekon_msgs::frame_t& msg) {
   totals_.lost_intervals.add(r);
   if (r.state == TrackingState::Lost) spdlog::warn("frame {}: lost ({})", r.frame_id, toString(r.lost_reason));
   keepInSession(r, k);
-  if (resuming_ && r.new_keyframe) {
-    resuming_ = false;
-    resumed_by_ = r.relocalised_from ? "relocalised" : "new keyframe";
-    spdlog::info("first pose after the restart: frame {}, {}", r.frame_id,
-                 r.relocalised_from ? "relocalised against keyframe " + std::to_string(r.relocalised_from->from_id)
-                                    : std::string("a new keyframe at the last pose before it (none validated)"));
-  }
+  if (resuming_ && r.state == TrackingState::Ok) noteFirstPoseAfterRestart(r);
   // Archived before it is published; from then on the cache reads it back from there when it leaves memory.
   if (state_ && r.new_keyframe && !session_.localise_only && state_->archive(*tracker_.currentKeyframe(), r.odometry, k))
     keyframes_->noteArchived(r.keyframe_id, state_->archiveRoot());

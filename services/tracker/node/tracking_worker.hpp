@@ -62,10 +62,12 @@ class TrackingWorker {
   void addIndexedKeyframe(int64_t id, const Pose& pose_world, const std::optional<OdometryConstraint>& incoming);
   void continueIdsFrom(int64_t next_id);
   void resumeAt(const Pose& last_pose_world);
+  void resumeOdometry(std::shared_ptr<const Keyframe> keyframe, const OdometryState& state);
   // The killed instances' odometry (their journal), before this one's in odometry.txt.
   void restoreOdometry(const Trajectory& odometry);
-  // How the restart's first pose came: "relocalised", "new keyframe" (none
-  // validated); "" before it, or when this is no restart.
+  // How the restart's first pose came: "odometry" (against the killed
+  // instance's keyframe), "relocalised", "new keyframe" (none validated); ""
+  // before it, or when this is no restart.
   std::string resumedBy() const;
 
   // Decodes and tracks one frame; false when it does not decode (the
@@ -82,6 +84,7 @@ class TrackingWorker {
  private:
   // track() under the lock; rekon::Error for what stops the service.
   bool trackLocked(const rekon_msgs::frame_t& msg);
+  void noteFirstPoseAfterRestart(const TrackResult& r);  // resumed_by_ and its log line
   void continueSession(const TrackerParams& params);
   // A continued session's camera must be this run's. Throws rekon::Error.
   void checkCamera(const Intrinsics& k) const;

@@ -100,6 +100,18 @@ void Tracker::startFrom(std::shared_ptr<const Keyframe> keyframe, double timesta
   lastGoodIsKeyframe(std::nullopt);
 }
 
+void Tracker::resumeOdometry(std::shared_ptr<const Keyframe> keyframe, const OdometryState& state) {
+  keyframe_ = std::move(keyframe);
+  last_in_keyframe_ = state.in_keyframe;
+  velocity_ = state.velocity;
+  velocity_dt_ = state.velocity_dt;
+  last_good_timestamp_ = state.timestamp;
+  reference_entropy_ = state.reference_entropy;
+  lost_in_a_row_ = 0;
+  lastGoodIsKeyframe(state.keyframe_entropy);
+  resume_at_.reset();
+}
+
 bool Tracker::relocalise(const RgbdFrame& frame, const std::optional<Pose>& guess_world, TrackResult& r,
                          spdlog::level::level_enum log_level) {
   if (relocaliser_->size() == 0) return false;

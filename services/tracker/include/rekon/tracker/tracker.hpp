@@ -59,6 +59,22 @@ struct OdometryConstraint {
   int valid_pixels = 0;  // pixels that constrained it
 };
 
+// Where a killed tracker's odometry stood, from its journal's last tracked
+// frames: a restart goes on from here as the killed one would have
+// (Tracker::resumeOdometry).
+struct OdometryState {
+  int64_t keyframe_id = -1;                 // the keyframe the last frame was tracked against
+  Pose in_keyframe = Pose::Identity();      // the last frame, relative to it
+  double timestamp = 0.0;                   // ...its timestamp
+  // When the last frame is the keyframe's own: its incoming edge's entropy (a
+  // gap after it is bridged from the keyframe); else none (the last frame's
+  // images died with the killed instance: a gap is relocalised instead).
+  std::optional<double> keyframe_entropy;
+  Pose velocity = Pose::Identity();         // motion between the last two frames
+  double velocity_dt = 0.0;                 // seconds between them (0: no velocity)
+  std::optional<double> reference_entropy;  // of the keyframe's first aligned frame (keyframe selection)
+};
+
 struct TrackResult {
   int64_t frame_id = 0;
   double timestamp = 0.0;
@@ -127,6 +143,11 @@ class Tracker {
   // it becomes a new keyframe there, with no odometry edge (keyframe_reset,
   // as after max_lost_frames): tracking always goes on.
   void resumeAt(const Pose& last_pose_world) { resume_at_ = last_pose_world; }
+  // Better, when the killed instance's last frame was tracked and its keyframe
+  // is archived: tracking goes on against `keyframe` from `state`, so the
+  // first frame is odometry as without the kill (a frame that does not align
+  // is lost, and relocalised, as any other).
+  void resumeOdometry(std::shared_ptr<const Keyframe> keyframe, const OdometryState& state);
   bool gaveUp() const { return gave_up_; }
   // Localisation in a saved map (session.localise_only): the stored keyframes
   // are the map and stay the only relocalisation candidates. The first frame
