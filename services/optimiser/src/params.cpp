@@ -28,6 +28,9 @@ void PoseGraphParams::validate() const {
           "final_function_tolerance", final_function_tolerance, "in (0, 1)");
   require(final_max_iterations >= 1, "final_max_iterations", final_max_iterations, "at least 1");
   require(outlier_rounds >= 0, "outlier_rounds", outlier_rounds, "zero (keep every loop edge) or more");
+  require(std::isfinite(cull_radius_m) && cull_radius_m >= 0, "cull_radius_m", cull_radius_m, "zero (no culling) or more");
+  require(std::isfinite(cull_angle_deg) && cull_angle_deg >= 0 && cull_angle_deg <= 180, "cull_angle_deg",
+          cull_angle_deg, "between 0 and 180");
 }
 
 void OptimiserServiceParams::validate() const {
@@ -82,6 +85,8 @@ OptimiserServiceParams optimiserParamsFromConfig(const Config& config) {
   p.graph.function_tolerance = config.getDouble("optimiser.function_tolerance");
   p.graph.final_max_iterations = config.getInt("optimiser.final_max_iterations");
   p.graph.final_function_tolerance = config.getDouble("optimiser.final_function_tolerance");
+  p.graph.cull_radius_m = config.getDouble("optimiser.cull_radius_m");
+  p.graph.cull_angle_deg = config.getDouble("optimiser.cull_angle_deg");
   p.information_scale = config.getDouble("optimiser.information_scale");
   p.final_repeats = config.getInt("optimiser.final_repeats");
   p.final_repeat_gap_ms = config.getInt("optimiser.final_repeat_gap_ms");

@@ -73,7 +73,7 @@ void PoseGraph::setPose(Node& n, const Pose& p) {
 }
 
 void PoseGraph::addKeyframe(int64_t id, const Pose& pose_world) {
-  if (nodes_.count(id)) throw Error("keyframe " + std::to_string(id) + " is already in the pose graph; dropped");
+  if (hasKeyframe(id)) throw Error("keyframe " + std::to_string(id) + " is already in the pose graph; dropped");
   if (!isValidPose(pose_world, 1e-6))
     throw Error("keyframe " + std::to_string(id) + " has an invalid pose (not finite or not a rotation); dropped");
   Node& n = nodes_[id];
@@ -82,17 +82,12 @@ void PoseGraph::addKeyframe(int64_t id, const Pose& pose_world) {
     anchor_ = id;
     n.attached = true;
   }
+  if (params_.cull_radius_m > 0) unjudged_.push_back(id);
 }
 
 std::string PoseGraph::nameOf(const Edge& e) { return e.origin.empty() ? edgeName(e.c) : e.origin; }
 
-void PoseGraph::addConstraint(const Constraint& c, const std::string& origin) {
-  const std::string name = origin.empty() ? edgeName(c) : origin;
-  if (!nodes_.count(c.from_id) || !nodes_.count(c.to_id))
-    throw Error(name + " names a keyframe the pose graph does not know (" +
-                std::to_string(nodes_.count(c.from_id) ? c.to_id : c.from_id) + "); dropped");
-  if (c.from_id == c.to_id) throw Error(name + " links a keyframe to itself; dropped");
-  if (!isValidPose(c.relative, 1e-6)) throw Error(name + " has an invalid relative pose; dropped");
+Matrix6d PoseGraph::checkedInformation(const Constraint& c, const std::string& name) {
   const Matrix6d& info = c.information;
   if (!info.allFinite()) throw Error(name + " has a non-finite information matrix; dropped");
   const double largest = info.cwiseAbs().maxCoeff();
@@ -104,18 +99,45 @@ void PoseGraph::addConstraint(const Constraint& c, const std::string& origin) {
   if (!(lo > 0) || hi > kMaxInformationCondition * lo)
     throw Error(name + " has an information matrix that is not positive definite (eigenvalues " + std::to_string(lo) +
                 " .. " + std::to_string(hi) + "); dropped");
-  const Eigen::LLT<Matrix6d> llt(sym);
-  if (llt.info() != Eigen::Success) throw Error(name + " has an information matrix without a Cholesky factor; dropped");
+  if (Eigen::LLT<Matrix6d>(sym).info() != Eigen::Success)
+    throw Error(name + " has an information matrix without a Cholesky factor; dropped");
+  return sym;
+}
 
+PoseGraph::Edge PoseGraph::makeEdge(const Constraint& c, const std::string& origin) {
   Edge e;
   e.c = c;
   e.origin = origin;
-  e.c.information = sym;
-  e.sqrt_information = llt.matrixU();
+  e.sqrt_information = Eigen::LLT<Matrix6d>(c.information).matrixU();
   e.z = std::make_shared<detail::RelativeMeasurement>(Eigen::Quaterniond(c.relative.linear()).conjugate(),
                                                       c.relative.translation());
+  return e;
+}
+
+void PoseGraph::addConstraint(const Constraint& c, const std::string& origin) {
+  const std::string name = origin.empty() ? edgeName(c) : origin;
+  if (!hasKeyframe(c.from_id) || !hasKeyframe(c.to_id))
+    throw Error(name + " names a keyframe the pose graph does not know (" +
+                std::to_string(hasKeyframe(c.from_id) ? c.to_id : c.from_id) + "); dropped");
+  if (c.from_id == c.to_id) throw Error(name + " links a keyframe to itself; dropped");
+  if (!isValidPose(c.relative, 1e-6)) throw Error(name + " has an invalid relative pose; dropped");
+  Constraint checked = c;
+  checked.information = checkedInformation(c, name);
+  if (culled_.count(c.from_id) || culled_.count(c.to_id)) {
+    checked = onKeptKeyframes(checked);
+    compact_ = true;  // it may join two keyframes that have an edge already
+    if (checked.from_id == checked.to_id) {
+      ++edges_dropped_by_culling_;
+      spdlog::debug("{} joins two keyframes culled onto one; dropped", name);
+      return;
+    }
+  }
+  insertEdge(checked, origin, name);
+}
+
+void PoseGraph::insertEdge(const Constraint& c, const std::string& origin, const std::string& name) {
   const size_t index = edges_.size();
-  edges_.push_back(e);
+  edges_.push_back(makeEdge(c, origin));
   Node& from = nodes_.at(c.from_id);
   Node& to = nodes_.at(c.to_id);
   from.edges.push_back(index);
@@ -468,29 +490,34 @@ OptimiseReport PoseGraph::optimise(bool final) {
     if (removed == 0) break;
     report.loop_edges_removed += removed;
     loop_edges_removed_ += static_cast<size_t>(removed);
+    compact_ = true;
     recomputeAttachment();
   }
+  cullSettledKeyframes();
+  if (compact_) compactEdges();
   report.ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
   report.cpu_ms = threadCpuMs() - cpu_start;
   return report;
 }
 
 std::optional<Pose> PoseGraph::pose(int64_t id) const {
-  const auto it = nodes_.find(id);
-  if (it == nodes_.end()) return std::nullopt;
-  return poseOf(it->second);
+  if (!hasKeyframe(id)) return std::nullopt;
+  const auto [kept, in_kept] = resolve(id);
+  return Pose(poseOf(nodes_.at(kept)) * in_kept);
 }
 
 std::vector<std::pair<int64_t, Pose>> PoseGraph::poses() const {
   std::vector<std::pair<int64_t, Pose>> out;
-  out.reserve(nodes_.size());
+  out.reserve(numKeyframes());
   for (const auto& [id, n] : nodes_) out.emplace_back(id, poseOf(n));
+  for (const auto& [id, c] : culled_) out.emplace_back(id, *pose(id));
+  std::sort(out.begin(), out.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
   return out;
 }
 
 bool PoseGraph::isAttached(int64_t id) const {
-  const auto it = nodes_.find(id);
-  return it != nodes_.end() && it->second.attached;
+  if (!hasKeyframe(id)) return false;
+  return nodes_.at(resolve(id).first).attached;
 }
 
 size_t PoseGraph::numConstraints() const {

@@ -41,6 +41,12 @@ struct PoseGraphParams {
   static constexpr int kDefaultFinalMaxIterations = 100;
   // Remove-and-re-optimise rounds per optimisation at most.
   static constexpr int kDefaultOutlierRounds = 3;
+  // Keyframe culling (services/optimiser/README.md, "Memory"): a keyframe
+  // judged once this many newer keyframes have arrived (the tracker's loop
+  // checks skip the last 20 keyframes, so by then its own loop edges are in
+  // the graph and optimised) is culled onto an older kept keyframe that an
+  // edge links it to and that lies within cull_radius_m and cull_angle_deg.
+  static constexpr int kCullWindow = 20;
 
   Solver solver = Solver::BlockCholesky;
   RobustLoss loop_loss = RobustLoss::Cauchy;
@@ -52,6 +58,9 @@ struct PoseGraphParams {
   int final_max_iterations = kDefaultFinalMaxIterations;
   double final_function_tolerance = kDefaultFinalFunctionTolerance;
   int outlier_rounds = kDefaultOutlierRounds;
+  // 0: no culling (the graph keeps every keyframe). Set by config/default.yaml.
+  double cull_radius_m = 0.0;
+  double cull_angle_deg = 0.0;
 
   // Throws rekon::Error naming the first invalid key.
   void validate() const;

@@ -9,6 +9,16 @@
 // Keyframes that no chain of edges links to the first one (after a tracking
 // reset) keep the pose they were added with; when an edge links them, their
 // whole group is moved rigidly so that the edge holds, and then optimised.
+//
+// With culling (params cull_radius_m > 0) the graph is bounded by the space,
+// not the time: a keyframe that has settled (kCullWindow newer ones arrived)
+// and lies near an older kept keyframe it has an edge to is culled, that is
+// attached rigidly to it at their current relative pose. Its edges move to the
+// kept keyframe, their information carried by the adjoint, and edges that then
+// join the same two keyframes (same kind, the frontend's own) are merged into
+// one. A culled keyframe's pose is still derived (pose(), poses()), and edges
+// that arrive later naming it land on its kept keyframe. Edges removed as
+// outliers are dropped, not only marked.
 #include <Eigen/Core>
 #include <cstdint>
 #include <deque>
@@ -86,15 +96,21 @@ class PoseGraph {
   // and no time limit instead of the bounded background budget.
   OptimiseReport optimise(bool final = false);
 
-  bool hasKeyframe(int64_t id) const { return nodes_.count(id) > 0; }
+  // Kept or culled.
+  bool hasKeyframe(int64_t id) const { return nodes_.count(id) > 0 || culled_.count(id) > 0; }
   std::optional<Pose> pose(int64_t id) const;
-  // Every keyframe's current estimate, ascending id.
+  // Every keyframe's current estimate (culled ones derived), ascending id.
   std::vector<std::pair<int64_t, Pose>> poses() const;
   // Linked to the first keyframe by a chain of (kept) edges.
   bool isAttached(int64_t id) const;
   std::optional<int64_t> anchorId() const { return anchor_; }
 
-  size_t numKeyframes() const { return nodes_.size(); }
+  size_t numKeyframes() const { return nodes_.size() + culled_.size(); }
+  size_t numCulled() const { return culled_.size(); }
+  // Edges merged into another one between the same keyframes, and edges
+  // dropped because culling put both their ends on one keyframe.
+  size_t edgesMerged() const { return edges_merged_; }
+  size_t edgesDroppedByCulling() const { return edges_dropped_by_culling_; }
   size_t numConstraints() const;  // kept ones
   size_t numLoopEdges() const;    // kept loop edges
   size_t loopEdgesRemoved() const { return loop_edges_removed_; }
@@ -122,7 +138,30 @@ class PoseGraph {
     bool kept = true;
   };
 
+  // A culled keyframe: its pose in the kept keyframe it was attached to.
+  struct Culled {
+    int64_t kept;
+    Pose in_kept;
+  };
+
   static Pose poseOf(const Node& n);
+  // The information matrix checked (rekon::Error otherwise) and symmetrised.
+  static Matrix6d checkedInformation(const Constraint& c, const std::string& name);
+  // The edge as the solver uses it (its square-root information, its measurement).
+  static Edge makeEdge(const Constraint& c, const std::string& origin);
+  void insertEdge(const Constraint& c, const std::string& origin, const std::string& name);
+  // The kept keyframe `id` is (or is attached to) and id's pose in it.
+  std::pair<int64_t, Pose> resolve(int64_t id) const;
+  // The constraint between the kept keyframes its ends are on, its information carried along.
+  Constraint onKeptKeyframes(const Constraint& c) const;
+  // Culling (see the top of this file), after an optimisation.
+  void cullSettledKeyframes();
+  std::optional<int64_t> cullTarget(int64_t id) const;
+  void cull(int64_t id, int64_t kept);
+  // Drops removed edges, merges edges between the same keyframes (culling
+  // only) and rebuilds each node's edge list.
+  void compactEdges();
+  bool mergeable(const Edge& e) const;
   static void setPose(Node& n, const Pose& p);
   double edgeChi2(const Edge& e) const;
   static std::string nameOf(const Edge& e);
@@ -145,6 +184,10 @@ class PoseGraph {
   std::deque<Edge> edges_;
   std::optional<int64_t> anchor_;
   size_t loop_edges_removed_ = 0;
+  std::map<int64_t, Culled> culled_;
+  std::deque<int64_t> unjudged_;  // keyframes not yet judged for culling, oldest first (culling only)
+  bool compact_ = false;          // an edge was removed, moved or redirected since the last compactEdges
+  size_t edges_merged_ = 0, edges_dropped_by_culling_ = 0;
   std::unique_ptr<ceres::Manifold> pose_manifold_;
   std::unique_ptr<ceres::LossFunction> loop_loss_;
   std::unique_ptr<detail::BlockCholesky> cholesky_;  // with the pattern it was analysed for

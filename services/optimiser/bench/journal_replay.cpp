@@ -1,0 +1,82 @@
+// A run's pose graph again, in one process: the keyframes and constraints of
+// an optimiser journal (OUT/optimiser_journal.rkj) applied in arrival order,
+// optimised after each keyframe's batch as the service does, then the final
+// optimisation and the trajectory of the journal's tracked frames. Prints the
+// graph's size, the heap in use and the mean solve time every EVERY keyframes
+// (issue 49: what grows with time). Prints numbers; not a test.
+//   rekon_optimiser_replay JOURNAL TRAJECTORY_OUT [CULL_RADIUS_M] [CULL_ANGLE_DEG] [EVERY]
+#include <malloc.h>
+
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <exception>
+#include <variant>
+
+#include "graph_worker.hpp"
+#include "journal.hpp"
+#include "rekon/common/pose.hpp"
+#include "rekon/optimiser/graph_messages.hpp"
+
+using namespace rekon::optimiser;
+
+namespace {
+
+double heapMb() { return static_cast<double>(mallinfo2().uordblks) / (1024.0 * 1024.0); }
+
+struct Window {
+  double ms = 0.0;
+  int solves = 0;
+};
+
+void printRow(const GraphWorker& worker, size_t applied, Window& window) {
+  const PoseGraph& g = worker.graph();
+  std::printf("%6zu items  %5zu keyframes (%5zu culled)  %6zu edges (%4zu loop)  heap %6.2f MB  solve %6.2f ms mean\n",
+              applied, g.numKeyframes(), g.numCulled(), g.numConstraints(), g.numLoopEdges(), heapMb(),
+              window.solves > 0 ? window.ms / window.solves : 0.0);
+  window = {};
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc < 3) {
+    std::fprintf(stderr, "usage: rekon_optimiser_replay JOURNAL TRAJECTORY_OUT [CULL_RADIUS_M] [CULL_ANGLE_DEG] [EVERY]\n");
+    return 1;
+  }
+  try {
+    PoseGraphParams params;
+    params.cull_radius_m = argc > 3 ? std::atof(argv[3]) : 0.0;
+    params.cull_angle_deg = argc > 4 ? std::atof(argv[4]) : 15.0;
+    const size_t every = argc > 5 ? static_cast<size_t>(std::atoi(argv[5])) : 100;
+    const JournalContents journal = readJournal(argv[1]);
+    GraphWorker worker(params);
+    Window window;
+    size_t keyframes = 0;
+    bool new_edges = false;
+    for (size_t i = 0; i < journal.items.size(); ++i) {
+      new_edges |= worker.apply({journal.items[i]});
+      const bool batch_ends = i + 1 == journal.items.size() || std::holds_alternative<KeyframeIn>(journal.items[i + 1]);
+      if (std::holds_alternative<KeyframeIn>(journal.items[i]) && ++keyframes % every == 0)
+        printRow(worker, i + 1, window);
+      if (batch_ends && new_edges) {
+        new_edges = false;
+        const auto start = std::chrono::steady_clock::now();
+        worker.optimise(false, -1);
+        window.ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+        ++window.solves;
+      }
+    }
+    worker.optimise(true, -1);
+    printRow(worker, journal.items.size(), window);
+    std::printf("merged edges %zu, dropped by culling %zu, outliers removed %zu\n", worker.graph().edgesMerged(),
+                worker.graph().edgesDroppedByCulling(), worker.graph().loopEdgesRemoved());
+    size_t missing = 0;
+    writeTumTrajectory(frameTrajectory(worker.graph(), journal.frames, &missing), argv[2]);
+    std::printf("wrote %zu frames (%zu missing a keyframe) to %s\n", journal.frames.size() - missing, missing, argv[2]);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "%s\n", e.what());
+    return 1;
+  }
+  return 0;
+}

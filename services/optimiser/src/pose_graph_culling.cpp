@@ -1,0 +1,139 @@
+// Keyframe culling of the pose graph (pose_graph.hpp, issue 49): culled
+// keyframes resolved to the kept ones, edges carried onto them with the
+// adjoint, merged, and the edge list compacted.
+#include <spdlog/spdlog.h>
+
+#include <Eigen/Cholesky>
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <tuple>
+
+#include "rekon/common/se3.hpp"
+#include "rekon/optimiser/pose_graph.hpp"
+
+namespace rekon::optimiser {
+
+std::pair<int64_t, Pose> PoseGraph::resolve(int64_t id) const {
+  Pose in_kept = Pose::Identity();
+  for (auto it = culled_.find(id); it != culled_.end(); it = culled_.find(id)) {
+    in_kept = it->second.in_kept * in_kept;
+    id = it->second.kept;
+  }
+  return {id, in_kept};
+}
+
+Constraint PoseGraph::onKeptKeyframes(const Constraint& c) const {
+  // from = F T_f and to = T T_t on the kept F and T: T-in-F = T_f relative T_t^-1, and
+  // the edge's error E = T_t^-1 E' T_t, so xi' = Ad(T_t) xi: I' = Ad(T_t^-1)^T I Ad(T_t^-1).
+  const auto [from, in_from] = resolve(c.from_id);
+  const auto [to, in_to] = resolve(c.to_id);
+  Constraint out = c;
+  out.from_id = from;
+  out.to_id = to;
+  out.relative = orthonormalised(in_from * c.relative * in_to.inverse());
+  const Matrix6d ad = adjoint(in_to.inverse());
+  out.information = ad.transpose() * c.information * ad;
+  out.information = 0.5 * (out.information + out.information.transpose()).eval();
+  return out;
+}
+
+void PoseGraph::cullSettledKeyframes() {
+  while (unjudged_.size() > static_cast<size_t>(PoseGraphParams::kCullWindow)) {
+    const int64_t id = unjudged_.front();
+    unjudged_.pop_front();
+    if (const std::optional<int64_t> kept = cullTarget(id)) cull(id, *kept);
+  }
+}
+
+std::optional<int64_t> PoseGraph::cullTarget(int64_t id) const {
+  const auto it = nodes_.find(id);
+  if (it == nodes_.end() || !it->second.attached || id == anchor_) return std::nullopt;
+  const Pose pose = poseOf(it->second);
+  const double max_angle = params_.cull_angle_deg * M_PI / 180.0;
+  // The oldest in reach, not the nearest: a revisit goes onto the first visit's keyframe rather than onto
+  // its own predecessor, so that the kept keyframes are those of the first visit to each place.
+  std::optional<int64_t> oldest;
+  for (size_t ei : it->second.edges) {
+    const Edge& e = edges_[ei];
+    const int64_t other = e.c.from_id == id ? e.c.to_id : e.c.from_id;
+    if (!e.kept || other > id || (oldest && other > *oldest)) continue;
+    const Pose other_pose = poseOf(nodes_.at(other));
+    if (translationDistance(pose, other_pose) < params_.cull_radius_m && rotationAngle(pose, other_pose) < max_angle)
+      oldest = other;
+  }
+  return oldest;
+}
+
+void PoseGraph::cull(int64_t id, int64_t kept) {
+  culled_[id] = Culled{kept, Pose(poseOf(nodes_.at(kept)).inverse() * poseOf(nodes_.at(id)))};
+  for (size_t ei : nodes_.at(id).edges) {
+    Edge& e = edges_[ei];
+    if (!e.kept) continue;
+    const Constraint moved = onKeptKeyframes(e.c);
+    if (moved.from_id == moved.to_id) {
+      e.kept = false;
+      ++edges_dropped_by_culling_;
+      continue;
+    }
+    e = makeEdge(moved, e.origin);
+  }
+  nodes_.erase(id);
+  compact_ = true;
+  spdlog::debug("keyframe {} culled onto keyframe {}", id, kept);
+}
+
+bool PoseGraph::mergeable(const Edge& e) const { return params_.cull_radius_m > 0 && e.origin.empty(); }
+
+namespace {
+
+// Two measurements of the same relative pose (b brought to a's direction)
+// as one: a Gaussian fusion in a's tangent space, to first order.
+Constraint merged(const Constraint& a, const Constraint& b) {
+  Pose relative = b.relative;
+  Matrix6d information = b.information;
+  if (b.from_id != a.from_id) {
+    // from-in-to = relative^-1 exp(-Ad(relative) xi): I'' = Ad(relative^-1)^T I Ad(relative^-1).
+    const Matrix6d ad = adjoint(b.relative.inverse());
+    relative = b.relative.inverse();
+    information = ad.transpose() * b.information * ad;
+  }
+  Constraint out = a;
+  out.information = a.information + information;
+  out.information = 0.5 * (out.information + out.information.transpose()).eval();
+  const Vector6d d = logSe3(Pose(a.relative.inverse() * relative));
+  const Vector6d x = out.information.ldlt().solve(information * d);
+  out.relative = orthonormalised(a.relative * expSe3(x));
+  return out;
+}
+
+}  // namespace
+
+void PoseGraph::compactEdges() {
+  std::deque<Edge> kept;
+  std::map<std::tuple<int, int64_t, int64_t>, size_t> by_pair;  // kind, lower id, higher id
+  for (Edge& e : edges_) {
+    if (!e.kept) continue;
+    if (mergeable(e)) {
+      const auto key = std::make_tuple(static_cast<int>(e.c.kind), std::min(e.c.from_id, e.c.to_id),
+                                       std::max(e.c.from_id, e.c.to_id));
+      const auto [it, fresh] = by_pair.emplace(key, kept.size());
+      if (!fresh) {
+        Edge& into = kept[it->second];
+        into = makeEdge(merged(into.c, e.c), into.origin);
+        ++edges_merged_;
+        continue;
+      }
+    }
+    kept.push_back(std::move(e));
+  }
+  edges_.swap(kept);
+  for (auto& [id, n] : nodes_) n.edges.clear();
+  for (size_t i = 0; i < edges_.size(); ++i) {
+    nodes_.at(edges_[i].c.from_id).edges.push_back(i);
+    nodes_.at(edges_[i].c.to_id).edges.push_back(i);
+  }
+  compact_ = false;
+}
+
+}  // namespace rekon::optimiser
