@@ -19,6 +19,10 @@
 # Each check's time, count and outcome go to OUT/kill_checks.log (the
 # evidence when a kill is missed).
 #
+# KILL_ALONE=1: once the count is reached the service is held stopped until
+# every other service has exited (its peers take its silence for its end:
+# set lifecycle.silence_s low), then killed: the last service standing.
+#
 # Prints "killed rekon-SERVICE ..." ("killed all ...") only when the kill
 # landed (for a service: rekon run reported it killed by signal 9) and exits
 # with rekon run's status; else prints "nothing killed: WHY" and exits 125.
@@ -73,11 +77,33 @@ tryKill() {
   n=$(stored)
   note "stored $n with rekon-$service (pid $pid) stopped"
   if [ "$n" -ge "$min" ]; then
+    [ -n "${KILL_ALONE:-}" ] && waitAlone
     kill -9 "$pid" && killed="rekon-$service (pid $pid) with $n KF keyframes stored"
     return 0
   fi
   kill -CONT "$pid" 2> /dev/null
   return 1
+}
+
+# The newest pids of the services other than SERVICE that are alive.
+others() {
+  local s p
+  for s in player camera tracker optimiser mapper; do
+    p=$(pidOf "$s")
+    [ "$s" != "$service" ] && [ -n "$p" ] && kill -0 "$p" 2> /dev/null && echo "$p"
+  done
+}
+
+# KILL_ALONE: the others run on (the player was held stopped for the check)
+# until they have exited, 60 s at most.
+waitAlone() {
+  local p
+  for p in $(others); do kill -CONT "$p" 2> /dev/null; done
+  for _ in $(seq 1 600); do
+    [ -z "$(others)" ] && { note "every other service has exited"; return; }
+    sleep 0.1
+  done
+  note "other services still run after 60 s: $(others | tr '\n' ' ')"
 }
 
 # Why the fault was not injected, or "" when it was.

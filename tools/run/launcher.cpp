@@ -358,14 +358,15 @@ class Supervisor {
   // One look at every child; false once no service runs any more (the
   // viewer, which only listens, may: serveFinalMap decides how long).
   bool step() {
-    bool any_running = false, any_service_running = false;
+    bool any_service_running = false;
     for (auto& c : plan_.children) {
-      if (const auto status = c.poll()) {
-        onEnded(c, *status, any_running);
-      } else if (c.running()) {  // not a child that never started: the run would wait for it forever
-        any_running = true;
-        any_service_running |= c.name() != kViewer;
-      }
+      // A child restarted just now runs too: the last service standing, killed
+      // and restarted, once ended the run (exit 0) while its restart was still
+      // writing the outputs (tools/rekon stress, Faults.MapperKilledAfterTheLastFrame...).
+      const auto status = c.poll();
+      const bool restarted = status && onEnded(c, *status);
+      // c.running(): not a child that never started (the run would wait for it forever)
+      if ((!status && c.running()) || restarted) any_service_running |= c.name() != kViewer;
     }
     if (!any_service_running) return false;
     printViewerUrl();
@@ -438,17 +439,18 @@ class Supervisor {
   // service that exits with a status stopped on an error it named (bad
   // config, a refused session, a device gone for good): a restart would meet
   // the same error.
-  void onEnded(ChildProcess& c, int status, bool& any_running) {
+  // True when it restarted the child.
+  bool onEnded(ChildProcess& c, int status) {
     if (isFrameSourceService(c.name()) && status == 0 && !source_done_) {
       source_done_ = Clock::now();
       spdlog::info("rekon-{} has finished; waiting for the services to finish", c.name());
     }
-    if (status == 0 || stopping_ || g_interrupted.load()) return;
+    if (status == 0 || stopping_ || g_interrupted.load()) return false;
     const std::string error = lastErrorLine(c.logPath());
     if (c.name() == kViewer) {  // a page nobody can open is no reason to stop a run
       spdlog::warn("rekon-viewer {}{}; the run goes on without it (see {})", describeExit(status),
                    error.empty() ? "" : " (" + error + ")", c.logPath());
-      return;
+      return false;
     }
     const std::string how = "rekon-" + c.name() + " " + describeExit(status) + (error.empty() ? "" : " (" + error + ")");
     const bool restartable = plan_.restartable.count(c.name()) > 0 && killedBySignal(status);
@@ -459,14 +461,14 @@ class Supervisor {
       try {
         c.restart(extra);
         spdlog::info("restarted rekon-{} (pid {})", c.name(), c.pid());
-        any_running = true;
-        return;
+        return true;
       } catch (const Error& e) {
         spdlog::error("{}", e.what());
       }
     }
     fail(how + (restartable ? " (restarted " + std::to_string(c.restarts()) + " times already)" : "") +
          "; the run was stopped, outputs so far are in " + plan_.out + "; see " + c.logPath());
+    return false;
   }
 
   // The viewer's URL (it chooses the port when viewer.port is 0), once, from its log.

@@ -28,6 +28,14 @@ void Inbox::resumeFrom(int64_t first_missing_frame) {
   if (first_missing_frame < 0) return;
   std::lock_guard<std::mutex> lock(mutex_);
   awaiting_frame_ = first_missing_frame;
+  resumed_ = first_missing_frame > 0;
+  resumed_from_ = first_missing_frame;
+}
+
+bool Inbox::away(const std::string& service, double never_heard_s) const {
+  return peers_.gone(service) ||
+         (!peers_.peer(service) &&
+          std::chrono::steady_clock::now() - started_ > std::chrono::duration<double>(never_heard_s));
 }
 
 bool Inbox::beforeResume(int64_t id) {
@@ -235,9 +243,27 @@ bool Inbox::streamOver(bool wait_for_optimiser, bool queue_baseline) {
   // optimiser killed and restarted since does not end the stream.
   const bool tracker_done = peers_.done("tracker");
   const bool optimiser_done = peers_.done("optimiser");
+  const LifecycleTimes& lifecycle = ctx_.lifecycle();
+  const bool optimiser_away = away("optimiser", lifecycle.peer_seen_s);
+  const bool upstream_away = away("tracker", lifecycle.silence_s) && away("optimiser", lifecycle.silence_s);
   std::lock_guard<std::mutex> lock(mutex_);
+  // A fresh mapper waits as before (rekon-replay stands in for both without heartbeats).
+  const bool optimiser_gone = resumed_ && optimiser_away;
+  if (resumed_ && end_frame_ == kNoEndYet && upstream_away) {
+    end_frame_ = resumed_from_ - 1;
+    spdlog::warn("neither rekon-tracker nor rekon-optimiser is heard (lifecycle.silence_s = {:.1f} s): the run ended "
+                 "while this mapper was dead; final pass on its store, up to frame {}",
+                 lifecycle.silence_s, end_frame_);
+    return true;
+  }
   const bool frames_done = end_frame_ != kNoEndYet && (tracker_done || last_resolved_ >= end_frame_);
-  if (end_frame_ != kNoEndYet && (wait_for_optimiser ? optimiser_done : frames_done)) {
+  if (end_frame_ != kNoEndYet && wait_for_optimiser && !optimiser_done && frames_done && optimiser_gone &&
+      !std::exchange(optimiser_gone_said_, true)) {
+    spdlog::warn("every frame is in and rekon-optimiser is gone (not heard within lifecycle.peer_seen_s = {:.1f} s "
+                 "of this start, or silent): final pass on the last poses it sent",
+                 lifecycle.peer_seen_s);
+  }
+  if (end_frame_ != kNoEndYet && (wait_for_optimiser ? optimiser_done || (frames_done && optimiser_gone) : frames_done)) {
     if (optimiser_done) spdlog::info("the optimiser is done");
     return true;
   }

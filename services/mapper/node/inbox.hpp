@@ -104,7 +104,12 @@ class Inbox {
 
   // The main loop's side. True when the stream is over: the end of stream
   // came and every frame was resolved (or the tracker is done), or, with
-  // wait_for_optimiser, the optimiser is done. Once every frame is resolved
+  // wait_for_optimiser, the optimiser is done, or, for a restart with frames
+  // in its store, gone (never heard within lifecycle.peer_seen_s of this
+  // instance's start: it finished before this restart, and its done_t went
+  // to the killed instance). Such a restart that hears neither the tracker
+  // nor the optimiser within lifecycle.silence_s: the run ended while it was
+  // dead, and its store's newest frame is the end. Once every frame is resolved
   // and queue_baseline, BaselineWork is queued (once).
   bool streamOver(bool wait_for_optimiser, bool queue_baseline);
   void logProgress();
@@ -140,6 +145,8 @@ class Inbox {
   // Under the lock: whether the image of `id` came before the resume point's
   // own frame (then dropped); ends the wait once the source has rewound.
   bool beforeResume(int64_t id);
+  // `service` gone (heard, then silent), or never heard within `never_heard_s` of this instance's start.
+  bool away(const std::string& service, double never_heard_s) const;
 
   ServiceContext& ctx_;
   const size_t max_queued_;
@@ -148,6 +155,8 @@ class Inbox {
   GraphUpdateFilter filter_;  // each update carries every pose: only the newest matters
   FrameReceiver receiver_;
   PeerWatch peers_;  // whose done_t counts: the current instances' only
+  const std::chrono::steady_clock::time_point started_ = std::chrono::steady_clock::now();
+  bool optimiser_gone_said_ = false;
 
   std::mutex mutex_;
   std::condition_variable work_ready_, idle_;
@@ -161,6 +170,8 @@ class Inbox {
   int64_t last_resolved_ = -1;  // newest frame joined or given up on
   InboxCounts counts_;
   bool baseline_queued_ = false;
+  bool resumed_ = false;  // resumeFrom() past frame 0: a restart with frames in its store
+  int64_t resumed_from_ = -1;
   // Inbox::resumeFrom: the frame a restarted mapper waits for first (-1: none
   // or it came), and the newest frame dropped while waiting, with when the
   // first was (a source that lost the resume point's frame itself rewound
