@@ -19,6 +19,9 @@
 # Each check's time, count and outcome go to OUT/kill_checks.log (the
 # evidence when a kill is missed).
 #
+# KILL_COUNT=fused: the count is of frames the mapper has fused (rows of
+# OUT/mapper_timing.csv) instead of stored KF keyframes.
+#
 # KILL_ALONE=1: once the count is reached the service is held stopped until
 # every other service has exited (its peers take its silence for its end:
 # set lifecycle.silence_s low), then killed: the last service standing.
@@ -74,11 +77,15 @@ tryKill() {
   fi
   pid=$(pidOf "$service")
   [ -n "$pid" ] && kill -STOP "$pid" 2> /dev/null && stopped "$pid" || { note "rekon-$service (pid ${pid:-none}) not stopped"; kill -CONT "$pid" 2> /dev/null; return 1; }
-  n=$(stored)
-  note "stored $n with rekon-$service (pid $pid) stopped"
+  if [ "${KILL_COUNT:-}" = fused ]; then
+    n=$(( $(wc -l < "$out/mapper_timing.csv" 2> /dev/null || echo 1) - 1 ))
+  else
+    n=$(stored)
+  fi
+  note "${KILL_COUNT:-stored} $n with rekon-$service (pid $pid) stopped"
   if [ "$n" -ge "$min" ]; then
     [ -n "${KILL_ALONE:-}" ] && waitAlone
-    kill -9 "$pid" && killed="rekon-$service (pid $pid) with $n KF keyframes stored"
+    kill -9 "$pid" && killed="rekon-$service (pid $pid) with $n ${KILL_COUNT:-KF keyframes stored}"
     return 0
   fi
   kill -CONT "$pid" 2> /dev/null

@@ -9,6 +9,7 @@
 #include <spdlog/spdlog.h>
 #include <yaml-cpp/yaml.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <filesystem>
@@ -92,16 +93,23 @@ size_t poseCount(const std::string& trajectory) {
   return n;
 }
 
-// SIGKILL to one of the victims running now, chosen by `rng`; nullopt when none runs.
+// SIGKILL to one of the victims running now, chosen by `rng`; nullopt when
+// none runs, or when only one service of the run still runs: the last one
+// standing has finished peers, which its restart waits lifecycle.silence_s
+// (5 s) to stop hearing, and kills every second kept a restarted player from
+// ever ending the run (the room's chaos test, 215 kills until rekon run's
+// 240 s timeout). tests/faults covers that kill on its own.
 std::optional<Kill> killOne(const std::vector<std::string>& victims, const std::string& run_log, std::mt19937_64& rng,
                             double at_s) {
   const auto pids = servicePids(run_log);
+  const auto running = [](int pid) { return ::kill(pid, 0) == 0; };
   std::vector<std::pair<std::string, int>> alive;
   for (const auto& v : victims) {
     const auto it = pids.find(v);
-    if (it != pids.end() && ::kill(it->second, 0) == 0) alive.emplace_back(*it);
+    if (it != pids.end() && running(it->second)) alive.emplace_back(*it);
   }
-  if (alive.empty()) return std::nullopt;
+  const auto services_running = std::count_if(pids.begin(), pids.end(), [&](const auto& p) { return running(p.second); });
+  if (alive.empty() || services_running < 2) return std::nullopt;
   const auto& [service, pid] = alive[std::uniform_int_distribution<size_t>(0, alive.size() - 1)(rng)];
   if (::kill(pid, SIGKILL) != 0) return std::nullopt;
   spdlog::info("chaos: killed rekon-{} (pid {}) at {:.1f} s", service, pid, at_s);

@@ -64,17 +64,23 @@ Settings readSettings(const ServiceContext& ctx) {
 
 // Where the frame source resumes for this instance: after the frames of the
 // keyframes it restored from its store (a restart), or from the first.
-rekon_msgs::resume_point_t resumePoint(const ServiceContext& ctx, const Mapper& mapper) {
+// A restart (mapper.resume) whose store holds no KF keyframe yet resumes at
+// frame 0: the frames its killed instance was fusing died with it (a chaos
+// run once lost frames 0-25 of the room's first KF keyframe this way).
+rekon_msgs::resume_point_t resumePoint(const ServiceContext& ctx, const Mapper& mapper, bool resume) {
   rekon_msgs::resume_point_t resume_point{};
   resume_point.service = ctx.name();
   resume_point.pid = static_cast<int32_t>(getpid());
   resume_point.first_missing_frame = mapper.firstMissingFrame();
+  if (resume && resume_point.first_missing_frame < 0) resume_point.first_missing_frame = 0;
   return resume_point;
 }
 
 void announceStart(ServiceContext& ctx, const Settings& settings, const rekon_msgs::resume_point_t& resume_point) {
   ctx.bus().publish(channel::kResumePoint, resume_point);
-  if (resume_point.first_missing_frame >= 0)
+  if (resume_point.first_missing_frame == 0)
+    spdlog::info("mapper: resuming at frame 0 (no KF keyframe in the keyframe store yet)");
+  else if (resume_point.first_missing_frame > 0)
     spdlog::info("mapper: resuming after frame {} (the newest in the keyframe store)", resume_point.first_missing_frame - 1);
   ctx.setState("running");
   const MapperParams& params = settings.params;
@@ -136,7 +142,7 @@ void sayTheEndAgain(ServiceContext& ctx, const Settings& settings, Mapper& mappe
   spdlog::info("keyframe store '{}': its run finished at frame {} and its outputs are written; saying done again",
                settings.params.store.segment, end_frame);
   ctx.keepEarlierStatsFile();
-  rekon_msgs::resume_point_t resume_point = resumePoint(ctx, mapper);
+  rekon_msgs::resume_point_t resume_point = resumePoint(ctx, mapper, true);
   resume_point.first_missing_frame = end_frame + 1;
   ctx.bus().publish(channel::kResumePoint, resume_point);
   ctx.setState("finishing");
@@ -155,12 +161,12 @@ void runMapperService(ServiceContext& ctx) {
   MeshPublisher mesh(ctx, settings.mesh, settings.params.volume);
   MappingWorker worker(ctx, mapper, inbox, mesh);
   StopThreadsOnExit stop_threads(ctx);  // before the state above dies: the bus handlers use it
-  inbox.resumeFrom(mapper.firstMissingFrame());
+  const rekon_msgs::resume_point_t resume_point = resumePoint(ctx, mapper, settings.params.resume);
+  inbox.resumeFrom(resume_point.first_missing_frame);
   inbox.subscribe();
   mesh.subscribe();
   std::thread worker_thread([&] { worker.run(); });
 
-  const rekon_msgs::resume_point_t resume_point = resumePoint(ctx, mapper);
   announceStart(ctx, settings, resume_point);
   serveTheStream(ctx, inbox, settings, resume_point);
   const bool clean = !ctx.stopRequested();
