@@ -177,6 +177,10 @@ rekon_msgs::resume_point_t restoreAfterRestart(ServiceContext& ctx, TrackerState
   worker.restoreOdometry(restored.odometry);
   resumeTracking(restored, root, aligner, worker);
   resume.first_missing_frame = restored.last_frame_id < 0 ? -1 : restored.last_frame_id + 1;
+  // Its heartbeats say the journal's newest frame, not -1: a player restarted
+  // after this restart goes on after it (from -1 it sent every frame again to
+  // a tracker that had finished, and waited 60 s for an acknowledgement).
+  ctx.setLastFrame(restored.last_frame_id);
   const double rewind_wait_s = ctx.config().getDouble("tracker.rewind_wait_s");
   if (rewind_wait_s < 0) throw Error("tracker.rewind_wait_s must be 0 or more seconds");
   inbox.resumeFrom(resume.first_missing_frame, rewind_wait_s * ctx.config().getDouble("lifecycle.load_factor"));
