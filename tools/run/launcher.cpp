@@ -360,13 +360,12 @@ class Supervisor {
   bool step() {
     bool any_service_running = false;
     for (auto& c : plan_.children) {
-      // A child restarted just now runs too: the last service standing, killed
-      // and restarted, once ended the run (exit 0) while its restart was still
-      // writing the outputs (tools/rekon stress, Faults.MapperKilledAfterTheLastFrame...).
-      const auto status = c.poll();
-      const bool restarted = status && onEnded(c, *status);
-      // c.running(): not a child that never started (the run would wait for it forever)
-      if ((!status && c.running()) || restarted) any_service_running |= c.name() != kViewer;
+      if (const auto status = c.poll()) onEnded(c, *status);
+      // Asked after onEnded: a child restarted just now runs too (the last
+      // service standing, killed and restarted, once ended the run with exit 0
+      // while its restart was still writing the outputs); a child that never
+      // started does not (the run would wait for it forever).
+      if (c.running()) any_service_running |= c.name() != kViewer;
     }
     if (!any_service_running) return false;
     printViewerUrl();
@@ -439,18 +438,17 @@ class Supervisor {
   // service that exits with a status stopped on an error it named (bad
   // config, a refused session, a device gone for good): a restart would meet
   // the same error.
-  // True when it restarted the child.
-  bool onEnded(ChildProcess& c, int status) {
+  void onEnded(ChildProcess& c, int status) {
     if (isFrameSourceService(c.name()) && status == 0 && !source_done_) {
       source_done_ = Clock::now();
       spdlog::info("rekon-{} has finished; waiting for the services to finish", c.name());
     }
-    if (status == 0 || stopping_ || g_interrupted.load()) return false;
+    if (status == 0 || stopping_ || g_interrupted.load()) return;
     const std::string error = lastErrorLine(c.logPath());
     if (c.name() == kViewer) {  // a page nobody can open is no reason to stop a run
       spdlog::warn("rekon-viewer {}{}; the run goes on without it (see {})", describeExit(status),
                    error.empty() ? "" : " (" + error + ")", c.logPath());
-      return false;
+      return;
     }
     const std::string how = "rekon-" + c.name() + " " + describeExit(status) + (error.empty() ? "" : " (" + error + ")");
     const bool restartable = plan_.restartable.count(c.name()) > 0 && killedBySignal(status);
@@ -461,14 +459,13 @@ class Supervisor {
       try {
         c.restart(extra);
         spdlog::info("restarted rekon-{} (pid {})", c.name(), c.pid());
-        return true;
+        return;
       } catch (const Error& e) {
         spdlog::error("{}", e.what());
       }
     }
     fail(how + (restartable ? " (restarted " + std::to_string(c.restarts()) + " times already)" : "") +
          "; the run was stopped, outputs so far are in " + plan_.out + "; see " + c.logPath());
-    return false;
   }
 
   // The viewer's URL (it chooses the port when viewer.port is 0), once, from its log.

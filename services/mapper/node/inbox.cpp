@@ -28,7 +28,6 @@ void Inbox::resumeFrom(int64_t first_missing_frame) {
   if (first_missing_frame < 0) return;
   std::lock_guard<std::mutex> lock(mutex_);
   awaiting_frame_ = first_missing_frame;
-  resumed_ = first_missing_frame > 0;
   resumed_from_ = first_missing_frame;
 }
 
@@ -248,8 +247,9 @@ bool Inbox::streamOver(bool wait_for_optimiser, bool queue_baseline) {
   const bool upstream_away = away("tracker", lifecycle.silence_s) && away("optimiser", lifecycle.silence_s);
   std::lock_guard<std::mutex> lock(mutex_);
   // A fresh mapper waits as before (rekon-replay stands in for both without heartbeats).
-  const bool optimiser_gone = resumed_ && optimiser_away;
-  if (resumed_ && end_frame_ == kNoEndYet && upstream_away) {
+  const bool resumed = resumed_from_ > 0;  // a restart with frames in its store
+  const bool optimiser_gone = resumed && optimiser_away;
+  if (resumed && end_frame_ == kNoEndYet && upstream_away) {
     end_frame_ = resumed_from_ - 1;
     spdlog::warn("neither rekon-tracker nor rekon-optimiser is heard (lifecycle.silence_s = {:.1f} s): the run ended "
                  "while this mapper was dead; final pass on its store, up to frame {}",

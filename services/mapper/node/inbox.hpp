@@ -170,8 +170,7 @@ class Inbox {
   int64_t last_resolved_ = -1;  // newest frame joined or given up on
   InboxCounts counts_;
   bool baseline_queued_ = false;
-  bool resumed_ = false;  // resumeFrom() past frame 0: a restart with frames in its store
-  int64_t resumed_from_ = -1;
+  int64_t resumed_from_ = -1;  // resumeFrom()'s frame; past 0: a restart with frames in its store
   // Inbox::resumeFrom: the frame a restarted mapper waits for first (-1: none
   // or it came), and the newest frame dropped while waiting, with when the
   // first was (a source that lost the resume point's frame itself rewound
