@@ -8,6 +8,7 @@
 
 #include <cstdio>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "rekon/common/pose.hpp"
@@ -117,4 +118,36 @@ TEST(PriorsOnTheBus, ADriftedReplayWithAFewPriorsEndsWithABetterMap) {
   // Bounds: 10 % either way for the drift, 0.7 for the ratio.
   EXPECT_NEAR(plain.corr_m, 0.01503, 0.0015);
   EXPECT_LT(corrected.corr_m, 0.7 * plain.corr_m);
+}
+
+// `rekon constrain` sends its constraint again until the optimiser sends it
+// back. The optimiser here drops 80 % of what it receives (lcm.drop_fraction,
+// seeded: the first 5 messages on REKON_EXTERNAL_CONSTRAINTS are dropped,
+// the 6th passes), which the three unacknowledged copies of before
+// never got through; then 99.9 % (the first 19 dropped), which must end in one line and exit 1.
+TEST(PriorsOnTheBus, AConstraintIsSentAgainUntilTheOptimiserAcknowledgesIt) {
+  rekon::test::TempDir dir;
+  auto run = [&](const std::string& name, const std::string& drop, const std::string& wait) {
+    const std::string out = dir / name;
+    const std::string script = "mkdir -p " + out + "; timeout 60 " + bin() + "/rekon-optimiser --out " + out +
+                               " --set lcm.drop_fraction=" + drop + " > " + out +
+                               "/optimiser.log 2>&1 & o=$!; timeout 60 " + bin() +
+                               "/rekon constrain --source test --sequence 1 --prior 3 --pose \"0 0 0 0 0 0 1\" --wait " +
+                               wait + " 2>&1; c=$?; kill -TERM $o; wait $o; exit $c";
+    std::string log;
+    const int rc = runCommand(rekon::test::inNetns() + " bash -c '" + script + "'", &log);
+    return std::make_pair(rc, log + "\noptimiser:\n" + readText(out + "/optimiser.log"));
+  };
+  const auto [rc, log] = run("lossy", "0.8", "20");
+  ASSERT_EQ(rc, 0) << log;
+  // At least 6: copies sent before the optimiser listened are lost too, uncounted by its drop hook.
+  const size_t at = log.find("rekon-optimiser acknowledged it after ");
+  ASSERT_NE(at, std::string::npos) << log;
+  const int copies = std::stoi(log.substr(at + std::string("rekon-optimiser acknowledged it after ").size()));
+  std::printf("acknowledged after %d copies at 80 %% loss\n", copies);
+  EXPECT_GE(copies, 6) << log;
+
+  const auto [deaf_rc, deaf_log] = run("deaf", "0.999", "2");
+  EXPECT_EQ(deaf_rc, 1) << deaf_log;
+  EXPECT_NE(deaf_log.find("rekon-optimiser did not acknowledge constraint 1 within 2 s"), std::string::npos) << deaf_log;
 }

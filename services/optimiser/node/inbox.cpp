@@ -45,6 +45,7 @@ void Inbox::subscribe(PeerWatch& peers) {
                                                        externals_.push_back(std::move(e));
                                                      }
                                                      wake_.notify_one();
+                                                     ctx_.bus().publish(kExternalConstraintsAckChannel, m);
                                                    } catch (const Error& e) {
                                                      reject(e);
                                                    }

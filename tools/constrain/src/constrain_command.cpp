@@ -4,6 +4,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include <atomic>
 #include <chrono>
 #include <sstream>
 #include <thread>
@@ -18,8 +19,14 @@
 namespace rekon::constrain {
 namespace {
 
-// Sent this many times this far apart: UDP may drop one, and the optimiser
-// counts repeats of one (source, sequence) once.
+using Clock = std::chrono::steady_clock;
+
+// Sent again this often until the optimiser sends it back: UDP may drop a
+// copy, and an optimiser seen starting may not listen yet (a prior sent three
+// times within 100 ms of its first heartbeat was lost that way). The
+// optimiser counts repeats of one (source, sequence) once.
+constexpr auto kResendGap = std::chrono::milliseconds(200);
+// With --wait 0 (nobody to acknowledge: a recorded bus, say) it goes out this many times this far apart.
 constexpr int kRepeats = 3;
 constexpr auto kRepeatGap = std::chrono::milliseconds(50);
 
@@ -82,15 +89,55 @@ rekon_msgs::external_constraint_t messageFromArgs(const ArgParser& args) {
   return m;
 }
 
-void waitForOptimiser(ServiceContext& ctx, double seconds) {
-  PeerWatch peers(ctx.bus(), ctx.lifecycle());
-  const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
-  while (!peers.alive("optimiser")) {
-    if (ctx.stopRequested()) return;
-    if (std::chrono::steady_clock::now() > until)
-      throw Error("no rekon-optimiser heartbeat within " + fmt::format("{}", seconds) +
-                  " s: start the run first, or pass --wait 0 to send anyway");
-    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+// Sends one constraint to the optimiser and waits for it to come back. The
+// bus thread writes into it: stop that thread before it dies.
+class AcknowledgedSend {
+ public:
+  AcknowledgedSend(ServiceContext& ctx, const rekon_msgs::external_constraint_t& m, double wait_s)
+      : ctx_(ctx), m_(m), wait_s_(wait_s), peers_(ctx.bus(), ctx.lifecycle()) {
+    ctx.bus().subscribe<rekon_msgs::external_constraint_t>(
+        optimiser::kExternalConstraintsAckChannel, [this](const rekon_msgs::external_constraint_t& ack) {
+          if (ack.source == m_.source && ack.sequence == m_.sequence) acknowledged_ = true;
+        });
+  }
+
+  // Waits for the optimiser's heartbeat, then sends until it sends the
+  // constraint back; throws at the deadline. Returns the copies sent.
+  int run() {
+    const auto until = Clock::now() + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(wait_s_));
+    while (!peers_.alive("optimiser")) {
+      if (ctx_.stopRequested()) return 0;
+      if (Clock::now() > until)
+        throw Error(fmt::format("no rekon-optimiser heartbeat within {} s: start the run first, or pass --wait 0 to "
+                                "send anyway", wait_s_));
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    }
+    int sent = 0;
+    while (!acknowledged_ && !ctx_.stopRequested()) {
+      if (Clock::now() > until)
+        throw Error(fmt::format("rekon-optimiser did not acknowledge constraint {} within {} s ({} copies sent): is "
+                                "it overloaded? Pass a longer --wait",
+                                m_.sequence, wait_s_, sent));
+      ctx_.bus().publish(optimiser::kExternalConstraintsChannel, m_);
+      ++sent;
+      for (auto next = Clock::now() + kResendGap; !acknowledged_ && Clock::now() < next;)
+        std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+    return sent;
+  }
+
+ private:
+  ServiceContext& ctx_;
+  const rekon_msgs::external_constraint_t m_;
+  const double wait_s_;
+  PeerWatch peers_;
+  std::atomic<bool> acknowledged_{false};
+};
+
+void sendWithoutWaiting(ServiceContext& ctx, const rekon_msgs::external_constraint_t& m) {
+  for (int i = 0; i < kRepeats && !ctx.stopRequested(); ++i) {
+    if (i > 0) std::this_thread::sleep_for(kRepeatGap);
+    ctx.bus().publish(optimiser::kExternalConstraintsChannel, m);
   }
 }
 
@@ -110,19 +157,26 @@ int constrainCommand(int argc, char** argv) {
             .option("information", "36 numbers: the full 6x6 information matrix instead of --sigma")
             .option("source", "who sends it (named in the optimiser's log)", "rekon constrain")
             .option("sequence", "this constraint's number for its source (default: the time in microseconds)")
-            .option("wait", "seconds to wait for the optimiser's heartbeat (0: send at once)", "10");
+            .option("wait", "seconds to wait for the optimiser's heartbeat and acknowledgement (0: send 3 copies at once, "
+                    "unacknowledged)", "10");
       },
       [](ServiceContext& ctx) {
         const rekon_msgs::external_constraint_t m = messageFromArgs(ctx.args());
         ctx.setState("running");
         const double wait = ctx.args().getDouble("wait");
-        if (wait > 0) waitForOptimiser(ctx, wait);
-        for (int i = 0; i < kRepeats && !ctx.stopRequested(); ++i) {
-          if (i > 0) std::this_thread::sleep_for(kRepeatGap);
-          ctx.bus().publish(optimiser::kExternalConstraintsChannel, m);
+        const char* kind = m.kind == rekon_msgs::external_constraint_t::KIND_PRIOR ? "prior" : "loop";
+        if (!(wait > 0)) {
+          sendWithoutWaiting(ctx, m);
+          spdlog::info("sent {} constraint {} from {} {} times (not waiting for an acknowledgement)", kind, m.sequence,
+                       m.source, kRepeats);
+          return;
         }
-        spdlog::info("sent {} constraint {} from {}",
-                     m.kind == rekon_msgs::external_constraint_t::KIND_PRIOR ? "prior" : "loop", m.sequence, m.source);
+        AcknowledgedSend send(ctx, m, wait);
+        StopThreadsOnExit stop_threads(ctx);  // before `send` dies: the bus thread writes into it
+        const int sent = send.run();
+        if (!ctx.stopRequested())
+          spdlog::info("sent {} constraint {} from {}: rekon-optimiser acknowledged it after {} cop{}", kind,
+                       m.sequence, m.source, sent, sent == 1 ? "y" : "ies");
       });
 }
 

@@ -20,6 +20,9 @@ namespace rekon::optimiser {
 // The channel of external_constraint_t, from any process (`rekon constrain`);
 // only the optimiser listens (after the prefix, as the names in bus.hpp).
 inline constexpr const char* kExternalConstraintsChannel = "EXTERNAL_CONSTRAINTS";
+// The optimiser sends each external_constraint_t it took in (a repeat too)
+// back on this channel: a sender resends until it sees its own come back.
+inline constexpr const char* kExternalConstraintsAckChannel = "EXTERNAL_CONSTRAINTS_ACK";
 
 struct KeyframeIn {
   int64_t id = 0;
