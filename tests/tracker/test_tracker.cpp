@@ -131,6 +131,11 @@ TEST(TrackerParams, DefaultConfigGivesTheNamedDefaults) {
   EXPECT_DOUBLE_EQ(p.keyframe.entropy_ratio, d.keyframe.entropy_ratio);
   EXPECT_DOUBLE_EQ(p.keyframe.max_translation, d.keyframe.max_translation);
   EXPECT_DOUBLE_EQ(p.keyframe.max_rotation_deg, d.keyframe.max_rotation_deg);
+  EXPECT_EQ(p.keyframe.reuse, d.keyframe.reuse);
+  EXPECT_DOUBLE_EQ(p.keyframe.reuse_radius, d.keyframe.reuse_radius);
+  EXPECT_DOUBLE_EQ(p.keyframe.reuse_angle_deg, d.keyframe.reuse_angle_deg);
+  EXPECT_EQ(p.keyframe.reuse_candidates, d.keyframe.reuse_candidates);
+  EXPECT_EQ(p.keyframe.reuse_exclude_recent, d.keyframe.reuse_exclude_recent);
   EXPECT_DOUBLE_EQ(p.lost.min_valid_depth_fraction, d.lost.min_valid_depth_fraction);
   EXPECT_DOUBLE_EQ(p.lost.min_mean_intensity, d.lost.min_mean_intensity);
   EXPECT_DOUBLE_EQ(p.lost.min_overlap, d.lost.min_overlap);
@@ -159,6 +164,13 @@ TEST(TrackerParams, OutOfRangeValueIsAnErrorNamingTheKey) {
   EXPECT_THROW(trackerParamsFromConfig(Config::load("", {"tracker.loop_refine_photometric_weight=1.5"})), Error);
   EXPECT_THROW(trackerParamsFromConfig(Config::load("", {"tracker.gap_coarsest_level=2"})), Error);  // below coarsest
   EXPECT_THROW(trackerParamsFromConfig(Config::load("", {"tracker.keyframes_in_memory=1"})), Error);
+  try {
+    trackerParamsFromConfig(Config::load("", {"tracker.keyframe_reuse_radius=0"}));
+    FAIL() << "a reuse radius of 0 was accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("tracker.keyframe_reuse_radius"), std::string::npos) << e.what();
+  }
+  EXPECT_THROW(trackerParamsFromConfig(Config::load("", {"tracker.keyframe_reuse_candidates=0"})), Error);
 }
 
 // Keyframe selection on the room's loop with Kinect-like noise: 150 frames

@@ -57,6 +57,7 @@ void History::publishResult(const TrackResult& r) {
   };
   if (r.odometry) publish_edge(rekon_msgs::constraint_t::KIND_ODOMETRY, *r.odometry);
   if (r.relocalised_from) publish_edge(rekon_msgs::constraint_t::KIND_LOOP, *r.relocalised_from);
+  if (r.reuse_edge) publish_edge(rekon_msgs::constraint_t::KIND_LOOP, *r.reuse_edge);
   tracked_[r.frame_id] = tf;
   published_for_[r.frame_id] = mapper_instance_;
   journal(kTrackedFrameRecord, tf);
@@ -200,20 +201,23 @@ class OdometryFollower {
     last_world_ = world;
     last_timestamp_ = tf.timestamp;
   }
-  // Any tracked frame: the first one aligned against each keyframe sets that
-  // keyframe's reference entropy (a keyframe's own frame has no covariance).
+  // Any good tracked frame: the first one aligned against a keyframe since
+  // tracking switched to it sets the reference entropy (a keyframe's own
+  // frame has no covariance; a reused keyframe's is the reusing frame's).
   void aligned(const rekon_msgs::tracked_frame_t& tf) {
     if (tf.state != rekon_msgs::tracked_frame_t::STATE_OK) return;
+    if (tf.keyframe_id != run_keyframe_) {
+      run_keyframe_ = tf.keyframe_id;
+      run_entropy_.reset();
+    }
     const auto covariance = matrix6FromArray(tf.covariance);
-    if (covariance && !covariance->isZero())
-      first_entropy_.try_emplace(tf.keyframe_id, entropyOfInformation(covariance->inverse()));
+    if (covariance && !covariance->isZero() && !run_entropy_) run_entropy_ = entropyOfInformation(covariance->inverse());
   }
   // At the end: the newest frame made keyframe `own_keyframe` (-1: none), whose incoming edge has `own_entropy`.
   std::optional<OdometryState> state(int64_t own_keyframe, std::optional<double> own_entropy) const {
     if (!state_) return std::nullopt;
     OdometryState s = *state_;
-    const auto reference = first_entropy_.find(s.keyframe_id);
-    if (reference != first_entropy_.end()) s.reference_entropy = reference->second;
+    if (run_keyframe_ == s.keyframe_id) s.reference_entropy = run_entropy_;
     if (own_keyframe == s.keyframe_id) s.keyframe_entropy = own_entropy;
     return s;
   }
@@ -222,7 +226,8 @@ class OdometryFollower {
   std::optional<OdometryState> state_;
   std::optional<Pose> last_world_;
   double last_timestamp_ = 0.0;
-  std::map<int64_t, double> first_entropy_;
+  int64_t run_keyframe_ = -1;  // the keyframe the newest good frames were tracked against
+  std::optional<double> run_entropy_;
 };
 
 }  // namespace

@@ -46,6 +46,7 @@ void writeOutputs(ServiceContext& ctx, const TrackingTotals& totals, int64_t fra
       .set("frames", static_cast<long long>(totals.frames))
       .set("lost_frames", static_cast<long long>(totals.lost))
       .set("keyframes", static_cast<long long>(totals.keyframes))
+      .set("keyframes_reused", static_cast<long long>(totals.keyframes_reused))
       .set("odometry_constraints", static_cast<long long>(totals.constraints))
       .set("relocalisations", static_cast<long long>(totals.relocalisations))
       .set("undecodable_frames", static_cast<long long>(totals.undecodable))

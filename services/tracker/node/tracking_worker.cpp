@@ -168,6 +168,7 @@ bool TrackingWorker::trackLocked(const rekon_msgs::frame_t& msg) {
   totals_.constraints += r.odometry.has_value();
   totals_.relocalisations += r.relocalised_from.has_value() && !r.reanchored;
   totals_.reanchored += r.reanchored;
+  totals_.keyframes_reused += r.keyframe_reused;
   if (session_.localise_only && r.state == TrackingState::Ok) totals_.localised.push_back({r.timestamp, r.pose_world});
   totals_.odometry.push_back({r.timestamp, r.pose_world});
   totals_.lost_intervals.add(r);

@@ -28,6 +28,7 @@ struct TrackingCounts {
   int64_t restored_frames = 0;  // a restart: tracked by the killed instances (their journal), not in `frames`
   int64_t frames = 0, lost = 0, keyframes = 0, constraints = 0, undecodable = 0, relocalisations = 0;
   int64_t reanchored = 0;  // session.localise_only: due keyframes placed by the map (not in relocalisations)
+  int64_t keyframes_reused = 0;  // tracker.keyframe_reuse: due keyframes not made (an existing one reused)
 };
 
 struct TrackingTotals : TrackingCounts {

@@ -195,6 +195,14 @@ std::vector<int64_t> LoopClosureDetector::ids() const {
   return out;
 }
 
+bool LoopClosureDetector::odometryLinked(int64_t a, int64_t b) const {
+  const auto from = [&](int64_t to, int64_t from_id) {
+    const auto it = entries_.find(to);
+    return it != entries_.end() && it->second.incoming && it->second.incoming->from_id == from_id;
+  };
+  return from(a, b) || from(b, a);
+}
+
 CandidateCheck LoopClosureDetector::check(int64_t candidate_id, int64_t keyframe_id) {
   const auto cur = entries_.find(keyframe_id);
   if (cur == entries_.end()) {

@@ -50,6 +50,11 @@ void KeyframeParams::validate() const {
           "positive");
   require(std::isfinite(max_rotation_deg) && max_rotation_deg > 0 && max_rotation_deg <= 180,
           "keyframe_max_rotation_deg", max_rotation_deg, "in (0, 180]");
+  require(std::isfinite(reuse_radius) && reuse_radius > 0, "keyframe_reuse_radius", reuse_radius, "positive (metres)");
+  require(std::isfinite(reuse_angle_deg) && reuse_angle_deg > 0 && reuse_angle_deg <= 180, "keyframe_reuse_angle_deg",
+          reuse_angle_deg, "in (0, 180]");
+  require(reuse_candidates >= 1, "keyframe_reuse_candidates", reuse_candidates, "at least 1");
+  require(reuse_exclude_recent >= 0, "keyframe_reuse_exclude_recent", reuse_exclude_recent, "0 or more");
 }
 
 void LostParams::validate() const {
@@ -132,6 +137,11 @@ TrackerParams trackerParamsFromConfig(const Config& c) {
   p.keyframe.entropy_ratio = c.getDouble("tracker.keyframe_entropy_ratio");
   p.keyframe.max_translation = c.getDouble("tracker.keyframe_max_translation");
   p.keyframe.max_rotation_deg = c.getDouble("tracker.keyframe_max_rotation_deg");
+  p.keyframe.reuse = c.getBool("tracker.keyframe_reuse");
+  p.keyframe.reuse_radius = c.getDouble("tracker.keyframe_reuse_radius");
+  p.keyframe.reuse_angle_deg = c.getDouble("tracker.keyframe_reuse_angle_deg");
+  p.keyframe.reuse_candidates = c.getInt("tracker.keyframe_reuse_candidates");
+  p.keyframe.reuse_exclude_recent = c.getInt("tracker.keyframe_reuse_exclude_recent");
   p.lost.min_valid_depth_fraction = c.getDouble("tracker.lost_min_valid_depth_fraction");
   p.lost.min_mean_intensity = c.getDouble("tracker.lost_min_mean_intensity");
   p.lost.min_overlap = c.getDouble("tracker.lost_min_overlap");

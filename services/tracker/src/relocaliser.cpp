@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <numbers>
 #include <utility>
 
 namespace rekon::tracker {
@@ -70,6 +71,40 @@ std::optional<Relocalisation> Relocaliser::relocalise(const Keyframe& query, con
     r.edge = *c.constraint;
     r.pose_world = orthonormalised(detector_.estimate(candidate) * r.edge.relative);
     r.candidates_tried = tried_;
+    return r;
+  }
+  return std::nullopt;
+}
+
+std::optional<Relocalisation> Relocaliser::reuse(const Keyframe& query, int64_t current_id, const Pose& in_current,
+                                                 const KeyframeParams& params) {
+  const Pose at = orthonormalised(detector_.estimate(current_id) * in_current);
+  const double max_angle = params.reuse_angle_deg * std::numbers::pi / 180.0;
+  std::vector<std::pair<double, int64_t>> near;
+  const std::vector<int64_t> ids = detector_.ids();
+  for (const int64_t id : ids) {
+    if (id == current_id || id > ids.back() - params.reuse_exclude_recent) continue;
+    const Pose other = detector_.estimate(id);
+    const double d = translationDistance(other, at);
+    if (d <= params.reuse_radius && rotationAngle(other, at) <= max_angle) near.emplace_back(d, id);
+  }
+  std::sort(near.begin(), near.end());
+  near.resize(std::min(near.size(), static_cast<size_t>(params.reuse_candidates)));
+  int tried = 0;
+  for (const auto& [distance, candidate] : near) {
+    ++tried;
+    // From the candidate itself and from where the estimates put the frame, as a loop check starts.
+    const Pose guess = orthonormalised(detector_.estimate(candidate).inverse() * at);
+    const CandidateCheck c = detector_.check(candidate, query, {Pose::Identity(), guess});
+    spdlog::debug("keyframe reuse: frame {} against keyframe {} ({:.3f} m away): {} (ln det ratios coarse {:.3f}, fine "
+                  "{:.3f})",
+                  query.frame_id, candidate, distance, c.accepted ? "accepted" : c.reason, c.best_coarse_ratio,
+                  c.best_fine_ratio);
+    if (!c.accepted) continue;
+    Relocalisation r;
+    r.edge = *c.constraint;
+    r.pose_world = orthonormalised(detector_.estimate(candidate) * r.edge.relative);
+    r.candidates_tried = tried;
     return r;
   }
   return std::nullopt;

@@ -75,7 +75,12 @@ std::shared_ptr<Keyframe> Tracker::keyframeOf(const RgbdFrame& frame, int64_t id
 
 std::shared_ptr<const Keyframe> Tracker::makeKeyframe(const RgbdFrame& frame, const Pose& pose_world,
                                                       std::optional<double> incoming_entropy) {
-  auto kf = keyframeOf(frame, next_keyframe_id_++);
+  return makeKeyframe(keyframeOf(frame, next_keyframe_id_), pose_world, incoming_entropy);
+}
+
+std::shared_ptr<const Keyframe> Tracker::makeKeyframe(std::shared_ptr<Keyframe> kf, const Pose& pose_world,
+                                                      std::optional<double> incoming_entropy) {
+  ++next_keyframe_id_;
   kf->pose_world = orthonormalised(pose_world);  // products of many poses drift off SO(3)
   last_in_keyframe_ = Pose::Identity();
   reference_entropy_.reset();
@@ -135,6 +140,49 @@ bool Tracker::relocalise(const RgbdFrame& frame, const std::optional<Pose>& gues
   reportStartedKeyframe(r);
   spdlog::log(log_level, "frame {}: relocalised against keyframe {} ({} candidates tried; ln det ratios coarse {:.2f}, fine {:.2f})",
               frame.id, edge.from_id, found->candidates_tried, found->edge.coarse_ratio, found->edge.fine_ratio);
+  return true;
+}
+
+bool Tracker::reuseKeyframe(const Keyframe& query, const AlignResult& aligned, TrackResult& r) {
+  const auto found = relocaliser_->reuse(query, keyframe_->id, aligned.pose, params_.keyframe);
+  if (!found) return false;
+  const int64_t left = keyframe_->id, reused = found->edge.from_id;
+  // The frame in the reused keyframe (A, the loop check's) and in the one it
+  // was tracked against (B): the reused keyframe's pose in that one's frame is
+  // X = A B^-1, and with right perturbations a of A and b of B,
+  // X exp(xi) = A exp(a) exp(-b) B^-1, so xi = Ad(B) (a - b).
+  const Pose& in_reused = found->edge.relative;
+  const Matrix6d reuse_covariance = found->edge.information.inverse();
+  const Matrix6d carry = adjoint(aligned.pose);
+  if (!reuse_edges_sent_.count(std::minmax(left, reused)) && !relocaliser_->odometryLinked(left, reused)) {
+    OdometryConstraint edge;
+    edge.from_id = reused;
+    edge.to_id = left;
+    edge.relative = orthonormalised(in_reused * aligned.pose.inverse());
+    edge.information = (carry * (reuse_covariance + aligned.covariance()) * carry.transpose()).inverse();
+    edge.entropy = entropyOfInformation(edge.information);
+    edge.valid_pixels = found->edge.valid_pixels;
+    r.reuse_edge = edge;
+    reuse_edges_sent_.insert(std::minmax(left, reused));
+  }
+  // The frame is the last good one, aligned against the reused keyframe; the
+  // motion model goes on (velocity_ is the camera's, whatever the reference).
+  keyframe_ = relocaliser_->keyframe(reused);
+  last_in_keyframe_ = in_reused;
+  last_covariance_ = reuse_covariance;
+  last_entropy_ = entropyOfInformation(found->edge.information);
+  reference_entropy_ = last_entropy_;  // H(kf, t) of the next frames against the frame's (History::restore takes the same)
+  std::swap(last_good_, current_);
+  last_good_in_pyramid_ = true;
+  r.keyframe_reused = true;
+  r.pose_in_keyframe = in_reused;
+  r.covariance = reuse_covariance;
+  r.keyframe_id = reused;
+  r.keyframe_pose_world = keyframe_->pose_world;
+  r.pose_world = keyframe_->pose_world * in_reused;
+  spdlog::debug("frame {}: keyframe {} reused instead of a new one ({:.3f} m from it; ln det ratios coarse {:.2f}, fine "
+                "{:.2f})",
+                query.frame_id, reused, in_reused.translation().norm(), found->edge.coarse_ratio, found->edge.fine_ratio);
   return true;
 }
 
@@ -386,13 +434,15 @@ void Tracker::followAlignment(const RgbdFrame& frame, const AlignResult& aligned
   r.entropy_ratio = aligned.entropy / *reference_entropy_;
   if (keyframeDue(aligned)) {
     if (localise_only_ && reanchor(frame, keyframe_->pose_world * aligned.pose, r)) return;
+    std::shared_ptr<Keyframe> kf = keyframeOf(frame, next_keyframe_id_);
+    if (params_.keyframe.reuse && !localise_only_ && reuseKeyframe(*kf, aligned, r)) return;
     OdometryConstraint c;
     c.from_id = keyframe_->id;
     c.relative = aligned.pose;
     c.information = aligned.information;
     c.entropy = aligned.entropy;
     c.valid_pixels = aligned.valid_pixels;
-    keyframe_ = makeKeyframe(frame, keyframe_->pose_world * aligned.pose, aligned.entropy);
+    keyframe_ = makeKeyframe(std::move(kf), keyframe_->pose_world * aligned.pose, aligned.entropy);
     c.to_id = keyframe_->id;
     r.odometry = c;
     r.new_keyframe = true;

@@ -24,6 +24,8 @@ InProcessSlam runInProcess(const TumDataset& dataset, const TrackerParams& param
     const TrackResult r = tracker.track(f, dataset.intrinsics());
     out.frames.push_back({f.id, r.timestamp, r.keyframe_id, r.pose_in_keyframe});
     out.odometry.push_back({r.timestamp, r.pose_world});
+    if (r.reuse_edge) out.reuse_edges.push_back(*r.reuse_edge);
+    out.keyframes_reused += r.keyframe_reused;
     if (!r.new_keyframe) continue;
     out.keyframes.push_back({r.keyframe_id, r.timestamp, r.keyframe_pose_world});
     if (r.odometry) out.odometry_edges.push_back(*r.odometry);
@@ -50,6 +52,8 @@ Optimised optimise(const InProcessSlam& slam, const optimiser::OptimiserServiceP
   };
   for (const OdometryConstraint& o : slam.odometry_edges)
     add(optimiser::EdgeKind::Odometry, o.from_id, o.to_id, o.relative, o.information);
+  for (const OdometryConstraint& e : slam.reuse_edges)
+    add(optimiser::EdgeKind::Loop, e.from_id, e.to_id, e.relative, e.information);
   for (const LoopConstraint& l : slam.loop_edges) {
     const std::optional<Pose> relative = loop_pose ? loop_pose(l) : std::optional<Pose>(l.relative);
     if (relative) add(optimiser::EdgeKind::Loop, l.from_id, l.to_id, *relative, l.information);

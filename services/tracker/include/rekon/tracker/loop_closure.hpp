@@ -127,6 +127,10 @@ class LoopClosureDetector {
   std::vector<Pose> odometryNeighbours(int64_t id) const;
   // Ids of the keyframes added, ascending.
   std::vector<int64_t> ids() const;
+  // Whether an odometry constraint links keyframes `a` and `b` (either way).
+  bool odometryLinked(int64_t a, int64_t b) const;
+  // An added keyframe with its images (rekon::Error when the cache lost it).
+  std::shared_ptr<const Keyframe> keyframe(int64_t id) const;
 
   // candidates() then check() for each (up to max_candidates, and with
   // `behind` up to candidates_when_behind); accumulates into `stats`.
@@ -149,8 +153,6 @@ class LoopClosureDetector {
   // (the global mean when none), at the coarse stage or the fine stage.
   std::optional<double> odometryLogDet(int64_t a, int64_t b, bool coarse);
   std::optional<double> incomingLogDet(int64_t id, Entry& e, bool coarse);
-  // An added keyframe with its images (rekon::Error when the cache lost it).
-  std::shared_ptr<const Keyframe> keyframe(int64_t id) const;
 
   // A check's aligners: their buffers are its working state, so each thread
   // of detect() has its own.

@@ -69,6 +69,11 @@ struct KeyframeParams {
   static constexpr double kDefaultEntropyRatio = 0.91;
   static constexpr double kDefaultMaxTranslation = 0.2;
   static constexpr double kDefaultMaxRotationDeg = 15.0;
+  static constexpr bool kDefaultReuse = false;
+  static constexpr double kDefaultReuseRadius = 0.15;
+  static constexpr double kDefaultReuseAngleDeg = 15.0;
+  static constexpr int kDefaultReuseCandidates = 2;
+  static constexpr int kDefaultReuseExcludeRecent = 0;
 
   // "entropy_ratio" (Kerl et al. IROS 2013, plus the distance limits) or
   // "distance" (the distance limits only).
@@ -76,6 +81,21 @@ struct KeyframeParams {
   double entropy_ratio = kDefaultEntropyRatio;
   double max_translation = kDefaultMaxTranslation;  // metres from the keyframe
   double max_rotation_deg = kDefaultMaxRotationDeg;
+  // Keyframe reuse on revisit (issue 49): a due keyframe is first looked for
+  // among the existing ones whose camera centre lies within reuse_radius
+  // metres and whose orientation within reuse_angle_deg of the frame's pose
+  // (nearest first, at most reuse_candidates); the first that validates as a
+  // loop closure does (LoopClosureDetector::check) becomes the reference
+  // instead of a new keyframe, and the edge from it to the keyframe the frame
+  // was tracked against goes out as a loop edge (robust loss). Revisits then
+  // add no keyframes and no loop edges: the graph grows with the space.
+  bool reuse = kDefaultReuse;
+  double reuse_radius = kDefaultReuseRadius;
+  double reuse_angle_deg = kDefaultReuseAngleDeg;
+  int reuse_candidates = kDefaultReuseCandidates;
+  // The newest this many keyframes are never reused (0: any but the one
+  // tracked against): only revisits after a while switch.
+  int reuse_exclude_recent = kDefaultReuseExcludeRecent;
 
   void validate() const;
 };

@@ -44,6 +44,16 @@ class Relocaliser {
   std::optional<Relocalisation> relocalise(const Keyframe& query, const std::optional<Pose>& guess_world, double budget_ms);
   // The next relocalise() starts a new search (from the first candidate).
   void restart();
+  // Keyframe reuse (KeyframeParams::reuse): `query` (a keyframe made of the
+  // frame, not yet in the database), at `in_current` in keyframe
+  // `current_id`, checked as relocalise() checks against the keyframes other
+  // than `current_id` whose estimated camera centre lies within reuse_radius
+  // and orientation within reuse_angle_deg of its estimated pose, nearest
+  // first, at most reuse_candidates of them; the first accepted.
+  std::optional<Relocalisation> reuse(const Keyframe& query, int64_t current_id, const Pose& in_current,
+                                      const KeyframeParams& params);
+  std::shared_ptr<const Keyframe> keyframe(int64_t id) const { return detector_.keyframe(id); }
+  bool odometryLinked(int64_t a, int64_t b) const { return detector_.odometryLinked(a, b); }
 
  private:
   std::vector<int64_t> ranked(const std::optional<Pose>& guess_world) const;

@@ -8,7 +8,9 @@
 #include <memory>
 #include <algorithm>
 #include <optional>
+#include <set>
 #include <unordered_map>
+#include <utility>
 
 #include <spdlog/common.h>
 
@@ -97,6 +99,14 @@ struct TrackResult {
   // localiseOnly(): a due keyframe placed by relocalising it against the map
   // (relocalised_from is its edge), not a relocalisation after a loss.
   bool reanchored = false;
+  // A due keyframe was not made (TrackerParams::keyframe.reuse): the frame
+  // validated against the existing keyframe `keyframe_id` near it, which
+  // tracking goes on against. reuse_edge: that keyframe's edge to the one the
+  // frame was tracked against before (the frame's two poses composed),
+  // published as a loop edge; absent when odometry already links the two or
+  // an earlier switch between them sent one.
+  bool keyframe_reused = false;
+  std::optional<OdometryConstraint> reuse_edge;
   Pose keyframe_pose_world = Pose::Identity();  // odometry estimate of the keyframe
   Pose pose_world = Pose::Identity();           // keyframe_pose_world * pose_in_keyframe
   double entropy = 0.0;                         // of the alignment, when one ran
@@ -169,6 +179,14 @@ class Tracker {
   // `incoming_entropy`: of the odometry constraint that made it, when one did.
   std::shared_ptr<const Keyframe> makeKeyframe(const RgbdFrame& frame, const Pose& pose_world,
                                                std::optional<double> incoming_entropy = std::nullopt);
+  // The same for `kf`, made by keyframeOf(frame, next_keyframe_id_).
+  std::shared_ptr<const Keyframe> makeKeyframe(std::shared_ptr<Keyframe> kf, const Pose& pose_world,
+                                               std::optional<double> incoming_entropy);
+  // A due keyframe's frame (`query`, keyframeOf it; `aligned` against
+  // keyframe_) placed against an existing keyframe near it instead
+  // (KeyframeParams::reuse); on success tracking goes on against that one and
+  // `r` says so.
+  bool reuseKeyframe(const Keyframe& query, const AlignResult& aligned, TrackResult& r);
   // keyframe_ (just made or adopted) is the last good frame.
   void lastGoodIsKeyframe(std::optional<double> incoming_entropy);
   // Tracking goes on from `keyframe` (a relocalised one), no motion known.
@@ -248,6 +266,7 @@ class Tracker {
   bool gave_up_ = false;
   bool localise_only_ = false;
   std::optional<Pose> resume_at_;  // resumeAt(), until the first trackable frame
+  std::set<std::pair<int64_t, int64_t>> reuse_edges_sent_;  // (older, newer) keyframe ids
 };
 
 }  // namespace rekon::tracker

@@ -30,6 +30,9 @@ struct InProcessSlam {
   std::vector<KeyframeAt> keyframes;
   std::vector<tracker::OdometryConstraint> odometry_edges;
   std::vector<tracker::LoopConstraint> loop_edges;
+  // tracker.keyframe_reuse's edges (TrackResult::reuse_edge), loop edges in the graph as in rekon-optimiser.
+  std::vector<tracker::OdometryConstraint> reuse_edges;
+  int64_t keyframes_reused = 0;
   tracker::LoopClosureStats stats;
   double check_ms = 0.0;  // wall time of all loop checks
 };
