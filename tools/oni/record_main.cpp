@@ -9,12 +9,14 @@
 
 #include <chrono>
 #include <filesystem>
+#include <set>
 #include <string>
 #include <thread>
 
 #include "rekon/common/cli.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/common/logging.hpp"
+#include "rekon/common/threads.hpp"
 
 namespace {
 
@@ -28,11 +30,13 @@ constexpr int kFrameTimeoutMs = 5000;
 constexpr auto kPollPeriod = std::chrono::milliseconds(20);
 constexpr auto kSettledAfter = std::chrono::milliseconds(200);
 constexpr uintmax_t kMoreThanMetadata = 2048;  // bytes beyond the settled metadata
-// DummyDevice's generator thread outlives stop() by up to one frame period
-// and then touches the stream: destroying the stream earlier crashes. On a
-// loaded machine that thread runs late: 150 ms still crashed once (a CI
-// rehearsal with a benchmark beside it), so 400.
-constexpr auto kDriverDrain = std::chrono::milliseconds(400);
+// A driver's stream threads outlive stop(): DummyDevice's stop() only clears
+// a flag, and its thread raises one more frame into the stream before it
+// looks. Destroying the stream before that thread ends crashed (a sleep of
+// 150 ms, then 400 ms, still crashed in CI rehearsals on a loaded machine), so
+// stop() waits for the threads start() started to end. A driver whose threads
+// stay (a real device's USB thread, say) is waited for this long at most.
+constexpr auto kDriverThreadsEnd = std::chrono::milliseconds(5000);
 
 std::string oniError() {
   std::string text = openni::OpenNI::getExtendedError();
@@ -48,12 +52,21 @@ void check(openni::Status status, const std::string& what) {
 
 struct Streams {
   openni::VideoStream depth, color;
-  bool running = true;
+  bool running = false;
+  std::set<int> driver_threads;  // what start() started
+  void start(const std::string& uri) {
+    running = true;
+    driver_threads = rekon::threadsStartedBy([&] {
+      check(depth.start(), "cannot start the depth stream of '" + uri + "'");
+      check(color.start(), "cannot start the color stream of '" + uri + "'");
+    });
+  }
   void stop() {
     if (!running) return;
     depth.stop();
     color.stop();
-    std::this_thread::sleep_for(kDriverDrain);
+    if (!rekon::waitForThreadsToEnd(driver_threads, kDriverThreadsEnd))
+      spdlog::warn("the driver's stream threads still run {} ms after stop", kDriverThreadsEnd.count());
     running = false;
   }
   ~Streams() {
@@ -122,7 +135,10 @@ void recordFrames(Streams& streams, int frames, const std::string& uri, const st
 // What OpenNI2's own file device finds in the recording: proves it plays.
 std::pair<int, int> framesInFile(const std::string& path) {
   openni::Device file;
-  check(file.open(path.c_str()), "OpenNI2 cannot open the recording '" + path + "' it wrote");
+  const std::set<int> player_threads =
+      rekon::threadsStartedBy([&] { check(file.open(path.c_str()), "OpenNI2 cannot open the recording '" + path + "' it wrote"); });
+  // Closed before its thread first ran, the file device would lose the close (rekon/common/threads.hpp).
+  rekon::waitForThreadsToBlock(player_threads, kDriverThreadsEnd);
   openni::VideoStream depth, color;
   check(depth.create(file, openni::SENSOR_DEPTH), "no depth stream in '" + path + "'");
   check(color.create(file, openni::SENSOR_COLOR), "no color stream in '" + path + "'");
@@ -149,8 +165,7 @@ void record(const std::string& uri, const std::string& out, int frames) {
     check(recorder.attach(streams.color, false), "cannot record the color stream");
     const uintmax_t metadata = settledSize(out);
     check(recorder.start(), "cannot start recording to '" + out + "'");
-    check(streams.depth.start(), "cannot start the depth stream of '" + uri + "'");
-    check(streams.color.start(), "cannot start the color stream of '" + uri + "'");
+    streams.start(uri);
     // The streams stop before the Recorder goes, on every path: destroying it
     // while a stream still raises frames deadlocks OpenNI2 2.2 (its destructor
     // holds the Recorder's stream list and waits for the stream's recorder

@@ -18,12 +18,14 @@
 #include <filesystem>
 #include <mutex>
 #include <optional>
+#include <set>
 #include <thread>
 
 #include "rekon/camera/device_clock.hpp"
 #include "rekon/camera/kinect_depth.hpp"
 #include "rekon/camera/source.hpp"
 #include "rekon/common/error.hpp"
+#include "rekon/common/threads.hpp"
 
 namespace rekon::camera {
 
@@ -40,11 +42,13 @@ constexpr int kWaitSliceMs = 100;
 // numbers them independently and the newest of each is paired.
 constexpr size_t kPairWindow = 3;
 constexpr int kMaxIndexMismatches = 30;
-// DummyDevice's generator thread outlives stop() by up to one frame period
-// and then touches the stream: destroying the stream earlier crashes. And its
-// thread sets its own running flag when it starts, so a stop() before that is
-// lost: a stream is stopped only after its first frame (or this long).
-constexpr auto kDriverDrain = std::chrono::milliseconds(150);
+// DummyDevice's generator thread outlives stop() and raises one more frame
+// into the stream: destroying the stream earlier crashes, so the threads the
+// streams' start() started are waited for (rekon/common/threads.hpp), this
+// long at most. And its thread sets its own running flag when it starts, so a
+// stop() before that is lost: a stream is stopped only after its first frame
+// (or this long).
+constexpr auto kDriverThreadsEnd = std::chrono::milliseconds(2000);
 constexpr int kFirstFrameBeforeStopMs = 1000;
 // A Kinect v1 color camera, when a device reports no field of view: fx = fy
 // = 525 at 640x480 (TUM's and ROS's nominal value), scaled with the width.
@@ -186,6 +190,7 @@ class OpenNI2Source : public CameraSource {
   OpenNIScope scope_;
   openni::Device device_;
   openni::VideoStream streams_[2];  // depth, color
+  std::set<int> driver_threads_;    // the threads the streams' start() started
   std::unique_ptr<DeviceEvents> events_;
   bool is_file_ = false;
   bool recording_clock_ = false;
@@ -232,7 +237,9 @@ OpenNI2Source::~OpenNI2Source() {
     openni::OpenNI::waitForAnyStream(&stream, 1, &ready, kFirstFrameBeforeStopMs);
   }
   for (auto& stream : streams_) stream.stop();
-  std::this_thread::sleep_for(kDriverDrain);
+  if (!waitForThreadsToEnd(driver_threads_, kDriverThreadsEnd))
+    spdlog::warn("OpenNI2 device '{}': the driver's stream threads still run {} ms after stop", uri_,
+                 kDriverThreadsEnd.count());
   for (auto& recent : recent_) recent.clear();
   for (auto& stream : streams_) stream.destroy();
   events_.reset();
@@ -244,7 +251,12 @@ void OpenNI2Source::openDevice() {
   const std::string shown = uri_.empty() ? "the first OpenNI2 device" : "OpenNI2 device '" + uri_ + "'";
   if (is_file_ && !std::filesystem::is_regular_file(uri_))
     throw Error("OpenNI2 recording '" + uri_ + "' does not exist; check the path after openni2:");
-  if (device_.open(uri_.empty() ? openni::ANY_DEVICE : uri_.c_str()) != openni::STATUS_OK) {
+  openni::Status opened = openni::STATUS_OK;
+  const std::set<int> device_threads =
+      threadsStartedBy([&] { opened = device_.open(uri_.empty() ? openni::ANY_DEVICE : uri_.c_str()); });
+  // A file device closed before its thread first ran loses the close (rekon/common/threads.hpp).
+  waitForThreadsToBlock(device_threads, kDriverThreadsEnd);
+  if (opened != openni::STATUS_OK) {
     const std::string hint = is_file_ ? "check that it is a complete .oni recording (OpenNI2 opens no truncated "
                                         "one; rekon-oni-record makes one)"
                                       : kOpenHint;
@@ -375,9 +387,11 @@ void OpenNI2Source::setUpIntrinsics(const SourceOptions& options) {
 }
 
 void OpenNI2Source::startStreams() {
-  for (auto& stream : streams_)
-    if (stream.start() != openni::STATUS_OK)
-      throw Error("OpenNI2 device '" + uri_ + "': cannot start streaming: " + oniError() + "; " + kOpenHint);
+  driver_threads_ = threadsStartedBy([&] {
+    for (auto& stream : streams_)
+      if (stream.start() != openni::STATUS_OK)
+        throw Error("OpenNI2 device '" + uri_ + "': cannot start streaming: " + oniError() + "; " + kOpenHint);
+  });
   // Hardware sync must be asked for once both streams run (OpenNI2 syncs only
   // started streams); devices without it are paired by frame index here.
   const bool synced = device_.setDepthColorSyncEnabled(true) == openni::STATUS_OK;
