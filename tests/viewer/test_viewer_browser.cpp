@@ -18,6 +18,7 @@
 #include "rekon/common/mesh.hpp"
 #include "rekon/common/mesh_blocks.hpp"
 #include "rekon_msgs/heartbeat_t.hpp"
+#include "rekon_msgs/service_stats_t.hpp"
 #include "test_support.hpp"
 #include "viewer_test_support.hpp"
 
@@ -184,16 +185,37 @@ TEST(ViewerBrowser, PageWithoutWebGLShowsTheStatusAndSaysWhatIsMissing) {
   EXPECT_EQ(dataCounter(dom, "blocks"), 400);
   EXPECT_NE(dom.find("data-run-finished=\"0\""), std::string::npos) << dom.substr(0, 800);
 
+  // The mapper killed and restarted, and a camera back from an outage (issue
+  // 48): the status says both.
+  hb.pid = 4343;
+  hb.last_frame_id = 18;
+  bus->publish(channel::kHeartbeat, hb);
+  rekon_msgs::heartbeat_t camera = hb;
+  camera.service = "camera";
+  camera.pid = 4444;
+  bus->publish(channel::kHeartbeat, camera);
+  rekon_msgs::service_stats_t camera_stats{};
+  camera_stats.schema_version = kSchemaVersion;
+  camera_stats.service = "camera";
+  camera_stats.json = R"({"outages": 1, "frames_missed_in_outages": 31})";
+  bus->publish(channel::kStats, camera_stats);
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  ASSERT_EQ(runCommand(chromium(dir / "profile_restart") + "--disable-webgl --disable-3d-apis --virtual-time-budget=5000 "
+                           "--dump-dom " + url + " 2>/dev/null", &dom), 0) << dom;
+  EXPECT_TRUE(std::regex_search(dom, std::regex("<td>mapper</td><td>[a-z]+ \\(1 restart\\)</td><td>18</td>"))) << dom;
+  EXPECT_NE(dom.find("outages 1, frames missed in outages 31"), std::string::npos) << dom;
+
   // Every service exited (here the one there was): the header says the run
   // is over (it said "live"), and an exited service shows no frame rate.
-  hb.state = "exited";
+  hb.state = camera.state = "exited";
   bus->publish(channel::kHeartbeat, hb);
+  bus->publish(channel::kHeartbeat, camera);
   std::this_thread::sleep_for(std::chrono::milliseconds(500));
   ASSERT_EQ(runCommand(chromium(dir / "profile_end") + "--disable-webgl --disable-3d-apis --virtual-time-budget=5000 --dump-dom " +
                            url + " 2>/dev/null", &dom), 0) << dom;
   EXPECT_NE(dom.find("data-run-finished=\"1\""), std::string::npos) << dom.substr(0, 800);
   EXPECT_NE(dom.find(">run finished: its final map<"), std::string::npos) << dom.substr(0, 1500);
-  EXPECT_TRUE(std::regex_search(dom, std::regex("<td>mapper</td><td>exited</td><td>17</td><td></td>"))) << dom;
+  EXPECT_TRUE(std::regex_search(dom, std::regex("<td>mapper</td><td>exited \\(1 restart\\)</td><td>18</td><td></td>"))) << dom;
   const std::string shot = binDir() + "/../test_viewer_no_webgl.png";
   runCommand(chromium(dir / "profile2") + "--disable-webgl --disable-3d-apis --virtual-time-budget=5000 --screenshot=" + shot +
              " " + url + " 2>&1");

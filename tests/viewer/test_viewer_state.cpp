@@ -225,5 +225,21 @@ TEST(ViewerState, ServicesWithoutHeartbeatsAreMarkedExitedOrSilent) {
   EXPECT_NE(state.stateJson().find(R"("tracker":{"pid":14,"host":"host","state":"running")"), std::string::npos);
 }
 
+// A service killed and restarted (issue 48) shows its restarts; a late
+// heartbeat of the instance it replaced changes nothing.
+TEST(ViewerState, ARestartedServiceShowsItsRestartsAndItsOldInstanceIsIgnored) {
+  ViewerState state;
+  state.heartbeat("tracker", 13, "host", "running", 500);
+  EXPECT_NE(state.stateJson().find(R"("frames_per_s":0.0,"restarts":0,)"), std::string::npos) << state.stateJson();
+  state.heartbeat("tracker", 14, "host", "starting", -1);
+  state.heartbeat("tracker", 13, "host", "running", 501);  // the killed one's, still on the wire
+  std::string json = state.stateJson();
+  EXPECT_NE(json.find(R"("tracker":{"pid":14,"host":"host","state":"starting","last_frame":-1)"), std::string::npos)
+      << json;
+  EXPECT_NE(json.find(R"("restarts":1,)"), std::string::npos) << json;
+  state.heartbeat("tracker", 15, "host", "running", 520);
+  EXPECT_NE(state.stateJson().find(R"("restarts":2,)"), std::string::npos) << state.stateJson();
+}
+
 }  // namespace
 }  // namespace rekon::viewer

@@ -55,7 +55,10 @@ std::unique_ptr<CameraSource> reopen(ServiceContext& ctx, const CameraParams& pa
   return nullptr;
 }
 
+// In stats.json, and live (STATS: the viewer's status shows them).
 void noteOutages(ServiceContext& ctx, const CaptureEnd& end) {
+  ctx.setLive("outages", static_cast<double>(end.outages));
+  ctx.setLive("frames_missed_in_outages", static_cast<double>(end.frames_missed));
   ctx.stats()
       .set("outages", static_cast<long long>(end.outages))
       .set("frames_missed_in_outages", static_cast<long long>(end.frames_missed))

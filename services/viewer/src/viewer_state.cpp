@@ -150,6 +150,8 @@ void ViewerState::heartbeat(const std::string& service, int pid, const std::stri
                             int64_t last_frame) {
   std::lock_guard<std::mutex> lock(mutex_);
   Service& s = services_[service];
+  if (pid != s.pid && s.pids.count(pid)) return;  // a replaced instance's last words
+  s.pids.insert(pid);
   const auto now = std::chrono::steady_clock::now();
   if (s.pid != pid || s.rate_frame < 0 || last_frame < s.rate_frame) {
     s.rate_since = now;  // a new instance, or the first heartbeat: the rate starts again
@@ -225,9 +227,11 @@ Update ViewerState::statusUpdate() const {
   std::string json = R"({"type":"status","services":{)";
   bool first = true;
   for (const auto& [name, s] : services_) {
-    json += fmt::format(R"({}{}:{{"pid":{},"host":{},"state":{},"last_frame":{},"frames_per_s":{:.1f},"stats":{}}})",
-                        first ? "" : ",", jsonString(name), s.pid, jsonString(s.host), jsonString(s.state),
-                        s.last_frame, s.frames_per_s, jsonString(s.stats_json));
+    const size_t restarts = s.pids.empty() ? 0 : s.pids.size() - 1;
+    json += fmt::format(
+        R"({}{}:{{"pid":{},"host":{},"state":{},"last_frame":{},"frames_per_s":{:.1f},"restarts":{},"stats":{}}})",
+        first ? "" : ",", jsonString(name), s.pid, jsonString(s.host), jsonString(s.state), s.last_frame,
+        s.frames_per_s, restarts, jsonString(s.stats_json));
     first = false;
   }
   return text("status", json + "}}");

@@ -299,7 +299,8 @@ function notes(statsText) {
   let s;
   try { s = JSON.parse(statsText || '{}'); } catch (e) { return ''; }
   const keys = ['queued_frames', 'frames_dropped', 'frames_dropped_when_full', 'lost_frames', 'reintegrations',
-    'kf_keyframes', 'keyframes', 'loop_closures', 'loop_closures_accepted', 'clients'];
+    'kf_keyframes', 'keyframes', 'loop_closures', 'loop_closures_accepted', 'clients', 'outages',
+    'frames_missed_in_outages'];
   return keys.filter((k) => typeof s[k] === 'number').map((k) => k.replace(/_/g, ' ') + ' ' + s[k]).join(', ');
 }
 
@@ -316,7 +317,8 @@ function drawStatus(services) {
     const s = services[name];
     const row = tbody.insertRow();
     cell(row, name);
-    cell(row, s.state);
+    // A restarted service says so: it was killed or crashed, and came back.
+    cell(row, s.restarts > 0 ? s.state + ' (' + s.restarts + (s.restarts > 1 ? ' restarts)' : ' restart)') : s.state);
     cell(row, s.last_frame >= 0 ? String(s.last_frame) : '');
     cell(row, s.frames_per_s && s.state !== 'exited' ? s.frames_per_s.toFixed(1) : '');  // an exited service has no rate
     cell(row, notes(s.stats), 'notes');

@@ -68,6 +68,8 @@ class ViewerState {
   // A tracked frame: placed through its keyframe's pose (skipped while that keyframe is unknown).
   void addTrackedFrame(int64_t frame_id, int64_t keyframe_id, const Pose& in_keyframe, bool lost);
   void addLoopEdge(int64_t from_id, int64_t to_id);
+  // A heartbeat of a new pid is a restart of `service` (counted in the
+  // status); a late one of an instance it replaced is ignored.
   void heartbeat(const std::string& service, int pid, const std::string& host, const std::string& state,
                  int64_t last_frame);
   // Services without a heartbeat for `silence_s` are shown as "exited"
@@ -109,6 +111,7 @@ class ViewerState {
     double frames_per_s = 0;  // from the last frames of heartbeats at least kRateWindowS apart
     std::chrono::steady_clock::time_point rate_since{}, last_heartbeat{};
     int64_t rate_frame = -1;
+    std::set<int> pids;  // every instance seen: a restart adds one
   };
   static constexpr double kRateWindowS = 1.0;
   struct TrackedFrame {
