@@ -46,35 +46,55 @@ bool writeAll(int fd, const char* data, size_t n) {
 
 }  // namespace
 
-JournalRead readRecordJournal(const std::string& path, const AcceptRecord& accept) {
-  JournalRead out;
-  std::ifstream in(path, std::ios::binary);
+JournalScan scanRecordJournal(const std::string& path, const std::function<bool(JournalRecord&)>& visit) {
+  JournalScan out;
+  std::ifstream in(path, std::ios::binary | std::ios::ate);
   if (!in) return out;
-  const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  if (in.bad()) throw Error("cannot read the journal " + path + "; check its permissions");
-  if (bytes.empty()) return out;  // created, killed before the magic went out
-  if (bytes.size() < sizeof(kMagic) || std::memcmp(bytes.data(), kMagic, sizeof(kMagic)) != 0)
+  const auto file_size = static_cast<uint64_t>(in.tellg());
+  in.seekg(0);
+  if (file_size == 0) return out;  // created, killed before the magic went out
+  char magic[sizeof(kMagic)] = {};
+  if (!in.read(magic, sizeof(magic)) || std::memcmp(magic, kMagic, sizeof(kMagic)) != 0) {
+    if (in.bad()) throw Error("cannot read the journal " + path + "; check its permissions");
     throw Error(path + " is not a rekon journal (wrong magic); remove it to start without what it held");
-  size_t offset = sizeof(kMagic);
-  while (offset < bytes.size()) {
-    const size_t left = bytes.size() - offset;
-    if (left < kHeader) break;
-    const uint32_t size = at<uint32_t>(bytes, offset + sizeof(uint32_t));
-    if (left - kHeader < static_cast<size_t>(size) + kTrailer) break;
-    const size_t end = offset + kHeader + size;
-    if (at<uint32_t>(bytes, end) != fnv1a32(bytes.data() + offset, kHeader + size)) break;
-    JournalRecord record{at<uint32_t>(bytes, offset), bytes.substr(offset + kHeader, size)};
-    if (accept && !accept(record)) break;
-    out.records.push_back(std::move(record));
-    offset = end + kTrailer;
   }
+  uint64_t offset = sizeof(kMagic);
+  std::string frame;  // header, payload and trailer of one record, reused
+  JournalRecord record;
+  while (offset + kHeader <= file_size) {
+    frame.resize(kHeader);
+    if (!in.read(frame.data(), kHeader)) break;
+    const uint32_t size = at<uint32_t>(frame, sizeof(uint32_t));
+    if (file_size - offset - kHeader < static_cast<uint64_t>(size) + kTrailer) break;
+    frame.resize(kHeader + size + kTrailer);
+    if (!in.read(frame.data() + kHeader, size + kTrailer)) break;
+    if (at<uint32_t>(frame, kHeader + size) != fnv1a32(frame.data(), kHeader + size)) break;
+    record.tag = at<uint32_t>(frame, 0);
+    record.bytes.assign(frame, kHeader, size);
+    if (!visit(record)) break;
+    ++out.records;
+    offset += kHeader + size + kTrailer;
+  }
+  if (in.bad()) throw Error("cannot read the journal " + path + "; check its permissions");
   out.valid_bytes = offset;
-  if (offset < bytes.size()) {
+  if (offset < file_size) {
     out.torn = true;
     spdlog::warn("{}: the record at byte {} is torn, damaged or unreadable (a kill in mid-write?); it and the {} bytes "
                  "after it are cut off, {} records kept",
-                 path, offset, bytes.size() - offset, out.records.size());
+                 path, offset, file_size - offset, out.records);
   }
+  return out;
+}
+
+JournalRead readRecordJournal(const std::string& path, const AcceptRecord& accept) {
+  JournalRead out;
+  const JournalScan scan = scanRecordJournal(path, [&](JournalRecord& record) {
+    if (accept && !accept(record)) return false;
+    out.records.push_back(std::move(record));
+    return true;
+  });
+  out.valid_bytes = scan.valid_bytes;
+  out.torn = scan.torn;
   return out;
 }
 

@@ -9,6 +9,7 @@
 #include <string>
 #include <variant>
 
+#include "frame_ids.hpp"
 #include "journal.hpp"
 #include "rekon/common/messages.hpp"
 #include "rekon/common/record_journal.hpp"
@@ -70,6 +71,48 @@ TEST(Journal, WhatIsAppendedComesBackExactlyInOrder) {
     EXPECT_EQ(read.frames[i].lost, written[i].lost);
     EXPECT_TRUE(samePose(read.frames[i].pose_in_keyframe, written[i].pose_in_keyframe));
   }
+}
+
+// The final step's trajectory (issue 49): the tracked frames read back from
+// the file instead of held by the inbox all run, once each, by id, the
+// killed instance's and the restart's together.
+TEST(Journal, TrackedFramesComeBackFromTheFileOnceEachById) {
+  test::TempDir dir;
+  Journal(dir.path(), false).append(twoKeyframesAndAnEdge(), frames(20, 30));
+  Journal restart(dir.path(), true);
+  restart.forgetContents();
+  std::vector<TrackedFrame> late = frames(0, 25);  // replayed: 20-24 are in the file already
+  restart.append({}, late);
+  const std::vector<TrackedFrame> read = restart.trackedFrames();
+  ASSERT_EQ(read.size(), 50u);
+  for (size_t i = 0; i < read.size(); ++i) {
+    EXPECT_EQ(read[i].frame_id, static_cast<int64_t>(i));
+    EXPECT_EQ(read[i].lost, read[i].frame_id % 7 == 3);
+    EXPECT_TRUE(samePose(read[i].pose_in_keyframe, turned(0.001 * static_cast<double>(i), 0.002)));
+  }
+  EXPECT_TRUE(Journal("", false).trackedFrames().empty());  // no out dir: no journal (the inbox holds them)
+}
+
+// The inbox's frame ids as runs: in order, out of order, repeated.
+TEST(FrameIds, RunsJoinAndRepeatsAreRefused) {
+  FrameIds ids;
+  for (int64_t id = 0; id < 1000; ++id) EXPECT_TRUE(ids.insert(id));
+  EXPECT_EQ(ids.runs(), 1u);
+  EXPECT_TRUE(ids.insert(1001));
+  EXPECT_TRUE(ids.insert(1003));
+  EXPECT_EQ(ids.runs(), 3u);
+  EXPECT_TRUE(ids.insert(1002));  // joins 1001 and 1003
+  EXPECT_EQ(ids.runs(), 2u);
+  EXPECT_TRUE(ids.insert(1000));  // joins everything
+  EXPECT_EQ(ids.runs(), 1u);
+  EXPECT_TRUE(ids.insert(-5));
+  EXPECT_TRUE(ids.insert(-6));    // extends a run downwards
+  EXPECT_EQ(ids.runs(), 2u);
+  for (int64_t id : {0, 500, 1003, -5, -6}) EXPECT_FALSE(ids.insert(id)) << id;
+  EXPECT_TRUE(ids.contains(1002));
+  EXPECT_FALSE(ids.contains(1004));
+  EXPECT_FALSE(ids.contains(-1));
+  EXPECT_EQ(ids.size(), 1006u);
 }
 
 TEST(Journal, AFirstInstanceStartsItEmpty) {

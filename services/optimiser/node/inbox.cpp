@@ -100,7 +100,10 @@ void Inbox::onTrackedFrame(const rekon_msgs::tracked_frame_t& m) {
   try {
     TrackedFrame f = trackedFrameFromMsg(m);
     std::lock_guard<std::mutex> lock(mutex_);
-    if (frames_.emplace(f.frame_id, f).second) new_frames_.push_back(f);
+    if (frame_ids_.insert(f.frame_id)) {
+      if (hold_frames_) held_frames_.emplace(f.frame_id, f);
+      new_frames_.push_back(f);
+    }
     last_frame_id_ = std::max(last_frame_id_, f.frame_id);
   } catch (const Error& e) {
     reject(e);
@@ -152,14 +155,14 @@ std::vector<TrackedFrame> Inbox::takeNewFrames() {
 void Inbox::restoreFrames(const std::vector<TrackedFrame>& frames) {
   std::lock_guard<std::mutex> lock(mutex_);
   for (const TrackedFrame& f : frames) {
-    frames_.emplace(f.frame_id, f);
+    if (frame_ids_.insert(f.frame_id) && hold_frames_) held_frames_.emplace(f.frame_id, f);
     last_frame_id_ = std::max(last_frame_id_, f.frame_id);
   }
 }
 
 size_t Inbox::trackedFrameCount() const {
   std::lock_guard<std::mutex> lock(mutex_);
-  return frames_.size();
+  return frame_ids_.size();
 }
 
 int64_t Inbox::lastFrameId() const {
@@ -175,7 +178,7 @@ bool Inbox::takeMapperRestarted() {
 Inbox::Final Inbox::takeFinal() {
   Final out;
   std::lock_guard<std::mutex> lock(mutex_);
-  for (const auto& [id, f] : frames_) out.frames.push_back(f);
+  for (const auto& [id, f] : held_frames_) out.frames.push_back(f);
   out.last_frame_id = last_frame_id_;
   out.rejected = rejected_;
   mapper_restarted_ = false;

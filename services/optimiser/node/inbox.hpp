@@ -15,6 +15,7 @@
 
 #include "rekon/common/error.hpp"
 #include "rekon/common/service.hpp"
+#include "frame_ids.hpp"
 #include "rekon/optimiser/graph_messages.hpp"
 #include "rekon/optimiser/pose_graph.hpp"
 #include "rekon_msgs/replay_end_t.hpp"
@@ -55,6 +56,9 @@ class Inbox {
   // An earlier instance's frames (its journal), as if they had arrived, but
   // not new: they are in the journal already.
   void restoreFrames(const std::vector<TrackedFrame>& frames);
+  // Without a journal (no out dir) the inbox keeps every frame for Final;
+  // with one it keeps only their ids, and the final step reads them back.
+  void holdFrames() { hold_frames_ = true; }
 
   size_t trackedFrameCount() const;
   int64_t lastFrameId() const;
@@ -62,7 +66,7 @@ class Inbox {
   bool takeMapperRestarted();
 
   struct Final {
-    std::vector<TrackedFrame> frames;  // every tracked frame, live and replayed, once each, by id
+    std::vector<TrackedFrame> frames;  // holdFrames(): every tracked frame, live and replayed, once each, by id
     int64_t last_frame_id = -1;
     int64_t rejected = 0;  // messages that did not validate
   };
@@ -81,8 +85,10 @@ class Inbox {
   std::condition_variable wake_;
   std::vector<GraphItem> graph_items_;          // in arrival order
   std::vector<ExternalConstraint> externals_;   // in arrival order
-  std::map<int64_t, TrackedFrame> frames_;      // live and replayed, once each
-  std::vector<TrackedFrame> new_frames_;        // of frames_, not yet taken by takeNewFrames
+  FrameIds frame_ids_;                          // live and replayed, once each
+  std::vector<TrackedFrame> new_frames_;        // not yet taken by takeNewFrames
+  bool hold_frames_ = false;
+  std::map<int64_t, TrackedFrame> held_frames_;  // holdFrames()
   bool upstream_done_ = false;
   int64_t last_frame_id_ = -1;
   int64_t rejected_ = 0;

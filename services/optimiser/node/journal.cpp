@@ -1,6 +1,7 @@
 #include "journal.hpp"
 
 #include <filesystem>
+#include <map>
 #include <variant>
 
 #include "rekon/common/error.hpp"
@@ -91,7 +92,27 @@ void Journal::append(const std::vector<GraphItem>& items, const std::vector<Trac
     else
       journal_->append(kConstraintRecord, constraintMsg(std::get<Constraint>(item)));
   }
-  for (const auto& f : frames) journal_->append(kTrackedFrameRecord, trackedFrameMsg(f));
+  for (const auto& f : frames) {
+    journal_->append(kTrackedFrameRecord, trackedFrameMsg(f));
+    if (!journal_->open()) unwritten_frames_.push_back(f);  // the trajectory still needs it
+  }
+}
+
+std::vector<TrackedFrame> Journal::trackedFrames() const {
+  if (!journal_) return {};
+  std::map<int64_t, TrackedFrame> by_id;
+  scanRecordJournal(journal_->path(), [&by_id](JournalRecord& r) {  // one record in memory at a time
+    if (r.tag != kTrackedFrameRecord) return true;
+    JournalContents one;
+    if (!readRecord(r, one)) return false;
+    by_id.emplace(one.frames.front().frame_id, one.frames.front());
+    return true;
+  });
+  for (const TrackedFrame& f : unwritten_frames_) by_id.emplace(f.frame_id, f);
+  std::vector<TrackedFrame> out;
+  out.reserve(by_id.size());
+  for (const auto& [id, f] : by_id) out.push_back(f);
+  return out;
 }
 
 bool applyArrived(const std::vector<GraphItem>& items, Inbox& inbox, GraphWorker& worker, Journal& journal) {

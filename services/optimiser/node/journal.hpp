@@ -39,13 +39,20 @@ class Journal {
   // naming the file when it cannot be written.
   Journal(const std::string& out_dir, bool restarted);
   const JournalContents& contents() const { return contents_; }
+  // Frees what contents() holds once the graph is rebuilt from it.
+  void forgetContents() { contents_ = JournalContents{}; }
   // Appends; a failed write logs one error and stops the journal (the run
   // goes on; a restart then asks for more).
   void append(const std::vector<GraphItem>& items, const std::vector<TrackedFrame>& frames);
+  bool enabled() const { return journal_ != nullptr; }
+  // Every tracked frame it holds, read back from the file, once each, by id;
+  // with the frames a stopped journal could not take (kept here instead).
+  std::vector<TrackedFrame> trackedFrames() const;
 
  private:
   std::unique_ptr<RecordJournal> journal_;
   JournalContents contents_;
+  std::vector<TrackedFrame> unwritten_frames_;  // after a failed write
 };
 
 // Items the inbox queued, journaled (those the worker has not seen) with the

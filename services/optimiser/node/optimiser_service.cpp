@@ -116,7 +116,9 @@ void runOptimiserService(ServiceContext& ctx) {
   SessionGraph session(ctx.config());
   continueSession(ctx, inbox, worker, session);
   Journal journal(ctx.outDir(), ctx.config().getBool("optimiser.restarted"));
+  if (!journal.enabled()) inbox.holdFrames();  // else the final step reads them back from the journal
   const ReplayCursor from = rebuildFromJournal(journal.contents(), inbox, worker);
+  journal.forgetContents();
   ReplayClient replays(ctx, peers, inbox);
   if (!recoverAtStart(ctx, peers, replays, inbox, worker, from)) {
     // Nothing to add, but a mapper may wait for the optimiser's current instance.
@@ -133,7 +135,8 @@ void runOptimiserService(ServiceContext& ctx) {
   session.afterOptimisation(worker.graph(), true);
   const Inbox::Final final_state = inbox.takeFinal();
   worker.countRejected(final_state.rejected);
-  const size_t trajectory_frames = writeTrajectory(ctx, worker, final_state.frames);
+  const size_t trajectory_frames =
+      writeTrajectory(ctx, worker, journal.enabled() ? journal.trackedFrames() : final_state.frames);
 
   const rekon_msgs::done_t done = doneMessage(ctx.name(), final_state.last_frame_id);
   publishFinal(ctx.bus(), final_update, done, params);

@@ -53,6 +53,16 @@ using AcceptRecord = std::function<bool(const JournalRecord&)>;
 // cannot be read.
 JournalRead readRecordJournal(const std::string& path, const AcceptRecord& accept = nullptr);
 
+// The same read without holding the records: `visit` gets each good record
+// in append order (its bytes may be moved out) and returns false to refuse
+// it, which ends the read as a bad record does. One record in memory at a time.
+struct JournalScan {
+  uint64_t valid_bytes = 0;  // as JournalRead's
+  bool torn = false;
+  size_t records = 0;        // visited and taken
+};
+JournalScan scanRecordJournal(const std::string& path, const std::function<bool(JournalRecord&)>& visit);
+
 // Decodes a record as message type M; nullopt when it does not decode whole.
 template <class M>
 std::optional<M> decodeRecord(const JournalRecord& r) {
