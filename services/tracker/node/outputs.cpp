@@ -47,6 +47,7 @@ void writeOutputs(ServiceContext& ctx, const TrackingTotals& totals, int64_t fra
       .set("lost_frames", static_cast<long long>(totals.lost))
       .set("keyframes", static_cast<long long>(totals.keyframes))
       .set("keyframes_reused", static_cast<long long>(totals.keyframes_reused))
+      .set("keyframe_reuse_checks", static_cast<long long>(totals.keyframe_reuse_checks))
       .set("odometry_constraints", static_cast<long long>(totals.constraints))
       .set("relocalisations", static_cast<long long>(totals.relocalisations))
       .set("undecodable_frames", static_cast<long long>(totals.undecodable))

@@ -169,6 +169,7 @@ bool TrackingWorker::trackLocked(const rekon_msgs::frame_t& msg) {
   totals_.relocalisations += r.relocalised_from.has_value() && !r.reanchored;
   totals_.reanchored += r.reanchored;
   totals_.keyframes_reused += r.keyframe_reused;
+  totals_.keyframe_reuse_checks = tracker_.keyframeReuseChecks();
   if (session_.localise_only && r.state == TrackingState::Ok) totals_.localised.push_back({r.timestamp, r.pose_world});
   totals_.odometry.push_back({r.timestamp, r.pose_world});
   totals_.lost_intervals.add(r);

@@ -29,6 +29,7 @@ struct TrackingCounts {
   int64_t frames = 0, lost = 0, keyframes = 0, constraints = 0, undecodable = 0, relocalisations = 0;
   int64_t reanchored = 0;  // session.localise_only: due keyframes placed by the map (not in relocalisations)
   int64_t keyframes_reused = 0;  // tracker.keyframe_reuse: due keyframes not made (an existing one reused)
+  int64_t keyframe_reuse_checks = 0;  // ...and the existing keyframes aligned to decide
 };
 
 struct TrackingTotals : TrackingCounts {

@@ -23,6 +23,14 @@ void Relocaliser::updateGraph(int64_t version, std::unordered_map<int64_t, Pose>
   detector_.updateGraph(version, std::move(poses));
 }
 
+Relocalisation Relocaliser::placed(const CandidateCheck& accepted, int candidates_tried) const {
+  Relocalisation r;
+  r.edge = *accepted.constraint;
+  r.pose_world = orthonormalised(detector_.estimate(accepted.candidate_id) * r.edge.relative);
+  r.candidates_tried = candidates_tried;
+  return r;
+}
+
 void Relocaliser::restart() {
   next_ = 0;
   tried_ = 0;
@@ -66,12 +74,7 @@ std::optional<Relocalisation> Relocaliser::relocalise(const Keyframe& query, con
     const CandidateCheck c = detector_.check(candidate, query, guesses(candidate, guess_world));
     spdlog::debug("relocalisation of frame {} against keyframe {}: {} (ln det ratios coarse {:.3f}, fine {:.3f})",
                   query.frame_id, candidate, c.accepted ? "accepted" : c.reason, c.best_coarse_ratio, c.best_fine_ratio);
-    if (!c.accepted) continue;
-    Relocalisation r;
-    r.edge = *c.constraint;
-    r.pose_world = orthonormalised(detector_.estimate(candidate) * r.edge.relative);
-    r.candidates_tried = tried_;
-    return r;
+    if (c.accepted) return placed(c, tried_);
   }
   return std::nullopt;
 }
@@ -93,6 +96,7 @@ std::optional<Relocalisation> Relocaliser::reuse(const Keyframe& query, int64_t 
   int tried = 0;
   for (const auto& [distance, candidate] : near) {
     ++tried;
+    ++reuse_checks_;
     // From the candidate itself and from where the estimates put the frame, as a loop check starts.
     const Pose guess = orthonormalised(detector_.estimate(candidate).inverse() * at);
     const CandidateCheck c = detector_.check(candidate, query, {Pose::Identity(), guess});
@@ -100,12 +104,7 @@ std::optional<Relocalisation> Relocaliser::reuse(const Keyframe& query, int64_t 
                   "{:.3f})",
                   query.frame_id, candidate, distance, c.accepted ? "accepted" : c.reason, c.best_coarse_ratio,
                   c.best_fine_ratio);
-    if (!c.accepted) continue;
-    Relocalisation r;
-    r.edge = *c.constraint;
-    r.pose_world = orthonormalised(detector_.estimate(candidate) * r.edge.relative);
-    r.candidates_tried = tried;
-    return r;
+    if (c.accepted) return placed(c, tried);
   }
   return std::nullopt;
 }

@@ -52,6 +52,8 @@ void Tracker::addIndexedKeyframe(int64_t id, const Pose& pose_world, const std::
   relocaliser_->addIndexed(id, pose_world, incoming);
 }
 
+int64_t Tracker::keyframeReuseChecks() const { return relocaliser_->reuseChecks(); }
+
 void Tracker::relocaliseFirstFrame(int frames) { relocalise_first_within_ = frames; }
 
 void Tracker::localiseOnly() {

@@ -120,8 +120,9 @@ void printStats(const InProcessSlam& slam, const EdgeErrors& e, double informati
               static_cast<long>(stats.keyframes_checked), static_cast<long>(stats.candidates),
               static_cast<long>(stats.accepted), static_cast<long>(stats.rejected), e.far_loops,
               slam.check_ms / static_cast<double>(std::max<int64_t>(stats.keyframes_checked, 1)));
-  std::printf("keyframes_reused=%ld reuse_edges=%zu (tracker.keyframe_reuse)\n", static_cast<long>(slam.keyframes_reused),
-              slam.reuse_edges.size());
+  std::printf("keyframes_reused=%ld reuse_edges=%zu keyframe_reuse_checks=%ld (tracker.keyframe_reuse)\n",
+              static_cast<long>(slam.keyframes_reused), slam.reuse_edges.size(),
+              static_cast<long>(slam.keyframe_reuse_checks));
   std::printf("chi2 at the ground truth (information x %.0e): odometry median %.1f p90 %.1f, loops median %.1f p90 %.1f "
               "(6 dof: 5.35 median if calibrated)\n",
               information_scale, ErrorStats::quantile(e.odometry_chi2, 0.5), ErrorStats::quantile(e.odometry_chi2, 0.9),

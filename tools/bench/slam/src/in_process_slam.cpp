@@ -34,6 +34,7 @@ InProcessSlam runInProcess(const TumDataset& dataset, const TrackerParams& param
     for (const LoopConstraint& c : detector.detect(r.keyframe_id, out.stats)) out.loop_edges.push_back(c);
     out.check_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   }
+  out.keyframe_reuse_checks = tracker.keyframeReuseChecks();
   return out;
 }
 

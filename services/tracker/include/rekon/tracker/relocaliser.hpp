@@ -52,11 +52,15 @@ class Relocaliser {
   // first, at most reuse_candidates of them; the first accepted.
   std::optional<Relocalisation> reuse(const Keyframe& query, int64_t current_id, const Pose& in_current,
                                       const KeyframeParams& params);
+  // Candidates reuse() has checked so far.
+  int64_t reuseChecks() const { return reuse_checks_; }
   std::shared_ptr<const Keyframe> keyframe(int64_t id) const { return detector_.keyframe(id); }
   bool odometryLinked(int64_t a, int64_t b) const { return detector_.odometryLinked(a, b); }
 
  private:
   std::vector<int64_t> ranked(const std::optional<Pose>& guess_world) const;
+  // An accepted check as a relocalisation: the query at the candidate's estimate times the edge.
+  Relocalisation placed(const CandidateCheck& accepted, int candidates_tried) const;
   // Initial poses of the query in `candidate` to align from.
   std::vector<Pose> guesses(int64_t candidate, const std::optional<Pose>& guess_world) const;
 
@@ -64,6 +68,7 @@ class Relocaliser {
   size_t size_ = 0;
   size_t next_ = 0;  // index into the ranked candidates where the search goes on
   int tried_ = 0;
+  int64_t reuse_checks_ = 0;
 };
 
 }  // namespace rekon::tracker

@@ -173,6 +173,8 @@ class Tracker {
 
   std::shared_ptr<const Keyframe> currentKeyframe() const { return keyframe_; }
   int64_t keyframeCount() const { return next_keyframe_id_; }
+  // Existing keyframes aligned to decide a reuse (KeyframeParams::reuse), each a loop check on this thread.
+  int64_t keyframeReuseChecks() const;
   const TrackerParams& params() const { return params_; }
 
  private:

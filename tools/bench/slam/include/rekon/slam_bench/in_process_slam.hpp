@@ -32,7 +32,7 @@ struct InProcessSlam {
   std::vector<tracker::LoopConstraint> loop_edges;
   // tracker.keyframe_reuse's edges (TrackResult::reuse_edge), loop edges in the graph as in rekon-optimiser.
   std::vector<tracker::OdometryConstraint> reuse_edges;
-  int64_t keyframes_reused = 0;
+  int64_t keyframes_reused = 0, keyframe_reuse_checks = 0;
   tracker::LoopClosureStats stats;
   double check_ms = 0.0;  // wall time of all loop checks
 };
