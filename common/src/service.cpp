@@ -109,6 +109,16 @@ void ServiceContext::setState(const std::string& state) {
     if (threads_->state == state) return;
     threads_->state = state;
   }
+  // On the bus before anything the caller publishes next: a restarted mapper
+  // says "running" before its resume point, so the tracker knows the new
+  // instance before the frames the player sends it again (the heartbeat
+  // thread, woken below, was once later than those under load: the tracker
+  // took them for a repeat to the old instance and did not answer them).
+  try {
+    bus_->publish(channel::kHeartbeat, heartbeat());
+  } catch (const std::exception& e) {
+    spdlog::warn("heartbeat for state {} not published: {}", state, e.what());
+  }
   threads_->state_changed.notify_all();
 }
 

@@ -6,11 +6,15 @@
 #include <chrono>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include "rekon/common/bus.hpp"
+#include "rekon/common/cli.hpp"
+#include "rekon/common/config.hpp"
 #include "rekon/common/service.hpp"
 #include "rekon_msgs/done_t.hpp"
 #include "rekon_msgs/heartbeat_t.hpp"
+#include "rekon_msgs/resume_point_t.hpp"
 #include "test_support.hpp"
 
 namespace {
@@ -196,4 +200,33 @@ TEST(PeerWatch, SilenceScalesWithTheLongestGapBetweenHeartbeats) {
   std::this_thread::sleep_for(std::chrono::milliseconds(300));
   EXPECT_TRUE(w.peers.gone("mapper"));
   EXPECT_TRUE(w.peers.finished({"mapper"}));
+}
+
+// A new state is on the bus before anything the service publishes after
+// setting it: a restarted mapper's "running" reaches the tracker before its
+// resume point, hence before the frames the player sends again from it.
+// When only the heartbeat thread sent it, under load it came after them: the
+// tracker took those frames for repeats to the killed instance, did not
+// answer them, and the mapper dropped them (tools/rekon stress, 5 of 20).
+// The heartbeat thread is not even started here.
+TEST(PeerWatch, ANewStateIsOnTheBusBeforeWhatTheServicePublishesNext) {
+  if (!rekon::test::insideNetns()) return;
+  LcmBus watched(BusOptions{});
+  std::vector<std::string> seen;
+  watched.subscribe<rekon_msgs::heartbeat_t>(channel::kHeartbeat, [&](const rekon_msgs::heartbeat_t& hb) {
+    if (hb.service == "mapper") seen.push_back("heartbeat " + hb.state);
+  });
+  watched.subscribe<rekon_msgs::resume_point_t>(channel::kResumePoint,
+                                                [&](const rekon_msgs::resume_point_t&) { seen.push_back("resume point"); });
+  rekon::ArgParser args("rekon-mapper", "in-process");
+  rekon::ServiceContext ctx("mapper", rekon::Config::load("", {}), "", args);
+  ctx.setState("running");
+  rekon_msgs::resume_point_t point{};
+  point.service = "mapper";
+  ctx.bus().publish(channel::kResumePoint, point);
+  const auto end = std::chrono::steady_clock::now() + std::chrono::seconds(5);
+  while ((seen.empty() || seen.back() != "resume point") && std::chrono::steady_clock::now() < end) watched.handle(20);
+  ASSERT_EQ(seen.size(), 2u);
+  EXPECT_EQ(seen[0], "heartbeat running");
+  EXPECT_EQ(seen[1], "resume point");
 }

@@ -77,12 +77,15 @@ rekon_msgs::resume_point_t resumePoint(const ServiceContext& ctx, const Mapper& 
 }
 
 void announceStart(ServiceContext& ctx, const Settings& settings, const rekon_msgs::resume_point_t& resume_point) {
+  // Running first (setState publishes it at once): the tracker must know this
+  // instance before the frames its resume point brings again, or it takes
+  // them for repeats already answered (History::republishResult).
+  ctx.setState("running");
   ctx.bus().publish(channel::kResumePoint, resume_point);
   if (resume_point.first_missing_frame == 0)
     spdlog::info("mapper: resuming at frame 0 (no KF keyframe in the keyframe store yet)");
   else if (resume_point.first_missing_frame > 0)
     spdlog::info("mapper: resuming after frame {} (the newest in the keyframe store)", resume_point.first_missing_frame - 1);
-  ctx.setState("running");
   const MapperParams& params = settings.params;
   spdlog::info("mapper: KF strategy {} (kappa {}), re-integration {} (m = {}), streaming radius {} m, {}",
                fusion::toString(params.fusion.strategy), params.fusion.kappa, toString(params.mode), params.m,
