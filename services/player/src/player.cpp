@@ -144,10 +144,15 @@ class Player {
     Clock::rep ticks = 0;
     if (!path.empty() && (std::ifstream(path) >> ticks) && ticks > 0 && Clock::time_point(Clock::duration(ticks)) <= now)
       return Clock::time_point(Clock::duration(ticks));
-    const auto since_first = std::chrono::duration<double>(params_.rate > 0 ? scheduledSeconds(from) : 0.0);
+    // `from` is end_ when the consumers had every frame (the killed instance sent them all): nothing is paced then.
+    const auto since_first =
+        std::chrono::duration<double>(params_.rate > 0 && from < end_ ? scheduledSeconds(from) : 0.0);
     spdlog::warn("no readable player_clock.txt in {}: frame {} goes out now, the recorded clock from there", ctx_.outDir(),
                  from);
-    return now - std::chrono::duration_cast<Clock::duration>(since_first);
+    const Clock::time_point start = now - std::chrono::duration_cast<Clock::duration>(since_first);
+    // The killed instance died before it wrote one: the next restart keeps to this clock.
+    if (!path.empty()) std::ofstream(path) << start.time_since_epoch().count() << "\n";
+    return start;
   }
 
   // Frame `id` in playing order: decoded ahead (resends decode their frame again).
