@@ -89,10 +89,30 @@ Mapper::Mapper(const MapperParams& params) : params_(params) {
     } catch (const Error&) {
       return;  // no store yet: created with the first frame's camera
     }
-    finished_run_end_ = store_->runEndFrame();
-    if (finished_run_end_) return;  // nothing to rebuild: the run's outputs are written
-    restoreFromStore();
+    try {
+      finished_run_end_ = store_->runEndFrame();
+      if (finished_run_end_) return;  // nothing to rebuild: the run's outputs are written
+      restoreFromStore();
+    } catch (const store::BrokenStore& e) {
+      startAgainWithoutTheStore(e);
+    }
   }
+}
+
+// The killed instance died inside the store's allocator: what the store
+// holds cannot be trusted. It is removed and this restart starts empty, at
+// frame 0 (its resume point), as one killed before its first KF keyframe does:
+// from a file every frame comes again; live, the frames before are lost.
+void Mapper::startAgainWithoutTheStore(const Error& why) {
+  spdlog::warn("{}: removing it; this restart rebuilds the map from frame 0", why.what());
+  store_.reset();
+  store::KeyframeStore::remove(params_.store.segment);
+  camera_.reset();  // the first frame's camera creates a new store
+  fuser_.reset();
+  keyframes_.clear();
+  graph_poses_.clear();
+  counters_.restored_keyframes = 0;
+  volume_ = std::make_unique<volume::TsdfVolume>(params_.volume);
 }
 
 Mapper::~Mapper() = default;

@@ -151,7 +151,7 @@ struct KeyframeStore::Impl {
     ShmLock l(header->mutex, "keyframe store '" + name + "'", kLockPatience);
     if (!l.ownerDied()) return l;
     if (header->allocator_pid != 0)
-      throw Error("keyframe store '" + name + "' is broken: process " + std::to_string(header->allocator_pid) +
+      throw BrokenStore("keyframe store '" + name + "' is broken: process " + std::to_string(header->allocator_pid) +
                   " died inside its allocator; remove it (rekon keyframes --remove) and start without mapper.resume");
     spdlog::warn("keyframe store '{}': process {} died holding its lock; nothing was half-written, carrying on", name,
                  l.deadPid());

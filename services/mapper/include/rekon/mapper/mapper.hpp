@@ -199,6 +199,7 @@ class Mapper {
   void updateTierCounters();  // counters_.active_blocks and the host tier's
   void ensureCamera(const Intrinsics& k);
   void restoreFromStore();
+  void startAgainWithoutTheStore(const Error& why);
   void continueSession();
   // A keyframe restored from the store or the session, integrated at `pose`.
   void integrateRestored(KeyframeRecord& rec, const fusion::FusedKeyframe& images, const Pose& pose);
