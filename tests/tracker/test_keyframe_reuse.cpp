@@ -48,6 +48,14 @@ TEST(KeyframeReuse, TheRoomWalkedTwiceMakesAlmostNoKeyframesOnItsSecondLapAndSta
   const Trajectory truth = room.trajectory(2 * kLapFrames);
   TrackerParams reusing;
   reusing.keyframe.reuse = true;
+  // The room's loop has 31 keyframes: the default's newest 20 left out
+  // would leave a third of them to reuse (a defence against switching back
+  // and forth between the keyframes just made, for loops of many more). A
+  // radius below the keyframe spacing (0.2 m) and the keyframe rotation
+  // limit (15 degrees) leave the first lap nothing to reuse.
+  reusing.keyframe.reuse_exclude_recent = 0;
+  reusing.keyframe.reuse_radius = 0.15;
+  reusing.keyframe.reuse_angle_deg = 15.0;
   ReuseRun off{TrackerParams{}}, on{reusing};
   for (int i = 0; i < 2 * kLapFrames; i += kStride) {
     const RgbdFrame f = room.render(truth[i].pose, synth::Noise::Kinect, i);

@@ -286,6 +286,10 @@ TEST(TrackerRestart, AfterAKeyframeReuseTheRestartGoesOnAgainstTheReusedKeyframe
   rekon::test::TempDir dir;
   TrackerParams params;
   params.keyframe.reuse = true;
+  params.keyframe.reuse_exclude_recent = 0;  // the way back passes the few keyframes just made
+  params.keyframe.reuse_radius = 0.15;        // as KeyframeReuse.* (at the defaults, 0.3 m and 20 degrees: 4
+                                              // reuses after the kill, 5.3 micrometres apart measured)
+  params.keyframe.reuse_angle_deg = 15.0;
   const Trajectory there = views.trajectory(60);
   Trajectory path = there;
   for (auto p = there.rbegin(); p != there.rend(); ++p) path.push_back(*p);

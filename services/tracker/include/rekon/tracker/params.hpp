@@ -70,10 +70,10 @@ struct KeyframeParams {
   static constexpr double kDefaultMaxTranslation = 0.2;
   static constexpr double kDefaultMaxRotationDeg = 15.0;
   static constexpr bool kDefaultReuse = false;
-  static constexpr double kDefaultReuseRadius = 0.15;
-  static constexpr double kDefaultReuseAngleDeg = 15.0;
+  static constexpr double kDefaultReuseRadius = 0.3;
+  static constexpr double kDefaultReuseAngleDeg = 20.0;
   static constexpr int kDefaultReuseCandidates = 2;
-  static constexpr int kDefaultReuseExcludeRecent = 0;
+  static constexpr int kDefaultReuseExcludeRecent = 20;
 
   // "entropy_ratio" (Kerl et al. IROS 2013, plus the distance limits) or
   // "distance" (the distance limits only).
