@@ -190,7 +190,8 @@ class OpenNI2Source : public CameraSource {
   OpenNIScope scope_;
   openni::Device device_;
   openni::VideoStream streams_[2];  // depth, color
-  std::set<int> driver_threads_;    // the threads the streams' start() started
+  std::set<int> device_threads_;    // the threads the device's open() started
+  std::set<int> stream_threads_;    // the threads the streams' start() started
   std::unique_ptr<DeviceEvents> events_;
   bool is_file_ = false;
   bool recording_clock_ = false;
@@ -237,11 +238,18 @@ OpenNI2Source::~OpenNI2Source() {
     openni::OpenNI::waitForAnyStream(&stream, 1, &ready, kFirstFrameBeforeStopMs);
   }
   for (auto& stream : streams_) stream.stop();
-  if (!waitForThreadsToEnd(driver_threads_, kDriverThreadsEnd))
+  if (!waitForThreadsToEnd(stream_threads_, kDriverThreadsEnd))
     spdlog::warn("OpenNI2 device '{}': the driver's stream threads still run {} ms after stop", uri_,
                  kDriverThreadsEnd.count());
   for (auto& recent : recent_) recent.clear();
-  for (auto& stream : streams_) stream.destroy();
+  // OniFile's player thread walks its list of streams without a lock, and
+  // sleeps 10 ms between walks once no stream runs: a stream destroyed during
+  // a walk is read after it was freed (a segfault in 1 % of the sources, four
+  // test processes at once). Each stream is destroyed the moment it sleeps.
+  for (auto& stream : streams_) {
+    waitForThreadsToBlock(device_threads_, kDriverThreadsEnd);
+    stream.destroy();
+  }
   events_.reset();
   device_.close();
 }
@@ -252,10 +260,10 @@ void OpenNI2Source::openDevice() {
   if (is_file_ && !std::filesystem::is_regular_file(uri_))
     throw Error("OpenNI2 recording '" + uri_ + "' does not exist; check the path after openni2:");
   openni::Status opened = openni::STATUS_OK;
-  const std::set<int> device_threads =
+  device_threads_ =
       threadsStartedBy([&] { opened = device_.open(uri_.empty() ? openni::ANY_DEVICE : uri_.c_str()); });
   // A file device closed before its thread first ran loses the close (rekon/common/threads.hpp).
-  waitForThreadsToBlock(device_threads, kDriverThreadsEnd);
+  waitForThreadsToBlock(device_threads_, kDriverThreadsEnd);
   if (opened != openni::STATUS_OK) {
     const std::string hint = is_file_ ? "check that it is a complete .oni recording (OpenNI2 opens no truncated "
                                         "one; rekon-oni-record makes one)"
@@ -387,7 +395,7 @@ void OpenNI2Source::setUpIntrinsics(const SourceOptions& options) {
 }
 
 void OpenNI2Source::startStreams() {
-  driver_threads_ = threadsStartedBy([&] {
+  stream_threads_ = threadsStartedBy([&] {
     for (auto& stream : streams_)
       if (stream.start() != openni::STATUS_OK)
         throw Error("OpenNI2 device '" + uri_ + "': cannot start streaming: " + oniError() + "; " + kOpenHint);
