@@ -16,6 +16,7 @@
 
 #include "rekon/common/error.hpp"
 #include "rekon/common/files.hpp"
+#include "rekon/common/kill_point.hpp"
 #include "shm_mutex.hpp"
 #include "spill_file.hpp"
 
@@ -172,6 +173,7 @@ struct KeyframeStore::Impl {
         h->allocator_pid = 0;
       }
     } mark(header);
+    killPoint("store.allocator");  // a crash-only test dies here (rekon/common/kill_point.hpp)
     return f();
   }
   ShmKeyframe* find(int64_t id) const {

@@ -7,6 +7,7 @@
 #include <ctime>
 
 #include "rekon/common/error.hpp"
+#include "rekon/mapper/store/broken_store.hpp"
 
 namespace rekon::store {
 namespace {
@@ -50,7 +51,7 @@ ShmLock::ShmLock(ShmMutex& m, const std::string& what, std::chrono::seconds pati
     throw Error(what + " has been locked by process " + std::to_string(before) + " for " +
                 std::to_string(patience.count()) + " s; stop that process, or remove it (rekon keyframes --remove)");
   } else if (rc == ENOTRECOVERABLE) {
-    throw Error(what + " is broken: a process died while changing it; remove it (rekon keyframes --remove) and start without mapper.resume");
+    throw BrokenStore(what + " is broken: a process died while changing it; remove it (rekon keyframes --remove) and start without mapper.resume");
   } else {
     check(rc, "pthread_mutex_timedlock");
   }

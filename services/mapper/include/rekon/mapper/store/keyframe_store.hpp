@@ -24,10 +24,10 @@
 #include <vector>
 
 #include "rekon/common/camera.hpp"
-#include "rekon/common/error.hpp"
 #include "rekon/common/config.hpp"
 #include "rekon/common/pose.hpp"
 #include "rekon/mapper/fusion/keyframe_fusion.hpp"
+#include "rekon/mapper/store/broken_store.hpp"
 
 namespace rekon::store {
 
@@ -73,13 +73,6 @@ struct KeyframeInfo {
   Pose integrated_pose = Pose::Identity();
   bool integrated = false;
   bool spilled = false;  // its images are in a spill file, not in the segment
-};
-
-// A store whose writer died inside the segment's allocator: its free lists
-// may be half-changed, so nothing in it can be trusted any more.
-class BrokenStore : public Error {
- public:
-  using Error::Error;
 };
 
 class KeyframeStore {
