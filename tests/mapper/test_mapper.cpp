@@ -46,11 +46,11 @@ MapperParams testParams() {
 
 // A mapper with a keyframe store (64 MiB: 320x240 keyframes take 0.84 MiB
 // each) that a restart resumes from, none left by an earlier run.
-MapperParams resumingParams(const std::string& segment_prefix) {
+MapperParams resumingParams(const std::string& segment) {
   MapperParams p = testParams();
   p.use_store = true;
   p.resume = true;
-  p.store.segment = segment_prefix + std::to_string(getpid());
+  p.store.segment = segment;
   p.store.size_mb = 64;
   store::KeyframeStore::remove(p.store.segment);
   return p;
@@ -404,7 +404,7 @@ TEST(Mapper, MemoryUseCountsInputFramesAndKeyframes) {
 }
 
 TEST(KeyframeStore, ARestartedMapperRebuildsTheSameVolume) {
-  const MapperParams p = resumingParams("rekon_test_store_");
+  const MapperParams p = resumingParams("rekon_test_store_" + std::to_string(getpid()));
   VoxelMap before;
   int64_t kf_before = 0;
   {
@@ -433,7 +433,7 @@ TEST(KeyframeStore, ARestartedMapperRebuildsTheSameVolume) {
 // once counted it restored and never integrated it: 4004 voxel blocks
 // instead of 4195 in Faults.KilledMapperIsRestartedAndItsMeshMatchesAnUninterruptedRun.
 TEST(KeyframeStore, AKeyframeStoredButNotYetIntegratedWhenTheMapperDiedIsIntegratedByItsRestart) {
-  const MapperParams p = resumingParams("rekon_test_unintegrated_");
+  const MapperParams p = resumingParams("rekon_test_unintegrated_" + std::to_string(getpid()));
   // The uninterrupted mapper: 12 frames, kappa 4, every KF keyframe closed and integrated.
   Mapper uninterrupted(testParams());
   play(uninterrupted, 12);
@@ -464,36 +464,6 @@ TEST(KeyframeStore, AKeyframeStoredButNotYetIntegratedWhenTheMapperDiedIsIntegra
   restarted.removeStore();
 }
 
-// The tracker reusing a keyframe goes back to an earlier DVO keyframe: the
-// frame on it is placed through that keyframe's graph pose, which moves
-// against the open KF keyframe's with every update, so it starts a new KF
-// keyframe (kappa 4 here). A new DVO keyframe (made from the frame before)
-// does not.
-TEST(Mapper, AFrameOnAnEarlierDvoKeyframeStartsANewKfKeyframe) {
-  const Scenario& s = scenario();
-  auto fuse = [&](const std::vector<int64_t>& dvo_keyframe_of_frame) {
-    Mapper mapper(testParams());
-    for (size_t i = 0; i < dvo_keyframe_of_frame.size(); ++i) {
-      const int64_t id = dvo_keyframe_of_frame[i];
-      const Pose keyframe_world = s.ground_truth[static_cast<size_t>(2 * id)].pose;  // DVO keyframe k at frame 2k
-      mapper.setKeyframeEstimate(id, keyframe_world);
-      mapper.addFrame(s.frames[i], testCamera(), id, keyframe_world.inverse() * s.ground_truth[i].pose, false);
-    }
-    mapper.flush();
-    std::vector<std::pair<int64_t, int64_t>> spans;
-    for (const KeyframeRecord& rec : mapper.keyframes()) spans.emplace_back(rec.kf.first_frame_id, rec.kf.last_frame_id);
-    return std::make_pair(spans, mapper.counters().kf_keyframes_at_reference_jumps);
-  };
-  using Spans = std::vector<std::pair<int64_t, int64_t>>;
-  // New keyframes only (1 at frame 2, 2 at frame 4, ...): kappa decides alone.
-  EXPECT_EQ(fuse({0, 0, 1, 1, 2, 2, 3, 3, 4, 4, 5, 5}), std::make_pair(Spans{{0, 3}, {4, 7}, {8, 11}}, int64_t{0}));
-  // Frame 10 back on keyframe 1 (a reuse), frame 11 on it too: one cut, at 10.
-  EXPECT_EQ(fuse({0, 0, 1, 1, 2, 2, 3, 3, 4, 4, 1, 1}), std::make_pair(Spans{{0, 3}, {4, 7}, {8, 9}, {10, 11}}, int64_t{1}));
-  // A new keyframe made while on the reused one (6, after 1) is no jump; back on 3 is.
-  EXPECT_EQ(fuse({0, 0, 1, 1, 2, 2, 1, 6, 6, 3, 3, 3}),
-            std::make_pair(Spans{{0, 3}, {4, 5}, {6, 8}, {9, 11}}, int64_t{2}));
-}
-
 // A mapper killed inside the store's allocator leaves a store whose free
 // lists may be half-changed (seen once in 20 chaos runs beside two CPU
 // hogs). Its restart removes that store and rebuilds from frame 0, to the
@@ -501,8 +471,14 @@ TEST(Mapper, AFrameOnAnEarlierDvoKeyframeStartsANewKfKeyframe) {
 // through the store's kill point (rekon/common/kill_point.hpp): the fourth
 // allocation is the second KF keyframe's.
 TEST(KeyframeStore, AMapperKilledInsideTheStoresAllocatorIsRestartedWithoutItAndRebuildsTheSameVolume) {
-  const MapperParams p = resumingParams("rekon_test_allocator_kill_");
-  // Forked before this process starts a thread (the child renders the frames itself).
+  // "threadsafe": the child runs this test again from its start in a new
+  // process (a fork would lack the volume's worker threads of the tests
+  // before, and its parallelFor would wait for them for ever); the parent's
+  // segment name reaches it through the environment.
+  GTEST_FLAG_SET(death_test_style, "threadsafe");
+  if (std::getenv("REKON_TEST_SEGMENT") == nullptr)
+    setenv("REKON_TEST_SEGMENT", ("rekon_test_allocator_kill_" + std::to_string(getpid())).c_str(), 1);
+  const MapperParams p = resumingParams(std::getenv("REKON_TEST_SEGMENT"));
   EXPECT_EXIT(
       {
         setenv("REKON_KILL_AT", "store.allocator#4", 1);
@@ -511,6 +487,7 @@ TEST(KeyframeStore, AMapperKilledInsideTheStoresAllocatorIsRestartedWithoutItAnd
         std::exit(0);
       },
       ::testing::KilledBySignal(SIGKILL), "");
+  unsetenv("REKON_TEST_SEGMENT");
   EXPECT_THROW(store::KeyframeStore::openExisting(p.store.segment)->list(), store::BrokenStore);
 
   Mapper restarted(p);
@@ -573,7 +550,7 @@ TEST(KeyframeStore, AFullStoreIsAnErrorNamingTheSetting) {
 }
 
 TEST(KeyframeStore, WithoutResumeAStaleStoreIsDiscarded) {
-  MapperParams p = resumingParams("rekon_test_stale_");
+  MapperParams p = resumingParams("rekon_test_stale_" + std::to_string(getpid()));
   {
     Mapper crashed(p);
     play(crashed, 12);  // 12 frames, kappa 4: two keyframes closed, the third still open
