@@ -87,7 +87,6 @@ void recordStats(ServiceContext& ctx, const Mapper& mapper, const MapperParams& 
       .set("frames_received_again", static_cast<long long>(inbox.frames_received_again))
       .set("frames_before_resume", static_cast<long long>(inbox.frames_before_resume))
       .set("kf_keyframes", static_cast<long long>(c.kf_keyframes))
-      .set("kf_keyframes_at_reference_jumps", static_cast<long long>(c.kf_keyframes_at_reference_jumps))
       .set("integrations", static_cast<long long>(c.integrations))
       .set("deintegrations", static_cast<long long>(c.deintegrations))
       .set("reintegrations", static_cast<long long>(c.reintegrations))

@@ -314,9 +314,7 @@ bool Mapper::addFrame(const RgbdFrame& frame, const Intrinsics& k, int64_t keyfr
   if (fuser_->active()) {
     if (const auto open = currentPose(fuser_->openKeyframe())) fuser_->moveTo(*open);
   }
-  const bool jumped = wentBackToAnEarlierKeyframe(keyframe_id);
-  if (jumped || fuser_->startsNewKeyframe(keyframe_id, world)) {
-    counters_.kf_keyframes_at_reference_jumps += jumped && fuser_->active();
+  if (fuser_->startsNewKeyframe(keyframe_id, world)) {
     counters_.fuse_ms_total += clockMs() - t0;
     closeKeyframe();
     t0 = clockMs();
@@ -330,20 +328,6 @@ bool Mapper::addFrame(const RgbdFrame& frame, const Intrinsics& k, int64_t keyfr
   ++counters_.frames;
   updateTierCounters();
   return true;
-}
-
-// A frame tracked against an earlier DVO keyframe than the newest its
-// predecessors were on (the tracker reused a keyframe, or relocalised after
-// a restart) is placed through that keyframe's graph pose, not by odometry
-// from the open KF keyframe's frames, and the two move apart with every
-// graph update: fused into one image they would stay where one update put
-// them. Such a frame starts a new KF keyframe. A new DVO keyframe is made
-// from the frame before it (odometry): no jump.
-bool Mapper::wentBackToAnEarlierKeyframe(int64_t keyframe_id) {
-  const bool jumped = keyframe_id != last_frame_keyframe_ && keyframe_id < newest_frame_keyframe_;
-  last_frame_keyframe_ = keyframe_id;
-  newest_frame_keyframe_ = std::max(newest_frame_keyframe_, keyframe_id);
-  return jumped;
 }
 
 void Mapper::closeKeyframe() {

@@ -62,7 +62,6 @@ struct MapperCounters {
   int64_t frames = 0;              // fused into KF keyframes
   int64_t skipped_frames = 0;      // lost, or their DVO keyframe's pose unknown
   int64_t kf_keyframes = 0;
-  int64_t kf_keyframes_at_reference_jumps = 0;  // started where the tracker went back to an earlier DVO keyframe
   int64_t integrations = 0;        // first integrations of KF keyframes
   int64_t deintegrations = 0;
   int64_t reintegrations = 0;      // integrations with a corrected pose
@@ -227,9 +226,6 @@ class Mapper {
   int64_t next_kf_id_ = 0;
   int64_t run_first_kf_id_ = 0;  // KF keyframes before it are an earlier run's (a continued session)
   Eigen::Vector3d camera_position_ = Eigen::Vector3d::Zero();
-  // The DVO keyframe of the last frame fused, and the newest any fused frame was on.
-  int64_t last_frame_keyframe_ = -1, newest_frame_keyframe_ = -1;
-  bool wentBackToAnEarlierKeyframe(int64_t keyframe_id);
   MapperCounters counters_;
   // Now on the clock the *_ms counters use (wall or process CPU), in ms.
   double clockMs() const;
