@@ -68,6 +68,14 @@ Trajectory driftedTrajectory(const Trajectory& ground_truth, double translation_
   return out;
 }
 
+size_t writeGroundTruth(const Scene& scene, const Trajectory& trajectory, const Intrinsics& k, const std::string& out_dir) {
+  writeTumTrajectory(trajectory, (fs::path(out_dir) / "groundtruth.txt").string());
+  saveIntrinsics(k, (fs::path(out_dir) / "camera.yaml").string());
+  const Mesh mesh = scene.groundTruthMesh();
+  writePly(mesh, (fs::path(out_dir) / "mesh_gt.ply").string());
+  return mesh.vertices.size();
+}
+
 SequenceReport writeSequence(const SequenceOptions& options, const std::string& out_dir) {
   const auto start = std::chrono::steady_clock::now();
   const auto scene = Scene::make(options.scene);
@@ -119,18 +127,15 @@ SequenceReport writeSequence(const SequenceOptions& options, const std::string& 
     depth_txt << s << " depth/" << s << ".png\n";
   }
   if (!rgb_txt || !depth_txt) throw Error(out_dir + ": cannot write rgb.txt/depth.txt; check the output folder");
-  writeTumTrajectory(trajectory, (fs::path(out_dir) / "groundtruth.txt").string());
-  saveIntrinsics(k, (fs::path(out_dir) / "camera.yaml").string());
+  const size_t mesh_vertices = writeGroundTruth(*scene, trajectory, k, out_dir);
   if (options.drift_translation_per_m > 0 || options.drift_rotation_deg_per_m > 0) {
     writeTumTrajectory(driftedTrajectory(trajectory, options.drift_translation_per_m, options.drift_rotation_deg_per_m, options.seed),
                        (fs::path(out_dir) / "drifted_trajectory.txt").string());
   }
-  const Mesh mesh = scene->groundTruthMesh();
-  writePly(mesh, (fs::path(out_dir) / "mesh_gt.ply").string());
 
   SequenceReport report;
   report.frames = frames;
-  report.mesh_vertices = mesh.vertices.size();
+  report.mesh_vertices = mesh_vertices;
   report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return report;
 }

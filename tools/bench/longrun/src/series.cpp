@@ -383,7 +383,7 @@ std::vector<GoalLine> judgeGoals(const std::vector<Bucket>& b, double bucket_s, 
                                  : GoalLine{end_of_run_s <= 180 ? "PASS" : "FAIL", "end of run (final pass and meshes) within 180 s",
                                             fmt::format("{:.1f} s", end_of_run_s)});
   out.push_back({"n/a", "ATE and CORR/COMPL no worse than a 10-minute scan of the same space",
-                 "score both with rekon eval traj / rekon eval surface against the scene's groundtruth.txt and mesh_gt.ply"});
+                 "a --scene run writes OUT/groundtruth.txt and OUT/mesh_gt.ply: score it with rekon eval traj and rekon eval surface"});
   return out;
 }
 
