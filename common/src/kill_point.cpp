@@ -10,7 +10,7 @@
 namespace rekon {
 
 void killPoint(const char* name) {
-  const char* spec = std::getenv("REKON_KILL_AT");  // read each time: a test sets it in a forked child
+  const char* spec = std::getenv("REKON_KILL_AT");  // read each time: a test sets it in the child it kills
   if (spec == nullptr) return;
   const std::string at = spec;
   const size_t hash = at.find('#');
