@@ -37,8 +37,6 @@ void runSource(rekon::ServiceContext& ctx, const SourceParams& p) {
   const int frames = p.frames > 0 ? p.frames : scene->defaultFrames(p.laps);
   const rekon::Trajectory trajectory = scene->trajectory(frames, p.seed, p.laps);
   const rekon::Intrinsics k = rekon::synth::defaultIntrinsics();
-  // The run scores itself: rekon eval traj OUT/groundtruth.txt OUT/trajectory.txt (1.6 s for the building's mesh).
-  if (!ctx.outDir().empty()) rekon::synth::writeGroundTruth(*scene, trajectory, k, ctx.outDir());
   const rekon::Config& config = ctx.config();
   const std::vector<std::string> consumers = config.getStringList("player.wait_for");
   rekon::ConsumerWatch watch(ctx.bus());

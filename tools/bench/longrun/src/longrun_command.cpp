@@ -44,6 +44,9 @@ double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::
 constexpr double kTableEveryS = 10.0;  // longrun.csv, plots and summary rewritten this often
 constexpr int kStopGraceS = 10;        // SIGTERM to SIGKILL
 
+// The seed of the scene's walk and noise: the source renders it, writeSceneTruth scores it.
+constexpr int kSceneSeed = 1;
+
 struct Options {
   std::string scene, dataset, out, config_file, pace;
   std::vector<std::string> sets;
@@ -131,10 +134,21 @@ std::vector<ChildProcess> planChildren(const Options& o, const Config& config, c
     children.emplace_back("player", bin + "/rekon-player", args, o.out + "/player.log");
   } else {
     args.insert(args.end(), {"--scene", o.scene, "--frames", std::to_string(o.frames), "--laps", std::to_string(o.laps),
-                             "--rate", o.pace == "live" ? "1" : "max", "--render-threads", std::to_string(o.render_threads)});
+                             "--seed", std::to_string(kSceneSeed), "--rate", o.pace == "live" ? "1" : "max",
+                             "--render-threads", std::to_string(o.render_threads)});
     children.emplace_back("player", bin + "/rekon-synth-source", args, o.out + "/player.log");
   }
   return children;
+}
+
+// The walk's exact poses and the scene's mesh (groundtruth.txt, mesh_gt.ply,
+// camera.yaml), written once before the source starts, so the run scores
+// itself (rekon eval traj OUT/groundtruth.txt OUT/trajectory.txt) and a
+// restarted source starts at once (1.6 s for the building's mesh).
+void writeSceneTruth(const Options& o) {
+  const auto scene = synth::Scene::make(o.scene);
+  const int frames = o.frames > 0 ? o.frames : scene->defaultFrames(o.laps);
+  synth::writeGroundTruth(*scene, scene->trajectory(frames, kSceneSeed, o.laps), synth::defaultIntrinsics(), o.out);
 }
 
 void writeTables(const Options& o, double end_of_run_s, const std::string& header) {
@@ -148,6 +162,7 @@ int run(const Options& o) {
   if (fs::exists(o.out) && !fs::is_empty(o.out)) throw Error("--out " + o.out + " holds files; give a new or empty folder");
   fs::create_directories(o.out);
   setupLogging("longrun", "info");
+  if (o.dataset.empty()) writeSceneTruth(o);
   Config config = planConfig(o);
   const std::string config_path = o.out + "/config.yaml";
   config.save(config_path);

@@ -98,7 +98,7 @@ struct SequenceOptions {
 
 // The truth of a walk through `scene` seen by camera `k`, beside the frames
 // that render it (writeSequence) or the run that fused them (rekon bench
-// longrun's source): groundtruth.txt (TUM), camera.yaml and mesh_gt.ply,
+// longrun): groundtruth.txt (TUM), camera.yaml and mesh_gt.ply,
 // for rekon eval traj and rekon eval surface. Returns the mesh's vertices.
 size_t writeGroundTruth(const Scene& scene, const Trajectory& trajectory, const Intrinsics& k, const std::string& out_dir);
 
