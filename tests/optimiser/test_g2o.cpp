@@ -285,5 +285,40 @@ TEST(GraphWorkerLoad, KeepsTheSessionsOptimisedPoses) {
   EXPECT_LT(worst, 1e-4);
 }
 
+// A culled graph (three laps of a room, revisits culled onto the first lap) written and loaded into a
+// worker that does not cull: every culled keyframe comes back linked to its kept keyframe, so it moves
+// with the graph instead of staying where the file put it.
+TEST(GraphWorkerLoad, CulledKeyframesComeBackHeldToTheKeyframesTheyWereCulledOnto) {
+  const SyntheticGraph g = makeSyntheticGraph({.keyframes = 120, .laps = 3, .loop_edges = 300, .seed = 11});
+  PoseGraphParams culling;
+  culling.cull_radius_m = 0.2;
+  culling.cull_angle_deg = 15.0;
+  PoseGraph graph(culling);
+  for (size_t k = 0; k < g.initial.size(); ++k) {
+    graph.addKeyframe(static_cast<int64_t>(k), g.initial[k]);
+    for (const Constraint& c : g.constraints) {
+      if (std::max(c.from_id, c.to_id) == static_cast<int64_t>(k)) graph.addConstraint(c);
+    }
+    graph.optimise(false);
+  }
+  graph.optimise(true);
+  const std::vector<Constraint> links = graph.cullLinks();
+  ASSERT_GE(links.size(), 12u);  // 24 culled (test_pose_graph_culling.cpp)
+
+  GraphWorker worker(PoseGraphParams{});
+  worker.load(parseG2o(toG2o(graph), "graph.g2o"));
+  worker.optimise(true, -1);
+  for (const Constraint& link : links) {
+    EXPECT_TRUE(worker.graph().isAttached(link.to_id)) << link.to_id;
+    const Pose in_kept = worker.graph().pose(link.from_id)->inverse() * *worker.graph().pose(link.to_id);
+    EXPECT_LT(translationDistance(in_kept, link.relative), 1e-6) << link.to_id;
+  }
+  double worst = 0.0;
+  for (const auto& [id, pose] : graph.poses())
+    worst = std::max(worst, translationDistance(pose, *worker.graph().pose(id)));
+  std::printf("loaded and optimised again: at most %.4f mm from the culled graph's poses\n", 1e3 * worst);
+  EXPECT_LT(worst, 1e-4);
+}
+
 }  // namespace
 }  // namespace rekon::optimiser

@@ -82,5 +82,19 @@ TEST(PoseGraphCulling, GivesTheTrajectoryOfTheUnboundedGraphWithFewerKeyframesAn
               1e3 * full_error);
 }
 
+// One pass of 100 keyframes round the 2 m circle, 12.6 cm apart: each is within the culling radius of
+// its predecessor and linked to it by odometry, but no keyframe is a revisit, so none is culled and the
+// graph is the unbounded one. (Culling a pass's own neighbours froze what its loop edges average.)
+TEST(PoseGraphCulling, NeverCullsAKeyframeOntoANeighbourOfItsOwnPass) {
+  const SyntheticGraph g = makeSyntheticGraph({.keyframes = 100, .laps = 1, .seed = 5});
+  PoseGraph full;
+  addAsItArrives(full, g);
+  PoseGraph culled(cullingParams());
+  addAsItArrives(culled, g);
+  EXPECT_EQ(culled.numCulled(), 0u);
+  EXPECT_EQ(culled.numConstraints(), full.numConstraints());
+  EXPECT_LT(maxDistance(full.poses(), culled.poses()), 1e-9);
+}
+
 }  // namespace
 }  // namespace rekon::optimiser

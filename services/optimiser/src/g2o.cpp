@@ -166,6 +166,7 @@ std::string toG2o(const PoseGraph& graph) {
   for (const Constraint& c : edges) {
     if (c.kind == EdgeKind::Odometry) appendEdge(c, scale, out);
   }
+  for (const Constraint& c : graph.cullLinks()) appendEdge(c, scale, out);
   out += fmt::format("{}\n", kG2oLoopMarker);
   for (const Constraint& c : edges) {
     if (c.kind == EdgeKind::Loop) appendEdge(c, scale, out);

@@ -5,7 +5,9 @@
 // to-in-from and the 21 upper-triangular entries of its information). g2o's
 // rotation error is the quaternion's vector part, half of rekon's
 // (relativePoseResidual), so the rotational information is scaled by 4 and
-// the mixed blocks by 2: the same chi2 in both tools.
+// the mixed blocks by 2: the same chi2 in both tools. A culled keyframe
+// (PoseGraph::cullLinks) is an odometry edge that holds it rigidly to the
+// keyframe it was culled onto.
 //
 // g2o has no edge kinds: rekon writes the odometry edges first, then the
 // comment line kG2oLoopMarker, then the loop edges. Readers skip comments; a

@@ -44,8 +44,9 @@ struct PoseGraphParams {
   // Keyframe culling (services/optimiser/README.md, "Memory"): a keyframe
   // judged once this many newer keyframes have arrived (the tracker's loop
   // checks skip the last 20 keyframes, so by then its own loop edges are in
-  // the graph and optimised) is culled onto an older kept keyframe that an
-  // edge links it to and that lies within cull_radius_m and cull_angle_deg.
+  // the graph and optimised) is culled onto a kept keyframe at least this
+  // many keyframes older (a revisit) that an edge links it to and that lies
+  // within cull_radius_m and cull_angle_deg.
   static constexpr int kCullWindow = 20;
 
   Solver solver = Solver::BlockCholesky;

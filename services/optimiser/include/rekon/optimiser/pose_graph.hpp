@@ -118,6 +118,11 @@ class PoseGraph {
   std::vector<Constraint> loopEdges() const;
   // Every kept edge (odometry and loop), in insertion order.
   std::vector<Constraint> constraints() const;
+  // Per culled keyframe, an odometry edge from the keyframe it was culled onto
+  // that holds its frozen pose there, stiff (1e10): what a
+  // session's graph.g2o keeps of culling, so that a continued session moves
+  // the culled keyframes with their kept ones. Ascending culled id.
+  std::vector<Constraint> cullLinks() const;
   // chi2 = r^T I r of every kept loop edge at the current poses, in insertion order.
   std::vector<double> loopChi2() const;
   const PoseGraphParams& params() const { return params_; }
