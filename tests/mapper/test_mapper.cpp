@@ -17,6 +17,7 @@
 #include <optional>
 
 #include "commands.hpp"
+#include "outputs.hpp"  // the mapper service's writeUncorrectedMesh
 #include "rekon/common/error.hpp"
 #include "rekon/mapper/mapper.hpp"
 #include "rekon/replay/replay.hpp"
@@ -389,6 +390,48 @@ TEST(Mapper, GraphUpdateRoundsAddUpToTheReintegrationCounters) {
   EXPECT_EQ(final_ms, c.final_pass_ms_total);
   EXPECT_EQ(blocks, c.reintegration_blocks_streamed);
   EXPECT_GT(blocks, 0);  // the 1 m streaming sphere: a round moves it away from the camera and back
+}
+
+// mapper.final_pass_s: the final pass corrects only the most moved KF keyframes that fit its seconds at
+// the run's mean re-integration time. A budget far below one keyframe's time fits none, so the keyframes
+// that still moved stay where they were integrated; a generous one corrects them all, as unbounded.
+TEST(Mapper, ABoundedFinalPassCorrectsOnlyWhatFitsItsSeconds) {
+  auto run = [](double final_pass_s) {
+    MapperParams p = testParams();
+    p.final_pass_s = final_pass_s;
+    Mapper mapper(p);
+    play(mapper, kFrames);
+    const std::vector<double> before = mapper.movements();
+    const auto still = std::count_if(before.begin(), before.end(), [&](double d) { return d > p.min_movement; });
+    EXPECT_GT(still, 0);  // m = 2 leaves the final pass work
+    EXPECT_GT(mapper.counters().reintegrations, 0);  // the mean time it judges by
+    mapper.finish();
+    const std::vector<double> after = mapper.movements();
+    return std::make_pair(mapper.counters().final_pass_reintegrations,
+                          std::count_if(after.begin(), after.end(), [&](double d) { return d > p.min_movement; }));
+  };
+  const auto [none_corrected, none_left_moved] = run(1e-9);
+  EXPECT_EQ(none_corrected, 0);
+  EXPECT_GT(none_left_moved, 0);
+  const auto [all_corrected, all_left_moved] = run(1e6);
+  EXPECT_GT(all_corrected, 0);
+  EXPECT_EQ(all_left_moved, 0);
+}
+
+// mapper.uncorrected_mesh_max_keyframes: mesh_uncorrected.ply integrates every KF keyframe again, so a
+// run with more than the limit is not given it; the scenario has 9.
+TEST(Mapper, NoUncorrectedMeshForMoreKfKeyframesThanItsLimit) {
+  for (const int64_t most : {int64_t{8}, int64_t{9}, int64_t{0}}) {
+    MapperParams p = testParams();
+    p.uncorrected_mesh_max_keyframes = most;
+    Mapper mapper(p);
+    play(mapper, kFrames);
+    mapper.finish();
+    ASSERT_EQ(mapper.keyframes().size(), 9u);
+    rekon::test::TempDir dir;
+    writeUncorrectedMesh(mapper, dir.path());
+    EXPECT_EQ(std::filesystem::exists(dir / "mesh_uncorrected.ply"), most != 8) << most;
+  }
 }
 
 TEST(Mapper, MemoryUseCountsInputFramesAndKeyframes) {

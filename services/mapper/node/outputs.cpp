@@ -17,6 +17,12 @@ namespace rekon::mapper {
 void writeUncorrectedMesh(const Mapper& mapper, const std::string& out_dir) {
   const auto t0 = std::chrono::steady_clock::now();
   const std::string path = (std::filesystem::path(out_dir) / "mesh_uncorrected.ply").string();
+  const int64_t most = mapper.params().uncorrected_mesh_max_keyframes;
+  if (most > 0 && static_cast<int64_t>(mapper.keyframes().size()) > most) {
+    spdlog::info("{} not written: {} KF keyframes, more than mapper.uncorrected_mesh_max_keyframes ({}) would "
+                 "integrate again (raise it to have it)", path, mapper.keyframes().size(), most);
+    return;
+  }
   PlyWriter ply(path, true);
   mapper.extractUncorrectedMeshInPieces([&ply](const Mesh& piece) { ply.add(piece); });
   ply.finish();

@@ -63,6 +63,13 @@ MapperParams MapperParams::fromConfig(const Config& c) {
   if (!(p.round_budget_ms >= 0.0 && p.round_budget_ms <= 1.0e6))
     throw Error("mapper.round_budget_ms = " + std::to_string(p.round_budget_ms) +
                 " is invalid; it must be >= 0 ms per frame (0 = each graph update's round at once)");
+  p.final_pass_s = c.getDouble("mapper.final_pass_s");
+  if (!(p.final_pass_s >= 0.0 && p.final_pass_s <= 1.0e6))
+    throw Error("mapper.final_pass_s = " + fmt::format("{}", p.final_pass_s) +
+                " is invalid; it must be >= 0 seconds (0 = every KF keyframe that still moved)");
+  p.uncorrected_mesh_max_keyframes = c.getInt("mapper.uncorrected_mesh_max_keyframes");
+  if (p.uncorrected_mesh_max_keyframes < 0)
+    throw Error("mapper.uncorrected_mesh_max_keyframes must not be negative (0 = no limit)");
   p.use_store = c.getBool("mapper.use_store");
   p.resume = c.getBool("mapper.resume");
   p.store = store::StoreOptions::fromConfig(c);  // segment, size and spill folder (mapper.store_*)
@@ -488,13 +495,16 @@ std::vector<ReintegrationRound> Mapper::finish() {
     spdlog::info("final pass skipped (mapper.reintegration: none)");
     return rounds;
   }
-  const std::vector<double> moved = movements();
-  std::vector<size_t> chosen;
-  for (size_t i = 0; i < moved.size(); ++i)
-    if (moved[i] > params_.min_movement) chosen.push_back(i);
-  spdlog::info("final pass: {} of {} KF keyframes still moved", chosen.size(), keyframes_.size());
+  const std::vector<size_t> chosen = finalPassChoice();
+  const auto start = std::chrono::steady_clock::now();
+  const auto spent_s = [&] { return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(); };
   // In runs of m so that the streaming sphere follows the trajectory.
   for (size_t begin = 0; begin < chosen.size(); begin += static_cast<size_t>(params_.m)) {
+    if (params_.final_pass_s > 0 && spent_s() > params_.final_pass_s) {
+      spdlog::warn("final pass: stopped after {:.1f} s (mapper.final_pass_s {}), {} of {} chosen KF keyframes left as they are",
+                   spent_s(), params_.final_pass_s, chosen.size() - begin, chosen.size());
+      break;
+    }
     const size_t end = std::min(chosen.size(), begin + static_cast<size_t>(params_.m));
     rounds.push_back(reintegrate(std::vector<size_t>(chosen.begin() + static_cast<std::ptrdiff_t>(begin),
                                                      chosen.begin() + static_cast<std::ptrdiff_t>(end))));
@@ -502,6 +512,28 @@ std::vector<ReintegrationRound> Mapper::finish() {
     counters_.final_pass_ms_total += rounds.back().ms;
   }
   return rounds;
+}
+
+std::vector<size_t> Mapper::finalPassChoice() const {
+  const std::vector<double> moved = movements();
+  const auto still = static_cast<size_t>(
+      std::count_if(moved.begin(), moved.end(), [&](double d) { return d > params_.min_movement; }));
+  const double ms_each = counters_.reintegrations > 0
+                             ? counters_.reintegration_ms_total / static_cast<double>(counters_.reintegrations)
+                             : 0.0;
+  size_t most = still;
+  if (params_.final_pass_s > 0 && ms_each > 0)
+    most = std::min(still, static_cast<size_t>(params_.final_pass_s * 1000.0 / ms_each));
+  std::vector<size_t> chosen;
+  if (most > 0) chosen = selectMostMoved(moved, static_cast<int>(most), params_.min_movement);
+  std::sort(chosen.begin(), chosen.end());  // back in the order of the scan
+  if (most < still)
+    spdlog::info("final pass: the {} most moved of {} KF keyframes that still moved (of {}): mapper.final_pass_s {} "
+                 "at {:.0f} ms each",
+                 most, still, keyframes_.size(), params_.final_pass_s, ms_each);
+  else
+    spdlog::info("final pass: {} of {} KF keyframes still moved", still, keyframes_.size());
+  return chosen;
 }
 
 Mesh Mapper::extractUncorrectedMesh() const {

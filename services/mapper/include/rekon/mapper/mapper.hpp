@@ -40,6 +40,15 @@ struct MapperParams {
   // in the frames' spare time: on average at most this many ms per fused
   // frame, plus whatever time the mapper is idle (continueCorrection).
   double round_budget_ms = 0.0;
+  // mapper.final_pass_s: 0 = the final pass corrects every KF keyframe that
+  // still moved; else the most moved that fit this many seconds at the run's
+  // mean re-integration time, and it stops once they are spent (an hour's scan
+  // has thousands of KF keyframes; its end of run must not grow with them).
+  double final_pass_s = 0.0;
+  // mapper.uncorrected_mesh_max_keyframes: mesh_uncorrected.ply integrates
+  // every KF keyframe again (65 ms each on the corridor), so a run with more
+  // is not given it (0 = no limit).
+  int64_t uncorrected_mesh_max_keyframes = 0;
   // The *_ms counters in CPU time of the whole process instead of wall time:
   // benchmarks on a shared machine, where other processes inflate wall time.
   bool cpu_time_counters = false;
@@ -151,7 +160,10 @@ class Mapper {
   std::optional<Pose> currentPose(const fusion::FusedKeyframe& kf) const;
   // Movement of every integrated KF keyframe since its integration, in keyframe order.
   std::vector<double> movements() const;
+  // The KF keyframes the final pass corrects, in scan order (MapperParams::final_pass_s).
+  std::vector<size_t> finalPassChoice() const;
 
+  const MapperParams& params() const { return params_; }
   const volume::TsdfVolume& volume() const { return *volume_; }
   const std::vector<KeyframeRecord>& keyframes() const { return keyframes_; }
   // `rec` with its images, read back from the store or the session when they are not here.
