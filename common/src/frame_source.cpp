@@ -4,6 +4,7 @@
 
 #include <array>
 #include <chrono>
+#include <algorithm>
 #include <condition_variable>
 #include <deque>
 #include <exception>
@@ -11,6 +12,7 @@
 #include <map>
 #include <mutex>
 #include <optional>
+#include <set>
 #include <thread>
 #include <utility>
 
@@ -81,6 +83,7 @@ struct LiveOutlet::State {
   LatencyHistogram latency;
   std::optional<CsvLog> latency_csv;  // <out>/<service>_latency.csv; none without --out
   Clock::time_point started = Clock::now();
+  std::set<std::string> absent;  // consumers left out of the window (sender thread only)
   std::thread thread;  // the sender; touches `sender` and `watch` outside the lock
 
   State(ServiceContext& c, FrameSender& s, ConsumerWatch& w, std::vector<std::string> names, int n)
@@ -104,9 +107,26 @@ struct LiveOutlet::State {
     if (latency_csv) latency_csv->row(frame_id, std::chrono::duration<double>(captured - started).count(), ms);
   }
 
-  // True when fewer than in_flight sent frames are unacknowledged; waits (a
-  // while) for an acknowledgement otherwise, sending the newest frame again
-  // when they stall.
+  // The consumers to wait for: those not restarting nor silent for
+  // lifecycle.silence_s. A killed one whose restart is still "starting" (a
+  // mapper rebuilding its volume takes tens of seconds) must not hold the
+  // others' frames: a tracker without frames that long is lost (the 3-lap
+  // corridor's chaos run lost 30 s and put lap 3 15 m away). Each change is
+  // one log line.
+  std::vector<std::string> presentConsumers() {
+    std::vector<std::string> present = watch.present(consumers, ctx.lifecycle().silence_s);
+    for (const auto& c : consumers) {
+      const bool is_present = std::find(present.begin(), present.end(), c) != present.end();
+      if (!is_present && absent.insert(c).second)
+        spdlog::warn("rekon-{} is restarting or silent: the other consumers get the frames without it", c);
+      if (is_present && absent.erase(c) > 0) spdlog::info("rekon-{} is back: it gets the frames again", c);
+    }
+    return present;
+  }
+
+  // True when fewer than in_flight sent frames are unacknowledged by the
+  // consumers present; waits (a while) for an acknowledgement otherwise,
+  // sending the newest frame again when they stall.
   bool room(const std::optional<SentFrame>& newest_sent) {
     int64_t oldest_in_window;
     {
@@ -115,14 +135,17 @@ struct LiveOutlet::State {
       if (unacked.size() < in_flight) return true;
       oldest_in_window = unacked[unacked.size() - in_flight];
     }
-    switch (watch.waitForAck(consumers, oldest_in_window, kResendAfterS, ctx)) {
+    const std::vector<std::string> present = presentConsumers();
+    if (present.empty()) return true;
+    switch (watch.waitForAck(present, oldest_in_window, kResendAfterS, ctx, true)) {
       case ConsumerWatch::Wait::kAcked: {
         std::lock_guard<std::mutex> lock(mutex);
         while (!unacked.empty() && unacked.front() <= oldest_in_window) unacked.pop_front();
         return unacked.size() < in_flight;
       }
       case ConsumerWatch::Wait::kRestarted:
-        // A live source cannot rewind: a restarted consumer goes on from the next frame.
+        // A live source cannot rewind: a restarted consumer goes on from the next frame (one still
+        // starting is left out by presentConsumers() from the next call on).
         for (const auto& service : watch.takeRestarts()) {
           spdlog::warn("rekon-{} restarted: it continues from the next frame (a live source cannot send old ones)",
                        service);

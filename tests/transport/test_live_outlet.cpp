@@ -25,6 +25,7 @@
 #include "rekon/common/service.hpp"
 #include "rekon_msgs/frame_ack_t.hpp"
 #include "rekon_msgs/frame_t.hpp"
+#include "rekon_msgs/heartbeat_t.hpp"
 #include "rekon_msgs/tracked_frame_t.hpp"
 #include "test_support.hpp"
 
@@ -225,6 +226,76 @@ TEST(LiveOutlet, AFrameSentAgainCarriesItsOwnIntrinsics) {
   ASSERT_GE(received.size(), 2u) << "frame 0, then frame 0 again after 1 s without an acknowledgement";
   EXPECT_EQ(received[1].first, received[0].first) << "the newest sent frame goes out again";
   for (const auto& [id, fx] : received) EXPECT_EQ(fx, fxOf(id)) << "frame " << id;
+}
+
+// Two consumers, the tracker and the mapper. The mapper is killed and its
+// restart says "starting" (rekon run restarts it at once; a mapper rebuilding
+// its volume stays there for tens of seconds): the tracker goes on getting
+// frames. Before, the outlet waited for the dead mapper's acknowledgements and
+// dropped every frame: the 3-lap corridor's chaos run lost 30 s of tracking.
+TEST(LiveOutlet, AConsumerWhoseRestartIsStillStartingDoesNotHoldTheOthersFrames) {
+  test::TempDir dir;
+  const Config config = Config::load("", {"lcm.url=memory://live_outlet_restarting"});
+  MemoryBus bus(BusOptions::fromConfig(config));
+  std::vector<int64_t> received;
+  bus.subscribe<rekon_msgs::frame_t>(channel::kFrames, [&](const rekon_msgs::frame_t& m) { received.push_back(m.frame_id); });
+  auto heartbeat = [&](const std::string& service, int pid, const std::string& state) {
+    rekon_msgs::heartbeat_t hb{};
+    hb.service = service;
+    hb.pid = pid;
+    hb.state = state;
+    hb.last_frame_id = -1;
+    bus.publish(channel::kHeartbeat, hb);
+  };
+  constexpr int kFrames = 100;
+  ArgParser args("rekon-player", "in-process");
+  ServiceContext ctx("player", config, dir / "out", args);
+  createOutputFolder(dir / "out");
+  std::atomic<bool> offering{true};
+  std::thread source([&] {
+    runInContext(ctx, [&](ServiceContext& c) {
+      ConsumerWatch watch(c.bus());
+      StopThreadsOnExit stop(c);
+      FrameSender sender(c.bus(), TransportMode::kLcm, "", FrameRingLayout{});
+      LiveOutlet outlet(c, sender, watch, {"tracker", "mapper"}, kInFlight);
+      Intrinsics k;
+      k.width = 32;
+      k.height = 24;
+      for (int i = 0; i < kFrames; ++i) {  // 0.5 s at 200 Hz
+        outlet.offer(smallFrame(i), k);
+        std::this_thread::sleep_for(std::chrono::milliseconds(5));
+      }
+      offering = false;
+      c.requestStop();
+    });
+  });
+  // Heartbeats every 10 ms: for the first 0.1 s the mapper is running (then killed: it never acknowledges a
+  // frame), after that its restart says "starting". The tracker acknowledges each frame as it comes.
+  size_t acked = 0;
+  const auto start = Clock::now();
+  auto last_beat = start - std::chrono::seconds(1);
+  while (offering) {
+    if (Clock::now() - last_beat > std::chrono::milliseconds(10)) {
+      last_beat = Clock::now();
+      heartbeat("tracker", 100, "running");
+      if (last_beat - start < std::chrono::milliseconds(100))
+        heartbeat("mapper", 200, "running");
+      else
+        heartbeat("mapper", 201, "starting");
+    }
+    bus.handle(1);
+    for (; acked < received.size(); ++acked) {
+      rekon_msgs::frame_ack_t a{};
+      a.service = "tracker";
+      a.frame_id = received[acked];
+      bus.publish(channel::kFrameAck, a);
+    }
+  }
+  source.join();
+  std::printf("the tracker got %zu of %d frames while the mapper restarted\n", received.size(), kFrames);
+  // Measured: 87 and 83 of 100 (the frames of the first 0.1 s wait for the running mapper, as they
+  // should). Waiting for the dead mapper, the outlet sent 2 of 100. Bound: half the frames.
+  EXPECT_GE(received.size(), static_cast<size_t>(kFrames / 2));
 }
 
 }  // namespace

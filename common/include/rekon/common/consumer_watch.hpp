@@ -33,13 +33,19 @@ class ConsumerWatch {
     bus.subscribe<rekon_msgs::heartbeat_t>(channel::kHeartbeat, [this](const rekon_msgs::heartbeat_t& hb) {
       // A service counts once it has subscribed to its inputs ("running");
       // frames sent while it is still "starting" would be lost to it.
-      if (hb.state == "starting") return;
       std::lock_guard<std::mutex> lock(mutex_);
+      if (hb.state == "starting") {
+        // A new instance of a consumer seen before: the one we knew is dead.
+        if (hosts_.count(hb.service) && incarnations_.current(hb.service) != hb.pid) restarting_.insert(hb.service);
+        return;
+      }
+      restarting_.erase(hb.service);
       const bool seen_before = hosts_.count(hb.service) > 0;
       const Incarnations::Seen seen = incarnations_.note(hb.service, hb.pid);
       if (seen == Incarnations::Seen::kSuperseded) return;  // a killed instance's late heartbeat
       if (seen == Incarnations::Seen::kNew && seen_before) restarted_.insert(hb.service);
       hosts_[hb.service] = hb.host;
+      heard_[hb.service] = Clock::now();
       last_frames_[hb.service] = hb.last_frame_id;
       changed_.notify_all();
     });
@@ -84,17 +90,37 @@ class ConsumerWatch {
   }
 
   // Waits until every service in `names` acknowledged frame `frame_id`, a
-  // consumer restarted, or no acknowledgement came for `stall_s`.
-  Wait waitForAck(const std::vector<std::string>& names, int64_t frame_id, double stall_s, const ServiceContext& ctx) {
+  // consumer restarted (with `or_restarting`: also one of `names` whose new
+  // instance is still starting), or no acknowledgement came for `stall_s`.
+  Wait waitForAck(const std::vector<std::string>& names, int64_t frame_id, double stall_s, const ServiceContext& ctx,
+                  bool or_restarting = false) {
     std::unique_lock<std::mutex> lock(mutex_);
     const auto start = Clock::now();
+    const auto restarting = [&] {
+      return or_restarting &&
+             std::any_of(names.begin(), names.end(), [&](const std::string& n) { return restarting_.count(n) > 0; });
+    };
     while (!ctx.stopRequested()) {
-      if (!restarted_.empty()) return Wait::kRestarted;
+      if (!restarted_.empty() || restarting()) return Wait::kRestarted;
       if (minAcked(names) >= frame_id) return Wait::kAcked;
       if (secondsSince(std::max(start, last_ack_)) > stall_s) return Wait::kStalled;
       changed_.wait_for(lock, std::chrono::milliseconds(50));
     }
     return Wait::kStopped;
+  }
+
+  // Those of `names` not known to be gone: left out are a consumer whose new
+  // instance says "starting" (rekon run restarts a killed one at once), until
+  // that one is running, and one heard before but silent for `within_s`.
+  std::vector<std::string> present(const std::vector<std::string>& names, double within_s) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    std::vector<std::string> out;
+    for (const auto& n : names) {
+      const auto it = heard_.find(n);
+      const bool silent = it != heard_.end() && secondsSince(it->second) > within_s;
+      if (!silent && !restarting_.count(n)) out.push_back(n);
+    }
+    return out;
   }
 
   // Seconds since the last acknowledgement that moved any consumer forward.
@@ -163,10 +189,12 @@ class ConsumerWatch {
   std::mutex mutex_;
   std::condition_variable changed_;
   std::map<std::string, std::string> hosts_;
+  std::map<std::string, Clock::time_point> heard_;  // each service's last heartbeat past "starting"
   Incarnations incarnations_;  // of the services seen past "starting"
   std::map<std::string, int64_t> acked_;
   std::map<std::string, int64_t> last_frames_;  // from heartbeats
   std::set<std::string> restarted_;
+  std::set<std::string> restarting_;  // a new instance said "starting"; the one we knew is dead
   std::map<std::pair<std::string, int>, int64_t> resume_points_;  // (service, pid) -> first missing frame
   Clock::time_point last_ack_ = Clock::now();
 };
