@@ -84,6 +84,7 @@ struct LiveOutlet::State {
   std::optional<CsvLog> latency_csv;  // <out>/<service>_latency.csv; none without --out
   Clock::time_point started = Clock::now();
   std::set<std::string> absent;  // consumers left out of the window (sender thread only)
+  std::map<std::string, int64_t> rejoining;  // restarted consumers: the newest frame sent at their restart
   std::thread thread;  // the sender; touches `sender` and `watch` outside the lock
 
   State(ServiceContext& c, FrameSender& s, ConsumerWatch& w, std::vector<std::string> names, int n)
@@ -113,13 +114,22 @@ struct LiveOutlet::State {
   // others' frames: a tracker without frames that long is lost (the 3-lap
   // corridor's chaos run lost 30 s and put lap 3 15 m away). Each change is
   // one log line.
+  // A restarted one is left out too until it acknowledges a frame sent after
+  // its restart: a restarted mapper refuses frames for 5 s while it waits for
+  // a rewind that a live source never makes.
   std::vector<std::string> presentConsumers() {
-    std::vector<std::string> present = watch.present(consumers, ctx.lifecycle().silence_s);
+    std::vector<std::string> present;
+    for (const auto& c : watch.present(consumers, ctx.lifecycle().silence_s)) {
+      const auto r = rejoining.find(c);
+      if (r != rejoining.end() && watch.acked(c) <= r->second) continue;
+      if (r != rejoining.end()) rejoining.erase(r);
+      present.push_back(c);
+    }
     for (const auto& c : consumers) {
       const bool is_present = std::find(present.begin(), present.end(), c) != present.end();
       if (!is_present && absent.insert(c).second)
         spdlog::warn("rekon-{} is restarting or silent: the other consumers get the frames without it", c);
-      if (is_present && absent.erase(c) > 0) spdlog::info("rekon-{} is back: it gets the frames again", c);
+      if (is_present && absent.erase(c) > 0) spdlog::info("rekon-{} is back: it acknowledges frames again", c);
     }
     return present;
   }
@@ -150,6 +160,7 @@ struct LiveOutlet::State {
           spdlog::warn("rekon-{} restarted: it continues from the next frame (a live source cannot send old ones)",
                        service);
           watch.setAcked(service, counts.newest_sent);
+          rejoining[service] = counts.newest_sent;
         }
         return false;
       case ConsumerWatch::Wait::kStalled:
