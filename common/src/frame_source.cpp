@@ -128,10 +128,20 @@ struct LiveOutlet::State {
     for (const auto& c : consumers) {
       const bool is_present = std::find(present.begin(), present.end(), c) != present.end();
       if (!is_present && absent.insert(c).second)
-        spdlog::warn("rekon-{} is restarting or silent: the other consumers get the frames without it", c);
+        spdlog::warn("rekon-{} is restarting or silent: the other consumers get the frames without it until it "
+                     "acknowledges one", c);
       if (is_present && absent.erase(c) > 0) spdlog::info("rekon-{} is back: it acknowledges frames again", c);
     }
     return present;
+  }
+
+  // A live source cannot rewind: a restarted consumer goes on from the next frame.
+  void noteRestarts() {
+    for (const auto& service : watch.takeRestarts()) {
+      spdlog::warn("rekon-{} restarted: it continues from the next frame (a live source cannot send old ones)", service);
+      watch.setAcked(service, counts.newest_sent);
+      rejoining[service] = counts.newest_sent;
+    }
   }
 
   // True when fewer than in_flight sent frames are unacknowledged by the
@@ -145,6 +155,7 @@ struct LiveOutlet::State {
       if (unacked.size() < in_flight) return true;
       oldest_in_window = unacked[unacked.size() - in_flight];
     }
+    noteRestarts();
     const std::vector<std::string> present = presentConsumers();
     if (present.empty()) return true;
     switch (watch.waitForAck(present, oldest_in_window, kResendAfterS, ctx, true)) {
@@ -153,15 +164,7 @@ struct LiveOutlet::State {
         while (!unacked.empty() && unacked.front() <= oldest_in_window) unacked.pop_front();
         return unacked.size() < in_flight;
       }
-      case ConsumerWatch::Wait::kRestarted:
-        // A live source cannot rewind: a restarted consumer goes on from the next frame (one still
-        // starting is left out by presentConsumers() from the next call on).
-        for (const auto& service : watch.takeRestarts()) {
-          spdlog::warn("rekon-{} restarted: it continues from the next frame (a live source cannot send old ones)",
-                       service);
-          watch.setAcked(service, counts.newest_sent);
-          rejoining[service] = counts.newest_sent;
-        }
+      case ConsumerWatch::Wait::kRestarted:  // noted by the next call
         return false;
       case ConsumerWatch::Wait::kStalled:
         if (newest_sent) {

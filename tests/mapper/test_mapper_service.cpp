@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 
@@ -212,6 +213,10 @@ TEST(MapperService, AKilledMapperRestartedWithResumeContinuesFromTheStore) {
   EXPECT_GE(jsonInt(stats, "restored_keyframes"), 2);  // what the killed mapper had stored
   EXPECT_EQ(jsonInt(stats, "kf_keyframes"), 2);        // then the new stream: 10 frames / kappa 5
   EXPECT_TRUE(fs::exists(dir / "out/mesh.ply"));
+  // mapper_timing.csv keeps the killed instance's rows (at least the 10 frames of its two stored KF
+  // keyframes) before the restart's 10; the restart used to truncate it.
+  const std::string timing = readText(dir / "out/mapper_timing.csv");
+  EXPECT_GE(std::count(timing.begin(), timing.end(), '\n'), 1 + 10 + 10) << timing;
   EXPECT_FALSE(fs::exists("/dev/shm/" + store));  // removed at the clean end
 }
 

@@ -9,7 +9,7 @@
 namespace rekon::mapper {
 
 MappingWorker::MappingWorker(ServiceContext& ctx, Mapper& mapper, Inbox& inbox, MeshPublisher& mesh)
-    : ctx_(ctx), mapper_(mapper), inbox_(inbox), mesh_(mesh), tables_(ctx.outDir()) {}
+    : ctx_(ctx), mapper_(mapper), inbox_(inbox), mesh_(mesh), tables_(ctx.outDir(), mapper.params().resume) {}
 
 void MappingWorker::run() {
   while (true) {

@@ -40,7 +40,8 @@ void writeMesh(const Mapper& mapper, const std::string& out_dir) {
 
 void TimingTables::add(const FrameTiming& r) {
   if (dir_.empty()) return;
-  if (!frames_) frames_.emplace((std::filesystem::path(dir_) / "mapper_timing.csv").string(), "frame_id,ms,fuse_ms,integrate_ms");
+  if (!frames_)
+    frames_.emplace((std::filesystem::path(dir_) / "mapper_timing.csv").string(), "frame_id,ms,fuse_ms,integrate_ms", append_);
   frames_->row(r.frame_id, r.ms, r.fuse_ms, r.integrate_ms);
 }
 
@@ -48,7 +49,8 @@ void TimingTables::add(const RoundRecord& r) {
   if (dir_.empty()) return;
   if (!rounds_)
     rounds_.emplace((std::filesystem::path(dir_) / "mapper_reintegration.csv").string(),
-                    "time_s,graph_version,keyframes_reintegrated,ms,blocks_streamed,final_pass,frames_fused,piece");
+                    "time_s,graph_version,keyframes_reintegrated,ms,blocks_streamed,final_pass,frames_fused,piece",
+                    append_);
   rounds_->row(r.time_s, r.graph_version, r.round.keyframes, r.round.ms, r.round.blocks_streamed,
                r.kind == RoundKind::kFinalPass ? 1 : 0, r.frames_fused, r.kind == RoundKind::kPiece ? 1 : 0);
 }

@@ -41,12 +41,14 @@ struct RoundRecord {
 // finished, which does no work, leaves that run's tables as they are.
 class TimingTables {
  public:
-  explicit TimingTables(std::string out_dir) : dir_(std::move(out_dir)) {}  // "" = no files
+  // "" = no files; `append`: a restarted mapper (mapper.resume) adds to its killed instance's rows.
+  TimingTables(std::string out_dir, bool append) : dir_(std::move(out_dir)), append_(append) {}
   void add(const FrameTiming& r);
   void add(const RoundRecord& r);
 
  private:
   std::string dir_;
+  bool append_;
   std::optional<CsvLog> frames_, rounds_;
 };
 

@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <set>
 #include <sstream>
 
 #include "rekon/common/error.hpp"
@@ -127,12 +128,14 @@ std::vector<Bucket> readBuckets(const std::string& dir, double bucket_s, double 
     }
     for (size_t i = 0; i < render.size(); ++i) b[i].render_ms_mean = mean(render[i]);
   }
-  {  // frames fused and their integration time
+  {  // frames fused and their integration time; a restarted mapper adds its rows, and a frame it was sent
+     // again (after its store's newest) is counted once
     const Table t = readTable((d / "mapper_timing.csv").string());
     const int id = t.column("frame_id"), ms = t.column("integrate_ms");
+    std::set<double> fused;
     for (size_t r = 0; r < t.rows.size(); ++r) {
       const double time = t.number(r, id) / fps;
-      at(time).frames_fused += 1;
+      if (fused.insert(t.number(r, id)).second) at(time).frames_fused += 1;
       samples(time).integrate.push_back(t.number(r, ms));
     }
   }
