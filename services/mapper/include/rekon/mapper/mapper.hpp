@@ -46,7 +46,7 @@ struct MapperParams {
   // has thousands of KF keyframes; its end of run must not grow with them).
   double final_pass_s = 0.0;
   // mapper.uncorrected_mesh_max_keyframes: mesh_uncorrected.ply integrates
-  // every KF keyframe again (65 ms each on the corridor), so a run with more
+  // every KF keyframe again (39-64 ms each on the corridor), so a run with more
   // is not given it (0 = no limit).
   int64_t uncorrected_mesh_max_keyframes = 0;
   // The *_ms counters in CPU time of the whole process instead of wall time:
