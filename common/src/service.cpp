@@ -106,7 +106,10 @@ void ServiceContext::requestStop() { threads_->stop_requested.store(true); }
 void ServiceContext::setState(const std::string& state) {
   {
     std::lock_guard<std::mutex> lock(threads_->state_mutex);
-    if (threads_->state == state) return;
+    // "exited" is an instance's last word (stopThreads): runInContext's
+    // "finished" after a body that stopped its threads itself once went out
+    // after it, and its peers then waited for its silence instead.
+    if (threads_->state == state || threads_->exited_sent.load()) return;
     threads_->state = state;
   }
   // On the bus before anything the caller publishes next: a restarted mapper

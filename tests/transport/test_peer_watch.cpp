@@ -230,3 +230,32 @@ TEST(PeerWatch, ANewStateIsOnTheBusBeforeWhatTheServicePublishesNext) {
   EXPECT_EQ(seen[0], "heartbeat running");
   EXPECT_EQ(seen[1], "resume point");
 }
+
+// "exited" is an instance's last word. A service whose body stops its threads
+// itself (the tracker, the optimiser, the mapper: no handler may run while
+// they write their outputs) said "exited" there, and runInContext's
+// "finished" then went out after it: every peer that lingers for it waited
+// for its silence instead (7scenes_loop_1000's run ended 9-14 s after its
+// last service's outputs, realtime_factor 1.4-1.6 -> 1.0-1.1).
+TEST(PeerWatch, AServiceThatStoppedItsThreadsInItsBodyIsFinishedAtOnce) {
+  if (!rekon::test::insideNetns()) return;
+  LcmBus watched(BusOptions{});
+  PeerWatch peers(watched);
+  std::vector<std::string> states;
+  watched.subscribe<rekon_msgs::heartbeat_t>(channel::kHeartbeat, [&](const rekon_msgs::heartbeat_t& hb) {
+    if (hb.service == "mapper") states.push_back(hb.state);
+  });
+  rekon::ArgParser args("rekon-mapper", "in-process");
+  rekon::ServiceContext ctx("mapper", rekon::Config::load("", {}), "", args);
+  const int rc = rekon::runInContext(ctx, [](rekon::ServiceContext& c) {
+    c.setState("running");
+    c.bus().publish(channel::kDone, rekon::doneMessage("mapper", 9));
+    c.stopThreads();
+  });
+  ASSERT_EQ(rc, 0);
+  const auto end = std::chrono::steady_clock::now() + std::chrono::seconds(2);
+  while (std::chrono::steady_clock::now() < end) watched.handle(20);  // everything it sent, and nothing comes after
+  ASSERT_FALSE(states.empty());
+  EXPECT_EQ(states.back(), "exited");
+  EXPECT_TRUE(peers.finished({"mapper"}));  // long before lifecycle.silence_s (5 s)
+}
