@@ -133,8 +133,11 @@ void readResults(Outcome& o, const std::string& dataset) {
 }
 
 // One `rekon run` of the dataset at its recorded rate into `folder`; with
-// victims, one of them killed every every_min_s..every_max_s seconds.
-Outcome runOnce(const ChaosOptions& opt, const std::string& folder, bool with_kills, std::mt19937_64& rng) {
+// `kills` (the schedule's generator), one of the victims killed every
+// every_min_s..every_max_s seconds. Only the run with kills draws from it, so
+// a seed's schedule is the same with and without --baseline.
+Outcome runOnce(const ChaosOptions& opt, const std::string& folder, std::mt19937_64* kills) {
+  const bool with_kills = kills != nullptr;
   Outcome o;
   o.folder = folder;
   std::vector<std::string> args = {"run", "--dataset", opt.dataset, "--out", folder, "--force", "--set", "player.rate=1"};
@@ -149,7 +152,8 @@ Outcome runOnce(const ChaosOptions& opt, const std::string& folder, bool with_ki
   spdlog::info("{} run: rekon run into {} (log {})", with_kills ? "chaos" : "uninterrupted", folder, log);
   std::uniform_real_distribution<double> gap(opt.every_min_s, opt.every_max_s);
   const auto start = Clock::now();
-  auto next_kill = start + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(gap(rng)));
+  auto next_kill = start;
+  if (with_kills) next_kill += std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(gap(*kills)));
   bool terminated = false;
   while (true) {
     if (const auto status = run.poll()) {
@@ -162,8 +166,8 @@ Outcome runOnce(const ChaosOptions& opt, const std::string& folder, bool with_ki
     }
     if (with_kills && !terminated && Clock::now() >= next_kill) {
       const double at = std::chrono::duration<double>(Clock::now() - start).count();
-      if (auto k = killOne(opt.victims, log, rng, at)) o.kills.push_back(*k);
-      next_kill += std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(gap(rng)));
+      if (auto k = killOne(opt.victims, log, *kills, at)) o.kills.push_back(*k);
+      next_kill += std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(gap(*kills)));
     }
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   }
@@ -244,10 +248,9 @@ int chaos(const ChaosOptions& opt) {
   createOutputFolder(opt.out);
   signal(SIGINT, onChaosInterrupt);
   signal(SIGTERM, onChaosInterrupt);
-  std::mt19937_64 rng(opt.seed);
   Outcome clean;
   if (opt.baseline.empty()) {
-    clean = runOnce(opt, opt.out + "/uninterrupted", false, rng);
+    clean = runOnce(opt, opt.out + "/uninterrupted", nullptr);
     if (clean.rc != 0 && !g_chaos_interrupted.load())
       throw Error(fmt::format("the uninterrupted run failed (exit {}): see {}/uninterrupted.log; fix that first", clean.rc, opt.out));
   } else {
@@ -256,7 +259,8 @@ int chaos(const ChaosOptions& opt) {
     readResults(clean, opt.dataset);
   }
   if (g_chaos_interrupted.load()) return 130;
-  const Outcome killed = runOnce(opt, opt.out + "/chaos", true, rng);
+  std::mt19937_64 rng(opt.seed);
+  const Outcome killed = runOnce(opt, opt.out + "/chaos", &rng);
   if (g_chaos_interrupted.load()) return 130;
   double corr_m = std::numeric_limits<double>::infinity();
   try {
