@@ -293,6 +293,7 @@ RunPlan planRun(const RunOptions& opt) {
     config.set("mapper.when_full", "drop");
     config.set("tracker.loop_when_behind", "fewer");
     config.set("tracker.rewind_wait_s", "0");  // a live source never sends a frame again
+    config.set("mapper.rewind_wait_s", "0");
     config.set("mapper.nice", "10");
     config.set("optimiser.nice", "10");
   }

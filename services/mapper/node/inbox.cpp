@@ -13,21 +13,15 @@ namespace rekon::mapper {
 Inbox::Inbox(ServiceContext& ctx, size_t max_queued_frames, bool drop_when_full)
     : ctx_(ctx), max_queued_(max_queued_frames), drop_when_full_(drop_when_full), peers_(ctx.bus(), ctx.lifecycle()) {}
 
-namespace {
-// A restarted mapper drops frames past its resume point for at most this long
-// after the first one: the frame source rewinds within a heartbeat of the
-// restart; longer, the resume point's own frame was lost on the way.
-constexpr double kResumeWaitS = 5.0;
-}  // namespace
-
 // Frames before the resume point are not marked as seen: the source sends
 // none of its own again after the restart (it rewinds to the resume point,
 // and before it heard of the restart it was past it), so one that comes is a
 // new stream's (a new player numbers from 0 again) and is fused.
-void Inbox::resumeFrom(int64_t first_missing_frame) {
+void Inbox::resumeFrom(int64_t first_missing_frame, double rewind_wait_s) {
   if (first_missing_frame < 0) return;
   std::lock_guard<std::mutex> lock(mutex_);
-  awaiting_frame_ = first_missing_frame;
+  awaiting_frame_ = rewind_wait_s > 0 ? first_missing_frame : -1;  // a live source never rewinds
+  rewind_wait_s_ = rewind_wait_s;
   resumed_from_ = first_missing_frame;
 }
 
@@ -42,7 +36,7 @@ bool Inbox::beforeResume(int64_t id) {
   const auto now = std::chrono::steady_clock::now();
   const bool rewound = id == awaiting_frame_ || (newest_before_resume_ >= 0 && id < newest_before_resume_) ||
                        (newest_before_resume_ >= 0 &&
-                        std::chrono::duration<double>(now - first_before_resume_).count() > kResumeWaitS);
+                        std::chrono::duration<double>(now - first_before_resume_).count() > rewind_wait_s_);
   if (rewound) {
     awaiting_frame_ = -1;
     return false;

@@ -86,8 +86,10 @@ class Inbox {
   // the restart (its newest frame again, while acknowledgements stalled): it
   // is dropped unacknowledged, as the source sends it again in order after
   // the resume point; fused first, it made every frame between look like a
-  // copy and dropped them.
-  void resumeFrom(int64_t first_missing_frame);
+  // copy and dropped them. The wait ends `rewind_wait_s` after the first such
+  // frame (the resume point's own frame was lost on the way); at 0 there is
+  // none (a live source never rewinds: the frames of the outage are missed).
+  void resumeFrom(int64_t first_missing_frame, double rewind_wait_s);
   // Call after the StopThreadsOnExit that guards everything the handlers use.
   void subscribe();
 
@@ -174,8 +176,9 @@ class Inbox {
   // Inbox::resumeFrom: the frame a restarted mapper waits for first (-1: none
   // or it came), and the newest frame dropped while waiting, with when the
   // first was (a source that lost the resume point's frame itself rewound
-  // all the same: an older frame, or kResumeWaitS, ends the wait).
+  // all the same: an older frame, or rewind_wait_s_ after the first, ends the wait).
   int64_t awaiting_frame_ = -1;
+  double rewind_wait_s_ = 0.0;
   int64_t newest_before_resume_ = -1;
   std::chrono::steady_clock::time_point first_before_resume_{};
   std::string worker_error_;

@@ -39,6 +39,9 @@ struct Settings {
   // The mapping threads' nice value (mapper.nice): above 0 they yield to
   // tracking and to the frame source on a busy machine.
   int nice;
+  // How long a restarted mapper drops frames past its resume point waiting
+  // for the source to rewind (mapper.rewind_wait_s; 0: a live source).
+  double rewind_wait_s;
 };
 
 bool contains(const std::vector<std::string>& list, const std::string& s) {
@@ -57,9 +60,11 @@ Settings readSettings(const ServiceContext& ctx) {
       config.getBool("mapper.wait_for_optimiser") && contains(config.getStringList("run.services"), "optimiser");
   const int nice = config.getInt("mapper.nice");
   requireNice(nice, "mapper.nice");
+  const double rewind_wait_s = config.getDouble("mapper.rewind_wait_s");
+  if (!(rewind_wait_s >= 0)) throw Error("mapper.rewind_wait_s must be 0 or more seconds");
   return {params, max_queued, when_full == "drop", progress_every, wait_for_optimiser,
           write_uncorrected && params.mode != ReintegrationMode::kNone && !ctx.outDir().empty(),
-          MeshPublisherSettings::fromConfig(config), config.getBool("mapper.remove_store_at_end"), nice};
+          MeshPublisherSettings::fromConfig(config), config.getBool("mapper.remove_store_at_end"), nice, rewind_wait_s};
 }
 
 // Where the frame source resumes for this instance: after the frames of the
@@ -165,7 +170,7 @@ void runMapperService(ServiceContext& ctx) {
   MappingWorker worker(ctx, mapper, inbox, mesh);
   StopThreadsOnExit stop_threads(ctx);  // before the state above dies: the bus handlers use it
   const rekon_msgs::resume_point_t resume_point = resumePoint(ctx, mapper, settings.params.resume);
-  inbox.resumeFrom(resume_point.first_missing_frame);
+  inbox.resumeFrom(resume_point.first_missing_frame, settings.rewind_wait_s);
   inbox.subscribe();
   mesh.subscribe();
   std::thread worker_thread([&] { worker.run(); });
