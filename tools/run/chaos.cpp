@@ -151,9 +151,11 @@ Outcome runOnce(const ChaosOptions& opt, const std::string& folder, std::mt19937
   run.start();
   spdlog::info("{} run: rekon run into {} (log {})", with_kills ? "chaos" : "uninterrupted", folder, log);
   std::uniform_real_distribution<double> gap(opt.every_min_s, opt.every_max_s);
+  const auto next_gap = [&] {
+    return std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(gap(*kills)));
+  };
   const auto start = Clock::now();
-  auto next_kill = start;
-  if (with_kills) next_kill += std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(gap(*kills)));
+  auto next_kill = with_kills ? start + next_gap() : start;
   bool terminated = false;
   while (true) {
     if (const auto status = run.poll()) {
@@ -167,7 +169,7 @@ Outcome runOnce(const ChaosOptions& opt, const std::string& folder, std::mt19937
     if (with_kills && !terminated && Clock::now() >= next_kill) {
       const double at = std::chrono::duration<double>(Clock::now() - start).count();
       if (auto k = killOne(opt.victims, log, *kills, at)) o.kills.push_back(*k);
-      next_kill += std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(gap(*kills)));
+      next_kill += next_gap();
     }
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   }
