@@ -219,13 +219,13 @@ class MapperResume : public ::testing::Test {
         << "the restarted mapper never said it was running";
     room_->sendKeyframe();
   }
-  // Waits until `frames` frames are acknowledged, ends the stream; the restarted mapper's stats.
-  std::string finish(size_t frames) {
-    EXPECT_TRUE(room_->waitUntil([&] { return room_->acked.size() == frames; }))
+  // Waits until `frames` frames are acknowledged, ends the stream; `stats`: the restarted mapper's.
+  void finish(size_t frames, std::string* stats) {
+    ASSERT_TRUE(room_->waitUntil([&] { return room_->acked.size() == frames; }))
         << room_->acked.size() << " of " << frames << " frames acknowledged";
     room_->sendEndOfStream();
-    EXPECT_EQ(restarted_->join(), 0);
-    return test::readText(dir_ / "out/mapper_stats.json");
+    ASSERT_EQ(restarted_->join(), 0);
+    *stats = test::readText(dir_ / "out/mapper_stats.json");
   }
 
   test::TempDir dir_;
@@ -255,7 +255,8 @@ TEST_F(MapperResume, AFrameSentBeforeThePlayerHeardOfTheRestartWaitsForItsTurn) 
     if (i != 11) room_->sendTracked(i);
     room_->spinFor(0.02);
   }
-  const std::string stats = finish(kFrames - 8);
+  std::string stats;
+  ASSERT_NO_FATAL_FAILURE(finish(kFrames - 8, &stats));
   // Frames 8..15 fused in order into two KF keyframes, as without the restart.
   EXPECT_EQ(test::jsonInt(stats, "restored_keyframes"), 2) << stats;
   EXPECT_EQ(test::jsonInt(stats, "frames_fused"), kFrames - 8) << stats;
@@ -273,7 +274,8 @@ TEST_F(MapperResume, BehindALiveSourceFramesAfterTheRestartAreFusedAtOnce) {
   if (HasFatalFailure()) return;
   // Frames 8..10 came during the outage and are gone; the source goes on from 11.
   for (int i = 11; i < kFrames; ++i) room_->sendImage(i), room_->sendTracked(i), room_->spinFor(0.02);
-  const std::string stats = finish(kFrames - 11);
+  std::string stats;
+  ASSERT_NO_FATAL_FAILURE(finish(kFrames - 11, &stats));
   EXPECT_EQ(test::jsonInt(stats, "frames_fused"), kFrames - 11) << stats;
   EXPECT_EQ(test::jsonInt(stats, "frames_before_resume"), 0) << stats;
 }
