@@ -158,6 +158,19 @@ TEST(Journal, AnUnreadableRecordInTheMiddleEndsWhatIsRead) {
   EXPECT_EQ(read.frames.back().frame_id, 5);
 }
 
+TEST(Journal, TheNewestNotedGraphVersionComesBack) {
+  test::TempDir dir;
+  {
+    Journal journal(dir.path(), false);
+    journal.noteVersion(3);
+    journal.append(twoKeyframesAndAnEdge(), frames(0, 2));
+    journal.noteVersion(41);
+  }
+  const Journal again(dir.path(), true);
+  EXPECT_EQ(again.contents().newest_version, 41);
+  EXPECT_EQ(again.contents().items.size(), 3u);
+}
+
 TEST(Journal, WithoutAnOutFolderNothingIsWritten) {
   Journal none("", true);
   none.append(twoKeyframesAndAnEdge(), frames(0, 3));

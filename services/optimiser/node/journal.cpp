@@ -1,5 +1,6 @@
 #include "journal.hpp"
 
+#include <algorithm>
 #include <filesystem>
 #include <map>
 #include <variant>
@@ -8,6 +9,7 @@
 #include "rekon/common/messages.hpp"
 #include "rekon/optimiser/graph_messages.hpp"
 #include "rekon_msgs/constraint_t.hpp"
+#include "rekon_msgs/graph_update_t.hpp"
 #include "rekon_msgs/keyframe_t.hpp"
 #include "rekon_msgs/tracked_frame_t.hpp"
 
@@ -58,6 +60,10 @@ bool readRecord(const JournalRecord& r, JournalContents& contents) {
       const auto m = decodeRecord<rekon_msgs::tracked_frame_t>(r);
       if (!m) return false;
       contents.frames.push_back(trackedFrameFromMsg(*m));
+    } else if (r.tag == kGraphVersionRecord) {
+      const auto m = decodeRecord<rekon_msgs::graph_update_t>(r);
+      if (!m) return false;
+      contents.newest_version = std::max(contents.newest_version, m->version);
     } else {
       return false;
     }
@@ -96,6 +102,13 @@ void Journal::append(const std::vector<GraphItem>& items, const std::vector<Trac
     journal_->append(kTrackedFrameRecord, trackedFrameMsg(f));
     if (!journal_->open()) unwritten_frames_.push_back(f);  // the trajectory still needs it
   }
+}
+
+void Journal::noteVersion(int64_t version) {
+  if (!journal_) return;
+  rekon_msgs::graph_update_t m{};
+  m.version = version;
+  journal_->append(kGraphVersionRecord, m);
 }
 
 std::vector<TrackedFrame> Journal::trackedFrames() const {

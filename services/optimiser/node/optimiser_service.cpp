@@ -23,10 +23,17 @@ namespace {
 // How often the optimisation thread looks at the stop flag when idle.
 constexpr auto kIdleWait = std::chrono::milliseconds(100);
 
+// The journal notes an update's version before it goes out: a restart numbers its updates after it.
+void publishUpdate(Bus& bus, Journal& journal, const rekon_msgs::graph_update_t& update) {
+  journal.noteVersion(update.version);
+  bus.publish(channel::kGraphUpdates, update);
+}
+
 // A background optimisation and its graph update, published; the session's
 // graph.g2o and the live numbers follow it.
-void optimiseAndPublish(ServiceContext& ctx, const Inbox& inbox, GraphWorker& worker, SessionGraph& session) {
-  ctx.bus().publish(channel::kGraphUpdates, worker.optimise(false, inbox.lastFrameId()));
+void optimiseAndPublish(ServiceContext& ctx, const Inbox& inbox, GraphWorker& worker, SessionGraph& session,
+                        Journal& journal) {
+  publishUpdate(ctx.bus(), journal, worker.optimise(false, inbox.lastFrameId()));
   const PoseGraph& graph = worker.graph();
   session.afterOptimisation(graph, false);
   ctx.setLive("keyframes", static_cast<double>(graph.numKeyframes()));
@@ -38,11 +45,12 @@ void optimiseAndPublish(ServiceContext& ctx, const Inbox& inbox, GraphWorker& wo
 // that the tracker's copies of its keyframes and constraints are duplicates,
 // and published at once so that the tracker and the mapper start from its
 // poses. A corrupt graph.g2o throws: the service exits with its line.
-void continueSession(ServiceContext& ctx, const Inbox& inbox, GraphWorker& worker, SessionGraph& session) {
+void continueSession(ServiceContext& ctx, const Inbox& inbox, GraphWorker& worker, SessionGraph& session,
+                     Journal& journal) {
   const std::optional<G2oGraph> previous = session.previous();
   if (!previous || previous->vertices.empty()) return;
   worker.load(*previous);
-  optimiseAndPublish(ctx, inbox, worker, session);
+  optimiseAndPublish(ctx, inbox, worker, session, journal);
 }
 
 // Until the upstream's done (or a stop): applies what the inbox queued and,
@@ -61,7 +69,7 @@ void optimiseWhileStreaming(ServiceContext& ctx, const PeerWatch& peers, Inbox& 
       spdlog::error("rekon-tracker fell silent before its done_t; final optimisation with what arrived");
       return;
     }
-    if (new_edges) optimiseAndPublish(ctx, inbox, worker, session);
+    if (new_edges) optimiseAndPublish(ctx, inbox, worker, session, journal);
   }
 }
 
@@ -114,8 +122,8 @@ void runOptimiserService(ServiceContext& ctx) {
   if (!ctx.outDir().empty())
     worker.logTimingTo(ctx.outDir() + "/optimiser_timing.csv", ctx.config().getBool("optimiser.restarted"));
   SessionGraph session(ctx.config());
-  continueSession(ctx, inbox, worker, session);
   Journal journal(ctx.outDir(), ctx.config().getBool("optimiser.restarted"));
+  continueSession(ctx, inbox, worker, session, journal);
   if (!journal.enabled()) inbox.holdFrames();  // else the final step reads them back from the journal
   const ReplayCursor from = rebuildFromJournal(journal.contents(), inbox, worker);
   journal.forgetContents();
@@ -132,6 +140,7 @@ void runOptimiserService(ServiceContext& ctx) {
   applyArrived(inbox.takeGraphItems(), inbox, worker, journal);
   worker.applyExternal(inbox.takeExternalConstraints());
   const rekon_msgs::graph_update_t final_update = worker.optimise(true, inbox.lastFrameId());
+  journal.noteVersion(final_update.version);  // publishFinal sends it (again for a restarted mapper)
   session.afterOptimisation(worker.graph(), true);
   const Inbox::Final final_state = inbox.takeFinal();
   worker.countRejected(final_state.rejected);

@@ -20,9 +20,11 @@ using Clock = std::chrono::steady_clock;
 constexpr int32_t kBatchItems = 200;
 // A cursor past anything the tracker will ever have: the answer carries only its totals.
 constexpr int64_t kNoItems = std::numeric_limits<int64_t>::max();
-// A restarted optimiser numbers its graph updates from the newest version the
-// tracker saw plus this, so that consumers (which ignore versions they have
-// seen) take them even when the tracker missed the last few updates.
+// A restarted optimiser numbers its graph updates after the newest version its
+// journal noted; when the tracker saw a newer one (no journal: no --out, or
+// its writes failed), from that plus this, so that consumers (which ignore
+// versions they have seen) take them even when the tracker missed the last
+// few updates.
 constexpr int64_t kRestartVersionGap = 1000;
 
 Clock::time_point secondsFromNow(double s) {
@@ -75,6 +77,11 @@ ReplayCursor rebuildFromJournal(const JournalContents& journal, Inbox& inbox, Gr
   const size_t keyframes_before = worker.keyframesSeen(), constraints_before = worker.constraintsSeen();
   worker.apply(journal.items);
   inbox.restoreFrames(journal.frames);
+  if (journal.newest_version > worker.version()) {
+    worker.continueVersionsAfter(journal.newest_version);
+    spdlog::info("graph updates continue after version {}, the newest an earlier instance published",
+                 journal.newest_version);
+  }
   // The journal's newest frame, not the inbox's: live frames heard since this
   // instance subscribed may have left a gap after the journal.
   int64_t newest = -1;

@@ -25,13 +25,16 @@ namespace rekon {
 
 // The tags of the records, one per message type, the same in every journal
 // (kLoopCheckedRecord: the tracker's note that a keyframe's loop check was
-// settled, a keyframe_t with its id).
+// settled, a keyframe_t with its id; kGraphVersionRecord: the optimiser's
+// note of a graph update it is about to publish, a graph_update_t with its
+// version and no poses).
 enum RecordTag : uint32_t {
   kKeyframeRecord = 1,
   kConstraintRecord = 2,
   kTrackedFrameRecord = 3,
   kDoneRecord = 4,
   kLoopCheckedRecord = 5,
+  kGraphVersionRecord = 6,
 };
 
 struct JournalRecord {
