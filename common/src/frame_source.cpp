@@ -48,6 +48,19 @@ void announceEndOfStream(Bus& bus, const rekon_msgs::end_of_stream_t& eos) {
   }
 }
 
+void lingerAfterLiveEnd(ServiceContext& ctx, ConsumerWatch& watch, const PeerWatch& peers,
+                        const std::vector<std::string>& consumers, const rekon_msgs::end_of_stream_t& eos) {
+  ctx.setState("lingering");
+  while (!ctx.stopRequested() && !peers.finished(consumers)) {
+    for (const auto& service : watch.takeRestarts()) {
+      if (std::find(consumers.begin(), consumers.end(), service) == consumers.end()) continue;
+      spdlog::warn("rekon-{} restarted after the end of the stream: announcing the end again", service);
+      announceEndOfStream(ctx.bus(), eos);
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+}
+
 namespace {
 
 using Clock = std::chrono::steady_clock;

@@ -20,7 +20,8 @@
 # evidence when a kill is missed).
 #
 # KILL_COUNT=fused: the count is of frames the mapper has fused (rows of
-# OUT/mapper_timing.csv) instead of stored KF keyframes.
+# OUT/mapper_timing.csv) instead of stored KF keyframes. KILL_COUNT=ended: 1
+# once OUT/mapper.log says the end of the stream came, else 0.
 #
 # KILL_ALONE=1: once the count is reached the service is held stopped until
 # every other service has exited (its peers take its silence for its end:
@@ -79,6 +80,8 @@ tryKill() {
   [ -n "$pid" ] && kill -STOP "$pid" 2> /dev/null && stopped "$pid" || { note "rekon-$service (pid ${pid:-none}) not stopped"; kill -CONT "$pid" 2> /dev/null; return 1; }
   if [ "${KILL_COUNT:-}" = fused ]; then
     n=$(( $(wc -l < "$out/mapper_timing.csv" 2> /dev/null || echo 1) - 1 ))
+  elif [ "${KILL_COUNT:-}" = ended ]; then
+    n=$(grep -c "end of stream after frame" "$out/mapper.log" 2> /dev/null)
   else
     n=$(stored)
   fi

@@ -160,6 +160,30 @@ TEST(Faults, MapperKilledAfterTheLastFrameGetsTheEndOfTheStreamAgain) {
   EXPECT_EQ(leftoverSegments(out), std::vector<std::string>{});
 }
 
+// The same behind a live source (player.pacing live), killed once it heard
+// the end of the stream: a live source sends no frame again, but it announces
+// the end again to the restart. It once did not: the restarted mapper waited
+// for an end of stream until the player happened to be restarted too (the
+// corridor chaos run, 4 minutes), or for ever.
+TEST(Faults, MapperKilledAfterTheEndOfALiveStreamHearsTheEndAgain) {
+  rekon::test::TempDir dir;
+  const std::string out = dir / "run";
+  const Faulty f = runKilling("mapper", out, "--set player.rate=1 --set player.pacing=live", 1, "KILL_COUNT=ended");
+  ASSERT_NE(f.output.find("killed rekon-mapper"), std::string::npos) << f.output;
+  const std::string logs = f.output + "\nplayer.log:\n" + readText(out + "/player.log") + "mapper.log:\n" + readText(out + "/mapper.log");
+  ASSERT_EQ(f.rc, 0) << logs;
+  EXPECT_NE(readText(out + "/stats.json").find("\"restarts\": {\"mapper\":1}"), std::string::npos) << f.output;
+  const bool rebuilt = readText(out + "/mapper.log").find("rebuilding the volume from them") != std::string::npos;
+  const bool said_again = readText(out + "/mapper.log").find("its run finished at frame") != std::string::npos;
+  std::printf("the restart %s\n", rebuilt ? "rebuilt from the store" : said_again ? "found the run finished" : "did neither");
+  EXPECT_TRUE(rebuilt || said_again) << logs;
+  const bool announced = readText(out + "/player.log").find("announcing the end again") != std::string::npos;
+  EXPECT_TRUE(announced || !rebuilt) << logs;
+  EXPECT_NE(readText(out + "/trajectory.txt"), "") << logs;
+  EXPECT_TRUE(fs::exists(out + "/mesh.ply")) << logs;
+  EXPECT_EQ(leftoverSegments(out), std::vector<std::string>{});
+}
+
 // The mapper held stopped in its final pass until every other service has
 // exited (they take its silence for its end), then killed: the last service
 // standing. The launcher waits for its restart, which rebuilds from the store

@@ -243,9 +243,7 @@ void runCamera(ServiceContext& ctx, const CameraParams& params) {
   eos.frames = c.sent;
   eos.duration_s = end.last_timestamp - end.first_timestamp;
   announceEndOfStream(ctx.bus(), eos);
-  // The frame ring lives as long as the sender: stay until the consumers are done with it.
-  ctx.setState("lingering");
-  peers.waitUntilFinished(params.wait_for, ctx);
+  lingerAfterLiveEnd(ctx, watch, peers, params.wait_for, eos);
 }
 
 }  // namespace rekon::camera

@@ -369,12 +369,17 @@ class Player {
   }
 
   // Stays until the consumers are done: one restarted meanwhile gets its
-  // frames again (from the ring, which lives as long as the sender).
+  // frames again (from the ring, which lives as long as the sender); live,
+  // only the end of the stream (a live source does not rewind).
   void linger() {
+    if (params_.live) {
+      lingerAfterLiveEnd(ctx_, watch_, peers_, consumers_, eos_);
+      return;
+    }
     ctx_.setState("lingering");
     while (acked_pacing_ && !ctx_.stopRequested() && !peers_.finished(consumers_)) {
       const int64_t restarts = restarts_;
-      const int64_t next = params_.live ? end_ : handleRestarts(end_);  // a live source does not rewind
+      const int64_t next = handleRestarts(end_);
       // Also when nothing is left to send (a consumer restarted after it had
       // every frame): it still waits for the end of the stream.
       if (next != end_ || restarts_ != restarts) playToEnd(next);

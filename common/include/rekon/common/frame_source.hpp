@@ -32,6 +32,14 @@ TransportMode chooseTransport(const std::string& mode, const std::vector<std::st
 // leave a consumer waiting.
 void announceEndOfStream(Bus& bus, const rekon_msgs::end_of_stream_t& eos);
 
+// A live source after its end of stream: stays (state "lingering"; the frame
+// ring lives as long as the sender) until the consumers are finished. A
+// consumer restarted meanwhile (a mapper killed in its final pass) hears `eos`
+// again: a live source has no frames to send it again, and without the end
+// it would wait for ever.
+void lingerAfterLiveEnd(ServiceContext& ctx, ConsumerWatch& watch, const PeerWatch& peers,
+                        const std::vector<std::string>& consumers, const rekon_msgs::end_of_stream_t& eos);
+
 // Sends the frames of a source that cannot be paused. offer() never blocks:
 // the offered frame replaces the one waiting (which counts as dropped), and a
 // sending thread passes the waiting frame on as soon as fewer than
