@@ -158,17 +158,34 @@ TEST(Journal, AnUnreadableRecordInTheMiddleEndsWhatIsRead) {
   EXPECT_EQ(read.frames.back().frame_id, 5);
 }
 
-TEST(Journal, TheNewestNotedGraphVersionComesBack) {
+rekon_msgs::graph_update_t update(int64_t version, bool final, const std::vector<int64_t>& ids) {
+  rekon_msgs::graph_update_t m{};
+  m.version = version;
+  m.final_update = final;
+  m.num_keyframes = static_cast<int32_t>(ids.size());
+  m.keyframe_ids = ids;
+  for (int64_t id : ids) m.poses.push_back(toMsg(turned(0.1 * static_cast<double>(id), 0.01)));
+  return m;
+}
+
+// The newest version noted comes back, and the newest final update whole.
+TEST(Journal, NotedGraphUpdatesComeBackAsTheNewestVersionAndTheFinalOneWhole) {
   test::TempDir dir;
   {
     Journal journal(dir.path(), false);
-    journal.noteVersion(3);
+    journal.noteUpdate(update(3, false, {0, 1}));
     journal.append(twoKeyframesAndAnEdge(), frames(0, 2));
-    journal.noteVersion(41);
+    journal.noteUpdate(update(40, true, {0, 1}));
+    journal.noteUpdate(update(41, false, {0, 1}));
   }
   const Journal again(dir.path(), true);
   EXPECT_EQ(again.contents().newest_version, 41);
   EXPECT_EQ(again.contents().items.size(), 3u);
+  ASSERT_TRUE(again.contents().final_update.has_value());
+  const rekon_msgs::graph_update_t& final_update = *again.contents().final_update;
+  EXPECT_EQ(final_update.version, 40);
+  EXPECT_EQ(final_update.keyframe_ids, (std::vector<int64_t>{0, 1}));
+  EXPECT_EQ(final_update.poses[1].t[0], update(40, true, {0, 1}).poses[1].t[0]);
 }
 
 TEST(Journal, WithoutAnOutFolderNothingIsWritten) {

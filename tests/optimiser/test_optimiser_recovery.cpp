@@ -85,6 +85,7 @@ struct Seen {
   int replay_requests = 0;
   int optimiser_dones = 0;
   int64_t newest_version = 0, newest_final_version = 0;  // of the graph updates heard
+  std::map<int64_t, rekon_msgs::graph_update_t> finals;   // by version
   std::map<int, rekon_msgs::replay_request_t> first_request;  // by the requester's pid
 };
 
@@ -101,7 +102,9 @@ class StandIn {
     });
     bus_.subscribe<rekon_msgs::graph_update_t>(channel::kGraphUpdates, [this](const rekon_msgs::graph_update_t& m) {
       seen_.newest_version = std::max(seen_.newest_version, m.version);
-      if (m.final_update) seen_.newest_final_version = std::max(seen_.newest_final_version, m.version);
+      if (!m.final_update) return;
+      seen_.newest_final_version = std::max(seen_.newest_final_version, m.version);
+      seen_.finals.emplace(m.version, m);
     });
     bus_.subscribe<rekon_msgs::done_t>(channel::kDone, [this](const rekon_msgs::done_t& m) {
       if (m.service == "optimiser") ++seen_.optimiser_dones;
@@ -109,6 +112,14 @@ class StandIn {
   }
   tracker::History& history() { return history_; }
   void startBeating() { beating_ = true; }
+  // Also beats as a running mapper (from this process), which the optimiser
+  // lingers for after its final update, until mapperFinished().
+  void beatAsMapperToo() { mapper_beating_ = true; }
+  void mapperFinished() {
+    mapper_beating_ = false;
+    for (int i = 0; i < 3; ++i) bus_.publish(channel::kDone, doneMessage("mapper", 0));
+    beat("mapper", getpid(), "exited");
+  }
   Bus& bus() { return bus_; }
   const Seen& seen() const { return seen_; }
 
@@ -119,13 +130,10 @@ class StandIn {
     auto last_beat = Clock::time_point{};
     while (!until()) {
       if (Clock::now() > end) return false;
-      if (beating_ && Clock::now() - last_beat > std::chrono::milliseconds(300)) {
+      if (Clock::now() - last_beat > std::chrono::milliseconds(300)) {
         last_beat = Clock::now();
-        rekon_msgs::heartbeat_t hb{};
-        hb.service = "tracker";
-        hb.pid = kFakeTrackerPid;
-        hb.state = "lingering";
-        bus_.publish(channel::kHeartbeat, hb);
+        if (beating_) beat("tracker", kFakeTrackerPid, "lingering");
+        if (mapper_beating_) beat("mapper", getpid(), "running");
       }
       bus_.handle(5);
       history_.serveReplays();
@@ -134,7 +142,16 @@ class StandIn {
   }
 
  private:
+  void beat(const std::string& service, int pid, const std::string& state) {
+    rekon_msgs::heartbeat_t hb{};
+    hb.service = service;
+    hb.pid = pid;
+    hb.state = state;
+    bus_.publish(channel::kHeartbeat, hb);
+  }
+
   bool beating_;
+  bool mapper_beating_ = false;
   LcmBus bus_{BusOptions{}};
   tracker::History history_{bus_};
   Seen seen_;
@@ -262,6 +279,56 @@ TEST(OptimiserRecovery, ARestartNumbersItsUpdatesAfterTheKilledInstancesWhenTheT
   EXPECT_EQ(test::waitForExit(pid, 30), 0) << test::readText(dir / "optimiser.log");
   EXPECT_GT(tracker.seen().newest_final_version, killed_newest) << test::readText(dir / "optimiser.log");
   EXPECT_EQ(posesIn(dir / "trajectory.txt"), static_cast<size_t>(kFrames));
+}
+
+// Killed after its final update, while it lingers for the mapper: the
+// restart sends the killed instance's final poses again, numbered anew, and
+// writes the same trajectory. Optimised again (from the tracker's poses, not
+// the background optimisations'), a loop's compromise comes out otherwise,
+// and a mapper already in its final pass, or done, keeps the first poses.
+TEST(OptimiserRecovery, ARestartAfterTheFinalUpdateSendsTheSamePosesAgain) {
+  if (!test::insideNetns()) return;
+  test::TempDir dir;
+  StandIn tracker(true);
+  tracker.beatAsMapperToo();
+  constexpr int kFrames = 400;
+  const pid_t first = spawnOptimiser(dir, false, "first.log");
+  ASSERT_GT(first, 0);
+  ASSERT_TRUE(tracker.runUntil([&] { return tracker.seen().optimiser_running; }, 20)) << test::readText(dir / "first.log");
+  walkLive(tracker, 0, kFrames);
+  tracker::LoopConstraint loop;  // the walk's end seen 1 cm and 2 degrees from where odometry puts it
+  loop.from_id = 0;
+  loop.to_id = kFrames / kFramesPerKeyframe - 1;
+  loop.relative = shiftedX(0.02 * static_cast<double>(loop.to_id) + 0.01);
+  loop.relative.rotate(Eigen::AngleAxisd(0.035, Eigen::Vector3d::UnitZ()));
+  loop.information = Matrix6d::Identity() * 1e3;
+  tracker.history().publishLoopConstraint(loop);
+  tracker.history().markDone();
+  for (int i = 0; i < 3; ++i) tracker.bus().publish(channel::kDone, doneMessage("tracker", kFrames - 1));
+  ASSERT_TRUE(tracker.runUntil([&] { return !tracker.seen().finals.empty(); }, 30)) << test::readText(dir / "first.log");
+  kill(first, SIGKILL);
+  test::waitForExit(first, 10);
+  const rekon_msgs::graph_update_t killed = tracker.seen().finals.begin()->second;
+  const std::string killed_trajectory = test::readText(dir / "trajectory.txt");
+
+  const pid_t pid = spawnRestartedOptimiser(dir);
+  ASSERT_GT(pid, 0);
+  ASSERT_TRUE(tracker.runUntil([&] { return tracker.seen().newest_final_version > killed.version; }, 60))
+      << test::readText(dir / "optimiser.log");
+  tracker.mapperFinished();
+  tracker.runUntil([&] { return false; }, 0.5);
+  EXPECT_EQ(test::waitForExit(pid, 30), 0) << test::readText(dir / "optimiser.log");
+  const rekon_msgs::graph_update_t& again = tracker.seen().finals.rbegin()->second;
+  ASSERT_EQ(again.keyframe_ids, killed.keyframe_ids);
+  for (size_t i = 0; i < killed.poses.size(); ++i) {
+    EXPECT_EQ(std::vector<double>(again.poses[i].t, again.poses[i].t + 3),
+              std::vector<double>(killed.poses[i].t, killed.poses[i].t + 3)) << "keyframe " << i;
+    EXPECT_EQ(std::vector<double>(again.poses[i].q, again.poses[i].q + 4),
+              std::vector<double>(killed.poses[i].q, killed.poses[i].q + 4)) << "keyframe " << i;
+  }
+  EXPECT_EQ(test::readText(dir / "trajectory.txt"), killed_trajectory);
+  EXPECT_NE(test::readText(dir / "optimiser.log").find("its poses go out again"), std::string::npos)
+      << test::readText(dir / "optimiser.log");
 }
 
 // An answer to request 1 of another instance (a killed optimiser's, still

@@ -64,6 +64,7 @@ bool readRecord(const JournalRecord& r, JournalContents& contents) {
       const auto m = decodeRecord<rekon_msgs::graph_update_t>(r);
       if (!m) return false;
       contents.newest_version = std::max(contents.newest_version, m->version);
+      if (m->final_update) contents.final_update = *m;
     } else {
       return false;
     }
@@ -104,11 +105,11 @@ void Journal::append(const std::vector<GraphItem>& items, const std::vector<Trac
   }
 }
 
-void Journal::noteVersion(int64_t version) {
+void Journal::noteUpdate(const rekon_msgs::graph_update_t& update) {
   if (!journal_) return;
-  rekon_msgs::graph_update_t m{};
-  m.version = version;
-  journal_->append(kGraphVersionRecord, m);
+  rekon_msgs::graph_update_t version_only{};
+  version_only.version = update.version;
+  journal_->append(kGraphVersionRecord, update.final_update ? update : version_only);
 }
 
 std::vector<TrackedFrame> Journal::trackedFrames() const {

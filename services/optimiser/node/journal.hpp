@@ -5,14 +5,15 @@
 // (rekon/common/record_journal.hpp): each record the LCM message of its kind
 // (keyframe_t with id and pose; constraint_t with the information as applied;
 // tracked_frame_t with id, time, keyframe, pose and lost as its state;
-// graph_update_t with only the version of an update about to go out), the
-// poses as on the bus. A restarted optimiser rebuilds its graph and frames
-// from it and asks the tracker only for what came after (recovery.hpp:
+// graph_update_t: an update about to go out, only its version, or whole for
+// the final one), the poses as on the bus. A restarted optimiser rebuilds its
+// graph and frames from it and asks the tracker only for what came after (recovery.hpp:
 // journalCursor); a first instance starts it empty. A torn or unreadable
 // record (a kill in the middle of a write) ends what is read, with a warning,
 // and is cut off before the restart appends: what follows is asked for again.
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -28,6 +29,7 @@ struct JournalContents {
   std::vector<GraphItem> items;      // in arrival order
   std::vector<TrackedFrame> frames;  // in arrival order
   int64_t newest_version = 0;        // of the graph updates published (0: none)
+  std::optional<rekon_msgs::graph_update_t> final_update;  // the newest final one, whole
   size_t records_read = 0;
 };
 
@@ -46,10 +48,11 @@ class Journal {
   // Appends; a failed write logs one error and stops the journal (the run
   // goes on; a restart then asks for more).
   void append(const std::vector<GraphItem>& items, const std::vector<TrackedFrame>& frames);
-  // Before a graph update goes out: a restart numbers its updates after it,
-  // as consumers ignore versions they have seen (a restarted tracker, which
-  // would say the newest, has seen none).
-  void noteVersion(int64_t version);
+  // Before a graph update goes out: its version, so that a restart numbers
+  // its updates after it (consumers ignore versions they have seen, and a
+  // restarted tracker, which would say the newest, has seen none); the final
+  // update whole, so that a restart after it sends the same poses again.
+  void noteUpdate(const rekon_msgs::graph_update_t& update);
   bool enabled() const { return journal_ != nullptr; }
   // Every tracked frame it holds, read back from the file, once each, by id;
   // with the frames a stopped journal could not take (kept here instead).

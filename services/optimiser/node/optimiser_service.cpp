@@ -25,7 +25,7 @@ constexpr auto kIdleWait = std::chrono::milliseconds(100);
 
 // The journal notes an update's version before it goes out: a restart numbers its updates after it.
 void publishUpdate(Bus& bus, Journal& journal, const rekon_msgs::graph_update_t& update) {
-  journal.noteVersion(update.version);
+  journal.noteUpdate(update);
   bus.publish(channel::kGraphUpdates, update);
 }
 
@@ -71,6 +71,24 @@ void optimiseWhileStreaming(ServiceContext& ctx, const PeerWatch& peers, Inbox& 
     }
     if (new_edges) optimiseAndPublish(ctx, inbox, worker, session, journal);
   }
+}
+
+// The final optimisation's update. A restart after the killed instance's
+// final update sends that one's poses again (numbered anew) when they cover
+// the same keyframes: optimised again, from other starting poses and with
+// the outlier loop edges removed in one go, they come out otherwise, and a
+// mapper in its final pass or finished keeps the first (docs/faults.md).
+// The graph is optimised either way: the session's graph.g2o is its.
+rekon_msgs::graph_update_t finalUpdate(GraphWorker& worker, const Inbox& inbox,
+                                       const std::optional<rekon_msgs::graph_update_t>& earlier) {
+  rekon_msgs::graph_update_t update = worker.optimise(true, inbox.lastFrameId());
+  if (!earlier || earlier->keyframe_ids != update.keyframe_ids) return update;
+  spdlog::info("the killed instance's final update (version {}, {} keyframes) covers the graph: its poses go out again",
+               earlier->version, earlier->num_keyframes);
+  const int64_t version = update.version;
+  update = *earlier;
+  update.version = version;
+  return update;
 }
 
 void publishFinal(Bus& bus, const std::optional<rekon_msgs::graph_update_t>& final_update, const rekon_msgs::done_t& done,
@@ -126,6 +144,7 @@ void runOptimiserService(ServiceContext& ctx) {
   continueSession(ctx, inbox, worker, session, journal);
   if (!journal.enabled()) inbox.holdFrames();  // else the final step reads them back from the journal
   const ReplayCursor from = rebuildFromJournal(journal.contents(), inbox, worker);
+  const std::optional<rekon_msgs::graph_update_t> earlier_final = journal.contents().final_update;
   journal.forgetContents();
   ReplayClient replays(ctx, peers, inbox);
   if (!recoverAtStart(ctx, peers, replays, inbox, worker, from)) {
@@ -139,13 +158,13 @@ void runOptimiserService(ServiceContext& ctx) {
   fillWhatWasLost(ctx, replays, inbox, worker, journal);
   applyArrived(inbox.takeGraphItems(), inbox, worker, journal);
   worker.applyExternal(inbox.takeExternalConstraints());
-  const rekon_msgs::graph_update_t final_update = worker.optimise(true, inbox.lastFrameId());
-  journal.noteVersion(final_update.version);  // publishFinal sends it (again for a restarted mapper)
+  const rekon_msgs::graph_update_t final_update = finalUpdate(worker, inbox, earlier_final);
+  journal.noteUpdate(final_update);  // publishFinal sends it (again for a restarted mapper)
   session.afterOptimisation(worker.graph(), true);
   const Inbox::Final final_state = inbox.takeFinal();
   worker.countRejected(final_state.rejected);
   const size_t trajectory_frames =
-      writeTrajectory(ctx, worker, journal.enabled() ? journal.trackedFrames() : final_state.frames);
+      writeTrajectory(ctx, final_update, journal.enabled() ? journal.trackedFrames() : final_state.frames);
 
   const rekon_msgs::done_t done = doneMessage(ctx.name(), final_state.last_frame_id);
   publishFinal(ctx.bus(), final_update, done, params);

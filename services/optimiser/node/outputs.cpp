@@ -8,6 +8,7 @@
 
 #include "rekon/common/error.hpp"
 #include "rekon/common/files.hpp"
+#include "rekon/common/graph_update.hpp"
 #include "rekon/common/pose.hpp"
 
 namespace rekon::optimiser {
@@ -37,10 +38,10 @@ bool keepsTheBetter(const ServiceContext& ctx, const Trajectory& trajectory, con
 
 }  // namespace
 
-size_t writeTrajectory(const ServiceContext& ctx, const GraphWorker& worker,
-                                const std::vector<TrackedFrame>& frames) {
+size_t writeTrajectory(const ServiceContext& ctx, const rekon_msgs::graph_update_t& final_update,
+                       const std::vector<TrackedFrame>& frames) {
   size_t missing = 0;
-  const Trajectory trajectory = frameTrajectory(worker.graph(), frames, &missing);
+  const Trajectory trajectory = frameTrajectory(graphPoses(final_update), frames, &missing);
   if (missing > 0) spdlog::error("{} tracked frames name a keyframe the graph never received; left out", missing);
   if (ctx.outDir().empty()) return trajectory.size();
   const std::filesystem::path path = std::filesystem::path(ctx.outDir()) / "trajectory.txt";

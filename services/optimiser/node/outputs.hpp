@@ -16,10 +16,11 @@
 
 namespace rekon::optimiser {
 
-// Returns how many frames the trajectory holds (frames whose keyframe the
-// graph never received are left out, with an error in the log).
-size_t writeTrajectory(const ServiceContext& ctx, const GraphWorker& worker,
-                                const std::vector<TrackedFrame>& frames);
+// Every frame at its keyframe's pose in `final_update`, the poses the mapper
+// gets. Returns how many frames the trajectory holds (frames whose keyframe
+// the graph never received are left out, with an error in the log).
+size_t writeTrajectory(const ServiceContext& ctx, const rekon_msgs::graph_update_t& final_update,
+                       const std::vector<TrackedFrame>& frames);
 void setStats(ServiceContext& ctx, const GraphWorker& worker, size_t trajectory_frames);
 
 // The pose graph in the session folder (session.dir), as graph.g2o: after an

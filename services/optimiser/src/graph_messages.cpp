@@ -93,18 +93,24 @@ rekon_msgs::graph_update_t graphUpdateMsg(const PoseGraph& graph, int64_t versio
 }
 
 Trajectory frameTrajectory(const PoseGraph& graph, std::vector<TrackedFrame> frames, size_t* missing_keyframe) {
+  return frameTrajectory(graph.poses(), std::move(frames), missing_keyframe);
+}
+
+Trajectory frameTrajectory(const std::vector<std::pair<int64_t, Pose>>& keyframe_poses, std::vector<TrackedFrame> frames,
+                           size_t* missing_keyframe) {
   std::sort(frames.begin(), frames.end(), [](const TrackedFrame& a, const TrackedFrame& b) { return a.frame_id < b.frame_id; });
   Trajectory out;
   out.reserve(frames.size());
   size_t missing = 0;
+  const auto by_id = [](const std::pair<int64_t, Pose>& kf, int64_t id) { return kf.first < id; };
   for (const TrackedFrame& f : frames) {
     if (f.lost) continue;  // its pose is the last good one, not where the camera was
-    const std::optional<Pose> kf = graph.pose(f.keyframe_id);
-    if (!kf) {
+    const auto kf = std::lower_bound(keyframe_poses.begin(), keyframe_poses.end(), f.keyframe_id, by_id);
+    if (kf == keyframe_poses.end() || kf->first != f.keyframe_id) {
       ++missing;
       continue;
     }
-    out.push_back({f.timestamp, orthonormalised(*kf * f.pose_in_keyframe)});
+    out.push_back({f.timestamp, orthonormalised(kf->second * f.pose_in_keyframe)});
   }
   if (missing_keyframe) *missing_keyframe = missing;
   return out;

@@ -26,8 +26,8 @@ namespace rekon {
 // The tags of the records, one per message type, the same in every journal
 // (kLoopCheckedRecord: the tracker's note that a keyframe's loop check was
 // settled, a keyframe_t with its id; kGraphVersionRecord: the optimiser's
-// note of a graph update it is about to publish, a graph_update_t with its
-// version and no poses).
+// note of a graph update it is about to publish, a graph_update_t with only
+// its version, or whole for the final one).
 enum RecordTag : uint32_t {
   kKeyframeRecord = 1,
   kConstraintRecord = 2,

@@ -5,6 +5,7 @@
 // and every tracked frame's world pose from the optimised keyframes.
 #include <cstdint>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "rekon/common/pose.hpp"
@@ -78,5 +79,9 @@ rekon_msgs::graph_update_t graphUpdateMsg(const PoseGraph& graph, int64_t versio
 // trajectories of other systems leave them out; frames whose keyframe the
 // graph does not know are left out and counted in `missing_keyframe`.
 Trajectory frameTrajectory(const PoseGraph& graph, std::vector<TrackedFrame> frames, size_t* missing_keyframe);
+// The same from (keyframe id, world pose) pairs in ascending id, as
+// graphPoses() reads them from an update and PoseGraph::poses() gives them.
+Trajectory frameTrajectory(const std::vector<std::pair<int64_t, Pose>>& keyframe_poses, std::vector<TrackedFrame> frames,
+                           size_t* missing_keyframe);
 
 }  // namespace rekon::optimiser
