@@ -4,13 +4,23 @@
 // optimisation and the trajectory of the journal's tracked frames. Prints the
 // graph's size, the heap in use and the mean solve time every EVERY keyframes
 // (issue 49: what grows with time). Prints numbers; not a test.
-//   rekon_optimiser_replay JOURNAL TRAJECTORY_OUT [CULL_RADIUS_M] [CULL_ANGLE_DEG] [EVERY]
+//   rekon_optimiser_replay JOURNAL TRAJECTORY_OUT [CULL_RADIUS_M] [CULL_ANGLE_DEG] [EVERY] [RESTART_AT,...] [LOOPS_OUT]
+// RESTART_AT: keyframe counts at which the optimiser is killed and restarted,
+// as rekon run does (issue 48): a new graph gets everything so far at once
+// (rebuildFromJournal), then the replay goes on. LOOPS_OUT: the loop edges
+// the final graph keeps, "from to chi2" per line (with culling, between the
+// kept keyframes their ends were moved to).
 #include <malloc.h>
 
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
+#include <memory>
+#include <set>
+#include <sstream>
+#include <string>
 #include <exception>
+#include <fstream>
 #include <variant>
 
 #include "graph_worker.hpp"
@@ -49,15 +59,26 @@ int main(int argc, char** argv) {
     params.cull_radius_m = argc > 3 ? std::atof(argv[3]) : 0.0;
     params.cull_angle_deg = argc > 4 ? std::atof(argv[4]) : 15.0;
     const size_t every = argc > 5 ? static_cast<size_t>(std::atoi(argv[5])) : 100;
+    std::set<size_t> restarts;
+    std::istringstream restart_list(argc > 6 ? argv[6] : "");
+    for (std::string at; std::getline(restart_list, at, ',');) restarts.insert(std::stoul(at));
     const JournalContents journal = readJournal(argv[1]);
-    GraphWorker worker(params);
+    auto worker_ptr = std::make_unique<GraphWorker>(params);
     Window window;
     size_t keyframes = 0;
     bool new_edges = false;
     for (size_t i = 0; i < journal.items.size(); ++i) {
+      const bool keyframe = std::holds_alternative<KeyframeIn>(journal.items[i]);
+      if (keyframe && restarts.count(keyframes) > 0) {
+        std::printf("restart after %zu keyframes: a new graph gets the %zu items before at once\n", keyframes, i);
+        worker_ptr = std::make_unique<GraphWorker>(params);
+        worker_ptr->apply({journal.items.begin(), journal.items.begin() + static_cast<std::ptrdiff_t>(i)});
+        new_edges = true;
+      }
+      GraphWorker& worker = *worker_ptr;
       new_edges |= worker.apply({journal.items[i]});
       const bool batch_ends = i + 1 == journal.items.size() || std::holds_alternative<KeyframeIn>(journal.items[i + 1]);
-      if (std::holds_alternative<KeyframeIn>(journal.items[i]) && ++keyframes % every == 0)
+      if (keyframe && ++keyframes % every == 0)
         printRow(worker, i + 1, window);
       if (batch_ends && new_edges) {
         new_edges = false;
@@ -67,10 +88,17 @@ int main(int argc, char** argv) {
         ++window.solves;
       }
     }
+    GraphWorker& worker = *worker_ptr;
     worker.optimise(true, -1);
     printRow(worker, journal.items.size(), window);
     std::printf("merged edges %zu, dropped by culling %zu, outliers removed %zu\n", worker.graph().edgesMerged(),
                 worker.graph().edgesDroppedByCulling(), worker.graph().loopEdgesRemoved());
+    if (argc > 7) {
+      std::ofstream loops(argv[7]);
+      const std::vector<Constraint> kept = worker.graph().loopEdges();
+      const std::vector<double> chi2 = worker.graph().loopChi2();
+      for (size_t i = 0; i < kept.size(); ++i) loops << kept[i].from_id << ' ' << kept[i].to_id << ' ' << chi2[i] << '\n';
+    }
     size_t missing = 0;
     writeTumTrajectory(frameTrajectory(worker.graph(), journal.frames, &missing), argv[2]);
     std::printf("wrote %zu frames (%zu missing a keyframe) to %s\n", journal.frames.size() - missing, missing, argv[2]);
