@@ -360,10 +360,6 @@ bool PeerWatch::finished(const std::vector<std::string>& names) const {
   return std::all_of(names.begin(), names.end(), [&](const std::string& n) { return finishedLocked(n); });
 }
 
-void PeerWatch::waitUntilFinished(const std::vector<std::string>& names, const ServiceContext& ctx) const {
-  while (!ctx.stopRequested() && !finished(names)) std::this_thread::sleep_for(std::chrono::milliseconds(50));
-}
-
 int runInContext(ServiceContext& ctx, const std::function<void(ServiceContext&)>& body) {
   try {
     ctx.start();

@@ -164,8 +164,6 @@ class PeerWatch {
   // until their downstream services are finished, so that a restarted one
   // still gets what it needs from them.
   bool finished(const std::vector<std::string>& names) const;
-  // Waits until finished(names) or ctx.stopRequested().
-  void waitUntilFinished(const std::vector<std::string>& names, const class ServiceContext& ctx) const;
 
  private:
   void onHeartbeat(const rekon_msgs::heartbeat_t& hb);
