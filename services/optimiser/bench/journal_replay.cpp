@@ -15,12 +15,12 @@
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
+#include <exception>
+#include <fstream>
 #include <memory>
 #include <set>
 #include <sstream>
 #include <string>
-#include <exception>
-#include <fstream>
 #include <variant>
 
 #include "graph_worker.hpp"

@@ -7,8 +7,8 @@
 // tracked_frame_t with id, time, keyframe, pose and lost as its state;
 // graph_update_t: an update about to go out, only its version, or whole for
 // the final one), the poses as on the bus. A restarted optimiser rebuilds its
-// graph and frames from it and asks the tracker only for what came after (recovery.hpp:
-// journalCursor); a first instance starts it empty. A torn or unreadable
+// graph and frames from it and asks the tracker only for what came after
+// (recovery.hpp: journalCursor); a first instance starts it empty. A torn or unreadable
 // record (a kill in the middle of a write) ends what is read, with a warning,
 // and is cut off before the restart appends: what follows is asked for again.
 #include <cstdint>
