@@ -4,6 +4,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <iomanip>
 #include <sstream>
 #include <tuple>
 
@@ -105,6 +106,27 @@ void TumDataset::checkImagesExist() const {
                   " images " + index + " lists are missing (the first: " + first + "); copy them in, or list only those present");
     }
   }
+}
+
+size_t TumDataset::writeSubset(const std::string& out, const std::function<bool(size_t)>& keep) const {
+  const fs::path root = fs::absolute(dir_), to(out);
+  fs::create_directories(to);
+  std::ofstream rgb(to / "rgb.txt"), depth(to / "depth.txt");
+  const std::string header = "# the frames of " + root.string() + " kept for a comparison (TumDataset::writeSubset)\n";
+  rgb << header << std::fixed << std::setprecision(9);
+  depth << header << std::fixed << std::setprecision(9);
+  size_t kept = 0;
+  for (size_t i = 0; i < entries_.size(); ++i) {
+    if (!keep(i)) continue;
+    const Entry& e = entries_[i];
+    rgb << e.timestamp << " " << (root / e.rgb).string() << "\n";
+    depth << e.timestamp << " " << (root / e.depth).string() << "\n";
+    ++kept;
+  }
+  for (const char* name : {"camera.yaml", "groundtruth.txt"})
+    if (fs::exists(root / name)) fs::copy_file(root / name, to / name, fs::copy_options::overwrite_existing);
+  if (!rgb.flush() || !depth.flush()) throw Error(out + ": cannot write rgb.txt and depth.txt there; check the disk");
+  return kept;
 }
 
 RgbdFrame TumDataset::load(size_t i) const { return decode(i, loadEncoded(i)); }

@@ -51,6 +51,25 @@ TEST(TumDataset, AssociatesRgbAndDepthByNearestTimestamp) {
   EXPECT_NEAR(ds.duration(), 0.2, 1e-9);
 }
 
+TEST(TumDataset, ASubsetListsTheKeptFramesWhereTheyAreUnderTheirRgbTimestamps) {
+  rekon::test::TempDir dir;
+  makeDataset(dir.path() + "/all", 5);
+  std::ofstream(dir.path() + "/all/groundtruth.txt") << "0 0 0 0 0 0 0 1\n";
+  const rekon::TumDataset all(dir.path() + "/all");
+  ASSERT_EQ(all.writeSubset(dir.path() + "/some", [](size_t i) { return i != 1 && i != 2; }), 3u);
+
+  const rekon::TumDataset some(dir.path() + "/some");
+  ASSERT_EQ(some.size(), 3u);
+  for (const auto& [kept, of] : {std::pair{0u, 0u}, std::pair{1u, 3u}, std::pair{2u, 4u}}) {
+    EXPECT_DOUBLE_EQ(some.timestamp(kept), all.timestamp(of));
+    const auto f = some.load(kept);
+    EXPECT_EQ(f.depth.at<uint16_t>(0, 0), 1000 + of);
+    EXPECT_EQ(f.color.at<cv::Vec3b>(0, 0)[2], 3 * of);
+  }
+  EXPECT_TRUE(some.hasGroundTruth());
+  EXPECT_EQ(some.intrinsics().fx, all.intrinsics().fx);
+}
+
 TEST(TumDataset, MissingCameraYamlIsNamed) {
   rekon::test::TempDir dir;
   makeDataset(dir.path(), 1);

@@ -2,7 +2,9 @@
 // once as it is and once with a random service (seeded) killed every few
 // seconds; prints kills, restarts, poses, ATE and the mesh's CORR against the
 // uninterrupted run (aligned by their trajectories), writes them to
-// OUT/chaos.json, and exits 1 when an outcome is out of its bounds.
+// OUT/chaos.json, and exits 1 when an outcome is out of its bounds. With
+// --same-frames a third run plays, uninterrupted, only the frames the killed
+// run has poses for: what the restarts cost beyond the frames lost in outages.
 #include <signal.h>
 #include <fmt/format.h>
 #include <fmt/ranges.h>
@@ -26,6 +28,7 @@
 #include "process.hpp"
 #include "rekon/common/cli.hpp"
 #include "rekon/common/config.hpp"
+#include "rekon/common/dataset.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/common/json.hpp"
 #include "rekon/common/logging.hpp"
@@ -55,6 +58,7 @@ struct ChaosOptions {
   uint64_t seed = 1;
   std::vector<std::string> victims;
   std::vector<std::string> sets;
+  bool same_frames = false;
   Bounds bounds;
 };
 
@@ -132,16 +136,19 @@ void readResults(Outcome& o, const std::string& dataset) {
   }
 }
 
-// One `rekon run` of the dataset at its recorded rate into `folder`; with
+// One `rekon run` of `dataset` at its recorded rate into `folder`; with
 // `kills` (the schedule's generator), one of the victims killed every
 // every_min_s..every_max_s seconds. Only the run with kills draws from it, so
-// a seed's schedule is the same with and without --baseline.
-Outcome runOnce(const ChaosOptions& opt, const std::string& folder, std::mt19937_64* kills) {
+// a seed's schedule is the same with and without --baseline. `extra_sets`
+// come after the user's.
+Outcome runOnce(const ChaosOptions& opt, const std::string& dataset, const std::string& folder, std::mt19937_64* kills,
+                const std::vector<std::string>& extra_sets = {}) {
   const bool with_kills = kills != nullptr;
   Outcome o;
   o.folder = folder;
-  std::vector<std::string> args = {"run", "--dataset", opt.dataset, "--out", folder, "--force", "--set", "player.rate=1"};
+  std::vector<std::string> args = {"run", "--dataset", dataset, "--out", folder, "--force", "--set", "player.rate=1"};
   for (const auto& s : opt.sets) args.insert(args.end(), {"--set", s});
+  for (const auto& s : extra_sets) args.insert(args.end(), {"--set", s});
   // Every kill is restarted: the bound is the outcome, not a count of restarts.
   if (with_kills)
     args.insert(args.end(), {"--set", fmt::format("run.restart=[{}]", fmt::join(opt.victims, ",")), "--set", "run.max_restarts=1000"});
@@ -173,8 +180,32 @@ Outcome runOnce(const ChaosOptions& opt, const std::string& folder, std::mt19937
     }
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   }
-  readResults(o, opt.dataset);
+  readResults(o, dataset);
   return o;
+}
+
+// The dataset's frames that `run` has poses for, as a dataset of their own
+// in `out` (TumDataset::writeSubset): the frames its outages cost are
+// missing from it, and with them the gaps the tracker saw.
+void writeFramesWithPoses(const std::string& dataset, const std::string& run, const std::string& out) {
+  std::vector<double> posed;
+  for (const auto& stamped : readTumTrajectory(run + "/trajectory.txt")) posed.push_back(stamped.timestamp);
+  std::sort(posed.begin(), posed.end());
+  constexpr double kSameStamp = 1e-5;  // trajectory.txt's timestamps have 6 decimals
+  const TumDataset all(dataset);
+  const size_t kept = all.writeSubset(out, [&](size_t i) {
+    const auto it = std::lower_bound(posed.begin(), posed.end(), all.timestamp(i) - kSameStamp);
+    return it != posed.end() && *it <= all.timestamp(i) + kSameStamp;
+  });
+  spdlog::info("{}: the {} of {} frames the chaos run has poses for", out, kept, all.size());
+}
+
+// The uninterrupted run of the frames `killed` has poses for (--same-frames).
+Outcome runSameFrames(const ChaosOptions& opt, const Outcome& killed) {
+  const std::string dataset = opt.out + "/same_frames_dataset";
+  writeFramesWithPoses(opt.dataset, killed.folder, dataset);
+  // The subset holds only the frames to play: the user's frame range is in it already.
+  return runOnce(opt, dataset, opt.out + "/same_frames", nullptr, {"player.first_frame=0", "player.max_frames=0"});
 }
 
 // "7 (player 2, tracker 1, ...)": how many, and how many of each service.
@@ -210,8 +241,15 @@ std::vector<std::string> outOfBounds(const Outcome& clean, const Outcome& chaos,
   return out;
 }
 
+// The killed run against the uninterrupted run of the same frames (--same-frames).
+struct SameFrames {
+  Outcome run;
+  double trajectory_rmse_m = -1;  // the killed run's trajectory against this run's, rigidly aligned
+  double corr_m = -1;             // the killed run's mesh against this run's
+};
+
 void writeJson(const ChaosOptions& opt, const Outcome& clean, const Outcome& chaos, double corr_m,
-               const std::vector<std::string>& failures) {
+               const std::optional<SameFrames>& same, const std::vector<std::string>& failures) {
   JsonObject kills;
   for (const auto& [service, n] : killsByService(chaos.kills)) kills.set(service, n);
   JsonObject restarts;
@@ -231,6 +269,13 @@ void writeJson(const ChaosOptions& opt, const Outcome& clean, const Outcome& cha
       .set("ate_m", chaos.ate_m)
       .set("corr_vs_uninterrupted_m", corr_m)
       .set("within_bounds", failures.empty());
+  if (same) {
+    j.set("same_frames_exit_status", same->run.rc)
+        .set("same_frames_poses", same->run.poses)
+        .set("same_frames_ate_m", same->run.ate_m)
+        .set("trajectory_rmse_vs_same_frames_m", same->trajectory_rmse_m)
+        .set("corr_vs_same_frames_m", same->corr_m);
+  }
   j.save(opt.out + "/chaos.json");
 }
 
@@ -246,13 +291,34 @@ double meshDistance(const std::string& a, const std::string& b) {
   return eval::evaluateSurface(mesh, readPly(b + "/mesh.ply")).corr_m;
 }
 
+// `killed` against the uninterrupted run of the frames it has poses for.
+SameFrames compareWithSameFrames(const ChaosOptions& opt, const Outcome& killed) {
+  SameFrames same{runSameFrames(opt, killed)};
+  try {
+    same.trajectory_rmse_m = eval::evaluateTrajectory(readTumTrajectory(same.run.folder + "/trajectory.txt"),
+                                                      readTumTrajectory(killed.folder + "/trajectory.txt"))
+                                 .ate_rmse_m;
+    same.corr_m = meshDistance(killed.folder, same.run.folder);
+  } catch (const Error& e) {
+    spdlog::error("the run of the same frames could not be compared: {}", e.what());
+  }
+  return same;
+}
+
+// One line of the table: a name, then a value per run.
+void printRow(const std::string& name, const std::vector<std::string>& values) {
+  fmt::print("{:<34}", name);
+  for (const auto& v : values) fmt::print("{:<26}", v);
+  fmt::print("\n");
+}
+
 int chaos(const ChaosOptions& opt) {
   createOutputFolder(opt.out);
   signal(SIGINT, onChaosInterrupt);
   signal(SIGTERM, onChaosInterrupt);
   Outcome clean;
   if (opt.baseline.empty()) {
-    clean = runOnce(opt, opt.out + "/uninterrupted", nullptr);
+    clean = runOnce(opt, opt.dataset, opt.out + "/uninterrupted", nullptr);
     if (clean.rc != 0 && !g_chaos_interrupted.load())
       throw Error(fmt::format("the uninterrupted run failed (exit {}): see {}/uninterrupted.log; fix that first", clean.rc, opt.out));
   } else {
@@ -262,7 +328,10 @@ int chaos(const ChaosOptions& opt) {
   }
   if (g_chaos_interrupted.load()) return 130;
   std::mt19937_64 rng(opt.seed);
-  const Outcome killed = runOnce(opt, opt.out + "/chaos", &rng);
+  const Outcome killed = runOnce(opt, opt.dataset, opt.out + "/chaos", &rng);
+  if (g_chaos_interrupted.load()) return 130;
+  std::optional<SameFrames> same;
+  if (opt.same_frames) same = compareWithSameFrames(opt, killed);
   if (g_chaos_interrupted.load()) return 130;
   double corr_m = std::numeric_limits<double>::infinity();
   try {
@@ -270,16 +339,29 @@ int chaos(const ChaosOptions& opt) {
   } catch (const Error& e) {
     spdlog::error("the meshes could not be compared: {}", e.what());
   }
-  const std::vector<std::string> failures = outOfBounds(clean, killed, corr_m, opt.bounds);
-  writeJson(opt, clean, killed, corr_m, failures);
+  std::vector<std::string> failures = outOfBounds(clean, killed, corr_m, opt.bounds);
+  if (same && same->run.rc != 0)
+    failures.push_back(fmt::format("the run of the same frames exited with {} (see {}.log)", same->run.rc, same->run.folder));
+  writeJson(opt, clean, killed, corr_m, same, failures);
 
-  fmt::print("\n{:<34}{:<26}{}\n", "", "uninterrupted", "killed every " + fmt::format("{:g}-{:g} s", opt.every_min_s, opt.every_max_s));
-  fmt::print("{:<34}{:<26}{}\n", "exit status", clean.rc, killed.rc);
-  fmt::print("{:<34}{:<26}{}\n", "kills (seed " + std::to_string(opt.seed) + ")", "-", countsByService(killsByService(killed.kills)));
-  fmt::print("{:<34}{:<26}{}\n", "restarts", "-", countsByService(killed.restarts));
-  fmt::print("{:<34}{:<26}{}\n", "poses (frames tracked)", clean.poses, killed.poses);
-  fmt::print("{:<34}{:<26}{}\n", "ATE", ateText(clean.ate_m), ateText(killed.ate_m));
-  fmt::print("{:<34}{:<26}{:.3f} mm\n", "mesh CORR vs the uninterrupted", "-", 1e3 * corr_m);
+  const auto row = [&](const std::string& name, const std::string& a, const std::string& b, const std::string& c) {
+    printRow(name, same ? std::vector<std::string>{a, b, c} : std::vector<std::string>{a, b});
+  };
+  const auto mm = [](double m) { return m < 0 ? std::string("n/a") : fmt::format("{:.3f} mm", 1e3 * m); };
+  fmt::print("\n");
+  row("", "uninterrupted", fmt::format("killed every {:g}-{:g} s", opt.every_min_s, opt.every_max_s),
+      "uninterrupted, same frames");
+  row("exit status", std::to_string(clean.rc), std::to_string(killed.rc), same ? std::to_string(same->run.rc) : "");
+  row("kills (seed " + std::to_string(opt.seed) + ")", "-", countsByService(killsByService(killed.kills)), "-");
+  row("restarts", "-", countsByService(killed.restarts), "-");
+  row("poses (frames tracked)", std::to_string(clean.poses), std::to_string(killed.poses),
+      same ? std::to_string(same->run.poses) : "");
+  row("ATE", ateText(clean.ate_m), ateText(killed.ate_m), same ? ateText(same->run.ate_m) : "");
+  row("mesh CORR vs the uninterrupted", "-", mm(corr_m), "-");
+  if (same) {
+    row("trajectory vs the same frames", "-", mm(same->trajectory_rmse_m) + " (RMSE)", "-");
+    row("mesh CORR vs the same frames", "-", mm(same->corr_m), "-");
+  }
   for (const auto& f : failures) fmt::print("out of bounds: {}\n", f);
   fmt::print("{}; {}/chaos.json\n", failures.empty() ? "within bounds" : "OUT OF BOUNDS", opt.out);
   return failures.empty() ? 0 : 1;
@@ -312,6 +394,8 @@ int chaosCommand(int argc, char** argv) {
       .option("max-ate-ratio", "bound: ATE at most this times the uninterrupted run's plus --ate-slack-mm", "1.5")
       .option("ate-slack-mm", "bound: see --max-ate-ratio", "0.5")
       .option("max-corr-mm", "bound: the mesh's CORR against the uninterrupted run's mesh", "2")
+      .flag("same-frames", "then run, uninterrupted, only the frames the killed run has poses for, and compare: what "
+                           "the restarts cost beyond the frames lost in outages (OUT/same_frames)")
       .repeated("set", "a config key for both runs, e.g. --set mapper.kappa=10")
       .examples("rekon chaos --dataset out/room --out out/chaos_room\n"
                 "rekon chaos --dataset ../shared/data/7scenes_loop_1000 --out out/chaos_7s --every 10 --seed 7");
@@ -329,6 +413,7 @@ int chaosCommand(int argc, char** argv) {
   if (!opt.baseline.empty() && !fs::exists(opt.baseline + "/mesh.ply"))
     throw Error("--baseline " + opt.baseline + " holds no mesh.ply: give a finished rekon run folder of the same dataset");
   opt.sets = args.all("set");
+  opt.same_frames = args.flagSet("same-frames");
   std::stringstream services(args.get("services"));
   for (std::string s; std::getline(services, s, ',');)
     if (!s.empty()) opt.victims.push_back(s);

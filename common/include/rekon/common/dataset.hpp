@@ -1,6 +1,7 @@
 #pragma once
 // A sequence in TUM RGB-D layout: rgb.txt and depth.txt ("timestamp path"
 // lines), optional groundtruth.txt, and camera.yaml with the intrinsics.
+#include <functional>
 #include <optional>
 #include <string>
 #include <vector>
@@ -43,6 +44,11 @@ class TumDataset {
   // Decodes what loadEncoded(i) returned, with the same checks as load(i).
   RgbdFrame decode(size_t i, const EncodedFrame& encoded) const;
 
+  // Writes a dataset of the frames `keep` accepts into `out` (created): its
+  // rgb.txt and depth.txt list those frames' images where they are (absolute
+  // paths, each pair under its rgb timestamp); camera.yaml and groundtruth.txt
+  // are copied. Returns how many frames it lists.
+  size_t writeSubset(const std::string& out, const std::function<bool(size_t)>& keep) const;
   // Ground truth, when groundtruth.txt exists.
   bool hasGroundTruth() const { return !ground_truth_.empty(); }
   const Trajectory& groundTruth() const { return ground_truth_; }
