@@ -305,10 +305,10 @@ SameFrames compareWithSameFrames(const ChaosOptions& opt, const Outcome& killed)
   return same;
 }
 
-// One line of the table: a name, then a value per run.
+// One line of the table: a name, then a value per run (a longer one pushes the next on).
 void printRow(const std::string& name, const std::vector<std::string>& values) {
   fmt::print("{:<34}", name);
-  for (const auto& v : values) fmt::print("{:<26}", v);
+  for (const auto& v : values) fmt::print("{:<{}}", v, std::max<size_t>(26, v.size() + 2));
   fmt::print("\n");
 }
 
