@@ -471,6 +471,24 @@ TEST(Faults, AKilledLivePlayerCostsOnlyTheFramesOfItsOutages) {
   EXPECT_EQ(leftoverSegments(dir / "out/same_frames"), std::vector<std::string>{});
 }
 
+// A killed run that left no trajectory (here its player refuses a frame
+// range beyond the dataset) leaves nothing to play again: one line says so,
+// and the table and chaos.json still come, with the verdict.
+TEST(Faults, ChaosSameFramesWithoutAKilledTrajectorySaysSoAndKeepsItsTable) {
+  rekon::test::TempDir dir;
+  std::string output;
+  EXPECT_EQ(runCommand(inNetns() + " timeout 120 " + bin() + "/rekon chaos --dataset " + baseline().data + " --baseline " +
+                           baseline().run + " --services player --set player.first_frame=1000 --same-frames --out " +
+                           (dir / "out"),
+                       &output),
+            1)
+      << output;
+  EXPECT_NE(output.find("no run of the same frames: " + (dir / "out/chaos/trajectory.txt")), std::string::npos) << output;
+  EXPECT_NE(output.find("out of bounds: no run of the same frames"), std::string::npos) << output;
+  EXPECT_NE(output.find("n/a (no trajectory)"), std::string::npos) << output;
+  EXPECT_NE(readText(dir / "out/chaos.json").find("\"same_frames_exit_status\": -1"), std::string::npos) << output;
+}
+
 TEST(Faults, RestartPolicyNamingAServiceThatCannotRecoverIsAnError) {
   rekon::test::TempDir dir;
   std::string out;

@@ -197,15 +197,24 @@ void writeFramesWithPoses(const std::string& dataset, const std::string& run, co
     const auto it = std::lower_bound(posed.begin(), posed.end(), all.timestamp(i) - kSameStamp);
     return it != posed.end() && *it <= all.timestamp(i) + kSameStamp;
   });
+  if (kept == 0) throw Error(run + "/trajectory.txt has no pose of a frame of " + dataset + ": nothing to play again");
   spdlog::info("{}: the {} of {} frames the chaos run has poses for", out, kept, all.size());
 }
 
-// The uninterrupted run of the frames `killed` has poses for (--same-frames).
+// The uninterrupted run of the frames `killed` has poses for (--same-frames);
+// rc -1 when there are none to play (the killed run left no trajectory).
 Outcome runSameFrames(const ChaosOptions& opt, const Outcome& killed) {
-  const std::string dataset = opt.out + "/same_frames_dataset";
-  writeFramesWithPoses(opt.dataset, killed.folder, dataset);
+  const std::string dataset = opt.out + "/same_frames_dataset", folder = opt.out + "/same_frames";
+  try {
+    writeFramesWithPoses(opt.dataset, killed.folder, dataset);
+  } catch (const Error& e) {
+    spdlog::error("no run of the same frames: {}", e.what());
+    Outcome none;
+    none.folder = folder;
+    return none;
+  }
   // The subset holds only the frames to play: the user's frame range is in it already.
-  return runOnce(opt, dataset, opt.out + "/same_frames", nullptr, {"player.first_frame=0", "player.max_frames=0"});
+  return runOnce(opt, dataset, folder, nullptr, {"player.first_frame=0", "player.max_frames=0"});
 }
 
 // "7 (player 2, tracker 1, ...)": how many, and how many of each service.
@@ -222,7 +231,10 @@ std::map<std::string, long long> killsByService(const std::vector<Kill>& kills) 
   return by;
 }
 
-std::string ateText(double ate_m) { return ate_m < 0 ? "n/a (no groundtruth.txt)" : fmt::format("{:.2f} mm", 1e3 * ate_m); }
+std::string ateText(const Outcome& o) {
+  if (o.poses < 2) return "n/a (no trajectory)";
+  return o.ate_m < 0 ? "n/a (no groundtruth.txt)" : fmt::format("{:.2f} mm", 1e3 * o.ate_m);
+}
 
 // The outcomes out of their bounds, one line each (none: the run held).
 std::vector<std::string> outOfBounds(const Outcome& clean, const Outcome& chaos, double corr_m, const Bounds& b) {
@@ -294,6 +306,7 @@ double meshDistance(const std::string& a, const std::string& b) {
 // `killed` against the uninterrupted run of the frames it has poses for.
 SameFrames compareWithSameFrames(const ChaosOptions& opt, const Outcome& killed) {
   SameFrames same{runSameFrames(opt, killed)};
+  if (same.run.rc != 0) return same;
   try {
     same.trajectory_rmse_m = eval::evaluateTrajectory(readTumTrajectory(same.run.folder + "/trajectory.txt"),
                                                       readTumTrajectory(killed.folder + "/trajectory.txt"))
@@ -341,7 +354,9 @@ int chaos(const ChaosOptions& opt) {
   }
   std::vector<std::string> failures = outOfBounds(clean, killed, corr_m, opt.bounds);
   if (same && same->run.rc != 0)
-    failures.push_back(fmt::format("the run of the same frames exited with {} (see {}.log)", same->run.rc, same->run.folder));
+    failures.push_back(same->run.rc < 0 ? std::string("no run of the same frames (see the error above)")
+                                        : fmt::format("the run of the same frames exited with {} (see {}.log)",
+                                                      same->run.rc, same->run.folder));
   writeJson(opt, clean, killed, corr_m, same, failures);
 
   const auto row = [&](const std::string& name, const std::string& a, const std::string& b, const std::string& c) {
@@ -356,7 +371,7 @@ int chaos(const ChaosOptions& opt) {
   row("restarts", "-", countsByService(killed.restarts), "-");
   row("poses (frames tracked)", std::to_string(clean.poses), std::to_string(killed.poses),
       same ? std::to_string(same->run.poses) : "");
-  row("ATE", ateText(clean.ate_m), ateText(killed.ate_m), same ? ateText(same->run.ate_m) : "");
+  row("ATE", ateText(clean), ateText(killed), same ? ateText(same->run) : "");
   row("mesh CORR vs the uninterrupted", "-", mm(corr_m), "-");
   if (same) {
     row("trajectory vs the same frames", "-", mm(same->trajectory_rmse_m) + " (RMSE)", "-");
