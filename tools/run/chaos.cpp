@@ -325,6 +325,29 @@ void printRow(const std::string& name, const std::vector<std::string>& values) {
   fmt::print("\n");
 }
 
+// The runs side by side: the uninterrupted one, the killed one and (--same-frames) the same frames'.
+void printTable(const ChaosOptions& opt, const Outcome& clean, const Outcome& killed, double corr_m,
+                const std::optional<SameFrames>& same) {
+  const auto row = [&](const std::string& name, const std::string& a, const std::string& b, const std::string& c) {
+    printRow(name, same ? std::vector<std::string>{a, b, c} : std::vector<std::string>{a, b});
+  };
+  const auto mm = [](double m) { return m < 0 ? std::string("n/a") : fmt::format("{:.3f} mm", 1e3 * m); };
+  fmt::print("\n");
+  row("", "uninterrupted", fmt::format("killed every {:g}-{:g} s", opt.every_min_s, opt.every_max_s),
+      "uninterrupted, same frames");
+  row("exit status", std::to_string(clean.rc), std::to_string(killed.rc), same ? std::to_string(same->run.rc) : "");
+  row("kills (seed " + std::to_string(opt.seed) + ")", "-", countsByService(killsByService(killed.kills)), "-");
+  row("restarts", "-", countsByService(killed.restarts), "-");
+  row("poses (frames tracked)", std::to_string(clean.poses), std::to_string(killed.poses),
+      same ? std::to_string(same->run.poses) : "");
+  row("ATE", ateText(clean), ateText(killed), same ? ateText(same->run) : "");
+  row("mesh CORR vs the uninterrupted", "-", mm(corr_m), "-");
+  if (same) {
+    row("trajectory vs the same frames", "-", mm(same->trajectory_rmse_m) + " (RMSE)", "-");
+    row("mesh CORR vs the same frames", "-", mm(same->corr_m), "-");
+  }
+}
+
 int chaos(const ChaosOptions& opt) {
   createOutputFolder(opt.out);
   signal(SIGINT, onChaosInterrupt);
@@ -359,24 +382,7 @@ int chaos(const ChaosOptions& opt) {
                                                       same->run.rc, same->run.folder));
   writeJson(opt, clean, killed, corr_m, same, failures);
 
-  const auto row = [&](const std::string& name, const std::string& a, const std::string& b, const std::string& c) {
-    printRow(name, same ? std::vector<std::string>{a, b, c} : std::vector<std::string>{a, b});
-  };
-  const auto mm = [](double m) { return m < 0 ? std::string("n/a") : fmt::format("{:.3f} mm", 1e3 * m); };
-  fmt::print("\n");
-  row("", "uninterrupted", fmt::format("killed every {:g}-{:g} s", opt.every_min_s, opt.every_max_s),
-      "uninterrupted, same frames");
-  row("exit status", std::to_string(clean.rc), std::to_string(killed.rc), same ? std::to_string(same->run.rc) : "");
-  row("kills (seed " + std::to_string(opt.seed) + ")", "-", countsByService(killsByService(killed.kills)), "-");
-  row("restarts", "-", countsByService(killed.restarts), "-");
-  row("poses (frames tracked)", std::to_string(clean.poses), std::to_string(killed.poses),
-      same ? std::to_string(same->run.poses) : "");
-  row("ATE", ateText(clean), ateText(killed), same ? ateText(same->run) : "");
-  row("mesh CORR vs the uninterrupted", "-", mm(corr_m), "-");
-  if (same) {
-    row("trajectory vs the same frames", "-", mm(same->trajectory_rmse_m) + " (RMSE)", "-");
-    row("mesh CORR vs the same frames", "-", mm(same->corr_m), "-");
-  }
+  printTable(opt, clean, killed, corr_m, same);
   for (const auto& f : failures) fmt::print("out of bounds: {}\n", f);
   fmt::print("{}; {}/chaos.json\n", failures.empty() ? "within bounds" : "OUT OF BOUNDS", opt.out);
   return failures.empty() ? 0 : 1;
