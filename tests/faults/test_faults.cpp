@@ -425,10 +425,16 @@ TEST(Faults, FivePercentMessageLossCompletesWithTheSameResult) { expectCompletes
 // the uninterrupted one: within rekon chaos's default bounds (95 % of the
 // poses, ATE 1.5x + 0.5 mm, CORR 2 mm). With a bound no run can meet (more
 // poses than frames), it says so and exits 1.
+// `rekon chaos` on the room against its cached uninterrupted run, given at
+// most `timeout_s`; the caller appends the rest of the options.
+std::string roomChaos(int timeout_s) {
+  return inNetns() + " timeout " + std::to_string(timeout_s) + " " + bin() + "/rekon chaos --dataset " + baseline().data +
+         " --baseline " + baseline().run;
+}
+
 TEST(Faults, ChaosKillsRandomServicesAndTheRunStaysWithinItsBounds) {
   rekon::test::TempDir dir;
-  const std::string chaos = inNetns() + " timeout 240 " + bin() + "/rekon chaos --dataset " + baseline().data +
-                            " --baseline " + baseline().run + " --every 0.7-1.5 --seed 1 --out ";
+  const std::string chaos = roomChaos(240) + " --every 0.7-1.5 --seed 1 --out ";
   std::string output;
   ASSERT_EQ(runCommand(chaos + (dir / "held"), &output), 0) << output;
   const std::string json = readText(dir / "held/chaos.json");
@@ -455,8 +461,7 @@ TEST(Faults, ChaosKillsRandomServicesAndTheRunStaysWithinItsBounds) {
 TEST(Faults, AKilledLivePlayerCostsOnlyTheFramesOfItsOutages) {
   rekon::test::TempDir dir;
   std::string output;
-  ASSERT_EQ(runCommand(inNetns() + " timeout 240 " + bin() + "/rekon chaos --dataset " + baseline().data + " --baseline " +
-                           baseline().run + " --services player --every 0.7-1.5 --seed 1 --set player.pacing=live" +
+  ASSERT_EQ(runCommand(roomChaos(240) + " --services player --every 0.7-1.5 --seed 1 --set player.pacing=live" +
                            " --same-frames --min-poses 0.5 --max-corr-mm 20 --out " + (dir / "out"),
                        &output),
             0)
@@ -477,8 +482,7 @@ TEST(Faults, AKilledLivePlayerCostsOnlyTheFramesOfItsOutages) {
 TEST(Faults, ChaosSameFramesWithoutAKilledTrajectorySaysSoAndKeepsItsTable) {
   rekon::test::TempDir dir;
   std::string output;
-  EXPECT_EQ(runCommand(inNetns() + " timeout 120 " + bin() + "/rekon chaos --dataset " + baseline().data + " --baseline " +
-                           baseline().run + " --services player --set player.first_frame=1000 --same-frames --out " +
+  EXPECT_EQ(runCommand(roomChaos(120) + " --services player --set player.first_frame=1000 --same-frames --out " +
                            (dir / "out"),
                        &output),
             1)

@@ -291,16 +291,21 @@ void writeJson(const ChaosOptions& opt, const Outcome& clean, const Outcome& cha
   j.save(opt.out + "/chaos.json");
 }
 
-// CORR of run `a`'s mesh against run `b`'s, `a`'s moved by the rigid
-// alignment of its trajectory onto `b`'s (as docs/faults.md compares two
-// runs): what differs in shape, not a shift of the whole map.
-double meshDistance(const std::string& a, const std::string& b) {
+// How far run `a` is from run `b`: its trajectory's RMSE after the rigid
+// alignment onto `b`'s, and the CORR of its mesh, moved by that alignment,
+// against `b`'s (as docs/faults.md compares two runs): what differs in
+// shape, not a shift of the whole map.
+struct RunDistance {
+  double trajectory_rmse_m;
+  double corr_m;
+};
+RunDistance runDistance(const std::string& a, const std::string& b) {
+  const eval::TrajectoryErrors aligned =
+      eval::evaluateTrajectory(readTumTrajectory(b + "/trajectory.txt"), readTumTrajectory(a + "/trajectory.txt"));
   Mesh mesh = readPly(a + "/mesh.ply");
-  const Eigen::Isometry3f to_b =
-      eval::evaluateTrajectory(readTumTrajectory(b + "/trajectory.txt"), readTumTrajectory(a + "/trajectory.txt"))
-          .alignment.cast<float>();
+  const Eigen::Isometry3f to_b = aligned.alignment.cast<float>();
   for (auto& v : mesh.vertices) v = to_b * v;
-  return eval::evaluateSurface(mesh, readPly(b + "/mesh.ply")).corr_m;
+  return {aligned.ate_rmse_m, eval::evaluateSurface(mesh, readPly(b + "/mesh.ply")).corr_m};
 }
 
 // `killed` against the uninterrupted run of the frames it has poses for.
@@ -308,10 +313,9 @@ SameFrames compareWithSameFrames(const ChaosOptions& opt, const Outcome& killed)
   SameFrames same{runSameFrames(opt, killed)};
   if (same.run.rc != 0) return same;
   try {
-    same.trajectory_rmse_m = eval::evaluateTrajectory(readTumTrajectory(same.run.folder + "/trajectory.txt"),
-                                                      readTumTrajectory(killed.folder + "/trajectory.txt"))
-                                 .ate_rmse_m;
-    same.corr_m = meshDistance(killed.folder, same.run.folder);
+    const RunDistance d = runDistance(killed.folder, same.run.folder);
+    same.trajectory_rmse_m = d.trajectory_rmse_m;
+    same.corr_m = d.corr_m;
   } catch (const Error& e) {
     spdlog::error("the run of the same frames could not be compared: {}", e.what());
   }
@@ -367,11 +371,13 @@ int chaos(const ChaosOptions& opt) {
   const Outcome killed = runOnce(opt, opt.dataset, opt.out + "/chaos", &rng);
   if (g_chaos_interrupted.load()) return 130;
   std::optional<SameFrames> same;
-  if (opt.same_frames) same = compareWithSameFrames(opt, killed);
-  if (g_chaos_interrupted.load()) return 130;
+  if (opt.same_frames) {
+    same = compareWithSameFrames(opt, killed);
+    if (g_chaos_interrupted.load()) return 130;
+  }
   double corr_m = std::numeric_limits<double>::infinity();
   try {
-    corr_m = meshDistance(killed.folder, clean.folder);
+    corr_m = runDistance(killed.folder, clean.folder).corr_m;
   } catch (const Error& e) {
     spdlog::error("the meshes could not be compared: {}", e.what());
   }
