@@ -110,7 +110,9 @@ void TumDataset::checkImagesExist() const {
 
 size_t TumDataset::writeSubset(const std::string& out, const std::function<bool(size_t)>& keep) const {
   const fs::path root = fs::absolute(dir_), to(out);
-  fs::create_directories(to);
+  std::error_code ec;
+  fs::create_directories(to, ec);
+  if (ec) throw Error(out + ": cannot create the folder (" + ec.message() + "); choose another --out");
   std::ofstream rgb(to / "rgb.txt"), depth(to / "depth.txt");
   const std::string header = "# the frames of " + root.string() + " kept for a comparison (TumDataset::writeSubset)\n";
   rgb << header << std::fixed << std::setprecision(9);
@@ -123,9 +125,12 @@ size_t TumDataset::writeSubset(const std::string& out, const std::function<bool(
     depth << e.timestamp << " " << (root / e.depth).string() << "\n";
     ++kept;
   }
-  for (const char* name : {"camera.yaml", "groundtruth.txt"})
-    if (fs::exists(root / name)) fs::copy_file(root / name, to / name, fs::copy_options::overwrite_existing);
   if (!rgb.flush() || !depth.flush()) throw Error(out + ": cannot write rgb.txt and depth.txt there; check the disk");
+  for (const char* name : {"camera.yaml", "groundtruth.txt"}) {
+    if (!fs::exists(root / name)) continue;
+    fs::copy_file(root / name, to / name, fs::copy_options::overwrite_existing, ec);
+    if (ec) throw Error((to / name).string() + ": cannot copy " + name + " there (" + ec.message() + "); check the disk");
+  }
   return kept;
 }
 

@@ -70,6 +70,19 @@ TEST(TumDataset, ASubsetListsTheKeptFramesWhereTheyAreUnderTheirRgbTimestamps) {
   EXPECT_EQ(some.intrinsics().fx, all.intrinsics().fx);
 }
 
+TEST(TumDataset, ASubsetThatCannotBeWrittenIsOneErrorNamingTheFolder) {
+  rekon::test::TempDir dir;
+  makeDataset(dir.path() + "/all", 2);
+  std::ofstream(dir.path() + "/file") << "not a folder\n";
+  const rekon::TumDataset all(dir.path() + "/all");
+  try {
+    all.writeSubset(dir.path() + "/file/some", [](size_t) { return true; });
+    FAIL() << "a subset under a file was written";
+  } catch (const rekon::Error& e) {
+    EXPECT_NE(std::string(e.what()).find(dir.path() + "/file/some: cannot create the folder"), std::string::npos) << e.what();
+  }
+}
+
 TEST(TumDataset, MissingCameraYamlIsNamed) {
   rekon::test::TempDir dir;
   makeDataset(dir.path(), 1);
