@@ -173,7 +173,7 @@ TEST(Faults, MapperKilledAfterTheEndOfALiveStreamHearsTheEndAgain) {
   const std::string logs = f.output + "\nplayer.log:\n" + readText(out + "/player.log") + "mapper.log:\n" + readText(out + "/mapper.log");
   ASSERT_EQ(f.rc, 0) << logs;
   EXPECT_NE(readText(out + "/stats.json").find("\"restarts\": {\"mapper\":1}"), std::string::npos) << f.output;
-  const bool rebuilt = readText(out + "/mapper.log").find("rebuilding the volume from them") != std::string::npos;
+  const bool rebuilt = readText(out + "/mapper.log").find("the volume is rebuilt from them") != std::string::npos;
   const bool said_again = readText(out + "/mapper.log").find("its run finished at frame") != std::string::npos;
   std::printf("the restart %s\n", rebuilt ? "rebuilt from the store" : said_again ? "found the run finished" : "did neither");
   EXPECT_TRUE(rebuilt || said_again) << logs;

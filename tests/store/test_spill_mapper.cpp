@@ -86,6 +86,9 @@ TEST(KeyframeStoreSpill, ARestartedMapperRebuildsTheSameVolumeFromSpilledKeyfram
 
   mapper::Mapper restarted(params(segment, dir / "spill"));
   EXPECT_EQ(restarted.counters().restored_keyframes, 60);
+  EXPECT_EQ(restarted.counters().rebuilt_keyframes, 0);  // rebuilt beside the new frames, not before them
+  restarted.completeRebuild();
+  EXPECT_EQ(restarted.counters().rebuilt_keyframes, 60);
   const auto after = snapshot(restarted.volume());
   EXPECT_GT(before.size(), 100u);  // a real surface
   ASSERT_EQ(after.size(), before.size());

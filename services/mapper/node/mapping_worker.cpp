@@ -14,6 +14,11 @@ MappingWorker::MappingWorker(ServiceContext& ctx, Mapper& mapper, Inbox& inbox, 
 void MappingWorker::run() {
   while (true) {
     try {
+      if (mapper_.rebuildPending() && !inbox_.waitForWork(std::chrono::milliseconds(0))) {
+        mapper_.continueRebuild(true);  // idle: one restored keyframe into the volume again
+        mesh_.tick(mapper_);
+        continue;
+      }
       if (mapper_.correctionPending() && !inbox_.waitForWork(std::chrono::milliseconds(0))) {
         correct(true);  // idle: one queued keyframe of the last graph update
         continue;
@@ -38,6 +43,8 @@ void MappingWorker::run() {
 BlockCause MappingWorker::process(const Work& w) {
   if (const auto* f = std::get_if<FrameWork>(&w)) {
     fuse(*f);
+    // A restart's rebuild first, then corrections, from the frame's credit.
+    if (mapper_.rebuildPending()) mapper_.continueRebuild(false);
     if (mapper_.correctionPending()) {
       mesh_.noteChanges(mapper_, BlockCause::kNewData);  // the frame's, before the correction's
       return correct(false);

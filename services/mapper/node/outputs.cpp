@@ -102,6 +102,7 @@ void recordStats(ServiceContext& ctx, const Mapper& mapper, const MapperParams& 
       .set("graph_updates", static_cast<long long>(c.graph_updates))
       .set("graph_updates_coalesced", static_cast<long long>(inbox.coalesced_updates))
       .set("restored_keyframes", static_cast<long long>(c.restored_keyframes))
+      .set("rebuilt_keyframes", static_cast<long long>(c.rebuilt_keyframes))
       .set("integrate_ms_mean", c.integrate_ms_total / static_cast<double>(std::max<int64_t>(1, c.integrations + c.reintegrations)))
       .set("voxel_blocks", static_cast<long long>(vs.blocks))
       .set("bytes_per_voxel", vs.bytes_per_voxel)

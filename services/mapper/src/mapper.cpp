@@ -118,6 +118,7 @@ void Mapper::startAgainWithoutTheStore(const Error& why) {
   fuser_.reset();
   keyframes_.clear();
   graph_poses_.clear();
+  rebuild_.clear();
   counters_.restored_keyframes = 0;
   volume_ = std::make_unique<volume::TsdfVolume>(params_.volume);
 }
@@ -136,24 +137,52 @@ void Mapper::restoreFromStore() {
   ensureCamera(k);
   for (const auto& [id, pose] : store_->anchorPoses()) graph_poses_[id] = pose;
   const auto infos = store_->list();
-  spdlog::info("keyframe store '{}' holds {} keyframes: rebuilding the volume from them", params_.store.segment,
-               infos.size());
-  for (size_t i = 0; i < infos.size(); ++i) {
-    KeyframeRecord rec;
-    rec.kf = store_->load(i);
-    next_kf_id_ = std::max(next_kf_id_, rec.kf.id + 1);
+  spdlog::info("keyframe store '{}' holds {} keyframes: the volume is rebuilt from them beside the new frames",
+               params_.store.segment, infos.size());
+  for (const store::KeyframeInfo& info : infos) {
+    KeyframeRecord rec;  // the images stay in the store until the rebuild reaches it
+    rec.home = ImagesHome::kStore;
+    rec.kf.id = info.id;
+    rec.kf.anchor_keyframe_id = info.anchor_keyframe_id;
+    rec.kf.pose_in_anchor = info.pose_in_anchor;
+    rec.kf.first_frame_id = info.first_frame_id;
+    rec.kf.last_frame_id = info.last_frame_id;
+    rec.kf.timestamp = info.timestamp;
+    rec.kf.frames = info.frames;
+    next_kf_id_ = std::max(next_kf_id_, info.id + 1);
     // The old instance died between the store and the session: the session gets it now.
-    if (session_ && !session_->has(rec.kf.id)) {
+    if (session_ && !session_->has(info.id)) {
       writeAnchorPoses();
-      session_->addKeyframe(rec.kf);
+      session_->addKeyframe(images(rec));
     }
-    const fusion::FusedKeyframe images = leaveImagesAt(rec, ImagesHome::kStore);
     keyframes_.push_back(std::move(rec));
-    if (infos[i].integrated) integrateRestored(keyframes_.back(), images, infos[i].integrated_pose);
-    else integrateStoredOnly(keyframes_.back());
+    rebuild_.emplace_back(keyframes_.size() - 1, info.integrated ? std::optional<Pose>(info.integrated_pose) : std::nullopt);
     ++counters_.restored_keyframes;
-    if ((i + 1) % 20 == 0) spdlog::info("rebuilt {} of {} keyframes", i + 1, infos.size());
   }
+}
+
+int Mapper::continueRebuild(bool idle) {
+  int done = 0;
+  while (!rebuild_.empty() && (idle ? done == 0 : credit_ms_ > 0.0)) {
+    const double t0 = clockMs();
+    const auto [i, pose] = rebuild_.front();
+    rebuild_.pop_front();
+    KeyframeRecord& rec = keyframes_[i];
+    if (pose) integrateRestored(rec, images(rec), *pose, false);
+    else integrateStoredOnly(rec);
+    if (!idle) credit_ms_ -= clockMs() - t0;
+    ++done;
+    ++counters_.rebuilt_keyframes;
+    if (counters_.rebuilt_keyframes % 20 == 0 || rebuild_.empty())
+      spdlog::info("rebuilt {} of {} restored keyframes ({} frames fused beside them)", counters_.rebuilt_keyframes,
+                   counters_.restored_keyframes, counters_.frames);
+  }
+  if (done > 0) updateTierCounters();
+  return done;
+}
+
+void Mapper::completeRebuild() {
+  while (rebuildPending()) continueRebuild(true);
 }
 
 void Mapper::integrateStoredOnly(KeyframeRecord& rec) {
@@ -170,24 +199,28 @@ void Mapper::integrateStoredOnly(KeyframeRecord& rec) {
   }
   spdlog::info("keyframe store: KF keyframe {} (frames {}..{}) was stored but not yet integrated when the mapper "
                "stopped; integrated now", rec.kf.id, rec.kf.first_frame_id, rec.kf.last_frame_id);
-  integrateRestored(rec, images(rec), *pose);
+  integrateRestored(rec, images(rec), *pose, false);
   if (store_) store_->setIntegratedPose(rec.kf.id, *pose);
 }
 
 void Mapper::integratePendingRestored() {
+  if (rebuildPending()) return;  // the rebuild takes each at its turn
   for (KeyframeRecord& rec : keyframes_)
     if (!rec.integrated && currentPose(rec.kf)) integrateStoredOnly(rec);
 }
 
-void Mapper::integrateRestored(KeyframeRecord& rec, const fusion::FusedKeyframe& images, const Pose& pose) {
+void Mapper::integrateRestored(KeyframeRecord& rec, const fusion::FusedKeyframe& images, const Pose& pose,
+                               bool at_camera) {
   // Straight into the volume, not through integrateKeyframe: the store or the
   // session already records this pose, and the counters describe this run's work.
-  volume_->streamAround(pose.translation());
+  if (at_camera) {
+    volume_->streamAround(pose.translation());
+    camera_position_ = pose.translation();
+  }
   volume_->integrate(images.depth, images.color, images.weight, *camera_, pose);
   rec.integrated = true;
   rec.integrated_pose = pose;
   rec.first_pose = pose;  // no older pose is kept: the uncorrected baseline starts here
-  camera_position_ = pose.translation();
 }
 
 void Mapper::continueSession() {
@@ -219,7 +252,7 @@ void Mapper::continueSession() {
     const fusion::FusedKeyframe images = leaveImagesAt(rec, ImagesHome::kSession);
     rec.session_index = i;
     keyframes_.push_back(std::move(rec));
-    integrateRestored(keyframes_.back(), images, *pose);
+    integrateRestored(keyframes_.back(), images, *pose, true);
     ++counters_.restored_keyframes;
     if ((i + 1) % 20 == 0) spdlog::info("integrated {} of the session's {} keyframes", i + 1, n);
   }
@@ -484,10 +517,13 @@ ReintegrationRound Mapper::continueCorrection(bool idle) {
   return done;
 }
 
-void Mapper::flush() { closeKeyframe(); }
+void Mapper::flush() {
+  completeRebuild();
+  closeKeyframe();
+}
 
 std::vector<ReintegrationRound> Mapper::finish() {
-  closeKeyframe();
+  flush();
   pending_.clear();  // the final pass corrects every keyframe that still moved
   integratePendingRestored();
   std::vector<ReintegrationRound> rounds;

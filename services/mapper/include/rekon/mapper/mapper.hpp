@@ -76,7 +76,8 @@ struct MapperCounters {
   int64_t reintegrations = 0;      // integrations with a corrected pose
   int64_t graph_updates = 0;
   int64_t final_pass_reintegrations = 0;
-  int64_t restored_keyframes = 0;  // rebuilt from the store at start
+  int64_t restored_keyframes = 0;  // restored from the store at start (rebuilt into the volume as frames allow)
+  int64_t rebuilt_keyframes = 0;   // of those, integrated into the volume so far
   int64_t input_frame_bytes = 0;   // depth + color of every frame handed to addFrame, as received
   double integrate_ms_total = 0.0;            // every integration, first and corrected
   double fuse_ms_total = 0.0;                 // keyframe fusion (depth and color) of all frames
@@ -129,7 +130,9 @@ struct KeyframeRecord {
 class Mapper {
  public:
   // With params.use_store and params.resume, an existing store is opened and
-  // every keyframe in it is integrated again with the pose it had (a restart);
+  // its keyframes restored (a restart): each is integrated again, with the
+  // pose it had, by continueRebuild, so that a restarted mapper fuses new
+  // frames from its first moment instead of losing them while it rebuilds;
   // without resume an existing store is removed as stale. With
   // params.continue_session the session's keyframes are integrated instead
   // (a restarted mapper of a continued run finds its own there too).
@@ -149,11 +152,18 @@ class Mapper {
   // Corrects pending keyframes: one when `idle`, else as many as the credit
   // of round_budget_ms per fused frame pays for (a keyframe is never split).
   ReintegrationRound continueCorrection(bool idle);
+  // Restored keyframes not yet integrated again (see the constructor).
+  bool rebuildPending() const { return !rebuild_.empty(); }
+  // Integrates restored keyframes again, in store order: one when `idle`, else
+  // as many as the fused frames' credit (round_budget_ms) pays for. Returns how many.
+  int continueRebuild(bool idle);
+  // The rest of the rebuild at once (flush() and finish() begin with it).
+  void completeRebuild();
   // Integrates the open KF keyframe, then re-integrates every keyframe whose
   // pose still differs from the one it was integrated with (the final pass,
   // in runs of m keyframes; one round each).
   std::vector<ReintegrationRound> finish();
-  // Integrates the open KF keyframe only (a stop before the end: no final pass).
+  // Completes the rebuild and integrates the open KF keyframe (a stop before the end: no final pass).
   void flush();
 
   // The current world pose of a KF keyframe (its DVO keyframe's pose times its pose in it).
@@ -213,8 +223,10 @@ class Mapper {
   void restoreFromStore();
   void startAgainWithoutTheStore(const Error& why);
   void continueSession();
-  // A keyframe restored from the store or the session, integrated at `pose`.
-  void integrateRestored(KeyframeRecord& rec, const fusion::FusedKeyframe& images, const Pose& pose);
+  // A keyframe restored from the store or the session, integrated at `pose`;
+  // at_camera: the volume streams around it first and the camera is put there
+  // (a session's, before any frame), else the camera's sphere stays (a rebuild beside new frames).
+  void integrateRestored(KeyframeRecord& rec, const fusion::FusedKeyframe& images, const Pose& pose, bool at_camera);
   // A keyframe the store holds but the old instance never integrated (it
   // died between storing and integrating it): integrated at its current
   // pose, recorded in the store; left for later when its anchor has none.
@@ -234,6 +246,9 @@ class Mapper {
   std::map<int64_t, Pose> graph_poses_;  // latest graph update
   std::vector<KeyframeRecord> keyframes_;
   std::deque<size_t> pending_;  // round_budget_ms: keyframes (indices) still to correct, in round order
+  // Restored keyframes (indices) still to integrate again, each with the pose
+  // the store recorded it integrated with (none: stored, never integrated).
+  std::deque<std::pair<size_t, std::optional<Pose>>> rebuild_;
   double credit_ms_ = 0.0;      // round_budget_ms per fused frame, less what corrections spent
   int64_t next_kf_id_ = 0;
   int64_t run_first_kf_id_ = 0;  // KF keyframes before it are an earlier run's (a continued session)
