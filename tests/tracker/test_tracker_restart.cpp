@@ -420,3 +420,47 @@ TEST(TrackerRestart, AKeyframeArchivedButNeverPublishedIsPublishedByTheRestart) 
 
 }  // namespace
 }  // namespace rekon::tracker
+
+namespace rekon::tracker {
+namespace {
+
+// A mapper restarted behind a live source after the tracker made a keyframe
+// never heard its keyframe_t (none of its frames come again) and skipped
+// every frame tracked against it until a graph update placed it: 6-12 frames
+// a restart on the 3-lap corridor ("DVO keyframe 643 has no pose yet; frame
+// skipped"). The next frame tracked against it brings its keyframe_t again,
+// once for each mapper instance.
+TEST(TrackerHistory, AMapperRestartedAfterAKeyframeWasMadeHearsOfItWithTheNextFrameTrackedAgainstIt) {
+  BusOptions options;
+  options.url = "memory://tracker_announce_again";
+  const auto bus = makeBus(options);
+  History history(*bus, nullptr);
+  std::vector<rekon_msgs::keyframe_t> heard;
+  bus->subscribe<rekon_msgs::keyframe_t>(channel::kKeyframes, [&](const rekon_msgs::keyframe_t& m) { heard.push_back(m); });
+  const auto publish = [&](int64_t frame_id, bool new_keyframe) {
+    TrackResult r;
+    r.frame_id = frame_id;
+    r.keyframe_id = 0;
+    r.state = TrackingState::Ok;
+    r.new_keyframe = new_keyframe;
+    r.keyframe_pose_world = Pose(Eigen::Translation3d(1.0, 2.0, 3.0));
+    history.publishResult(r);
+    while (bus->handle(0)) {
+    }
+  };
+  EXPECT_FALSE(history.noteMapperPid(100));  // the first mapper
+  publish(0, true);
+  publish(1, false);
+  ASSERT_EQ(heard.size(), 1u);
+  EXPECT_TRUE(history.noteMapperPid(200));  // restarted
+  publish(2, false);
+  ASSERT_EQ(heard.size(), 2u);
+  EXPECT_EQ(heard[1].keyframe_id, 0);
+  EXPECT_EQ(heard[1].frame_id, 0);  // the keyframe_t as it first went out
+  EXPECT_EQ(heard[1].pose_world.t[0], 1.0);
+  publish(3, false);
+  EXPECT_EQ(heard.size(), 2u);  // once for each instance
+}
+
+}  // namespace
+}  // namespace rekon::tracker

@@ -49,6 +49,9 @@ void History::publishResult(const TrackResult& r) {
     keyframe_of_frame_[r.frame_id] = kf;
     journal(kKeyframeRecord, kf);
     bus_.publish(channel::kKeyframes, kf);
+    announced_for_[r.keyframe_id] = mapper_instance_;
+  } else if (r.keyframe_id >= 0) {
+    announceAgain(r.keyframe_id);
   }
   const auto publish_edge = [&](int8_t kind, const OdometryConstraint& edge) {
     constraints_.push_back(constraintMsg(kind, edge));
@@ -91,8 +94,10 @@ bool History::republishResult(int64_t frame_id) {
   int& published_for = published_for_[frame_id];
   if (published_for >= mapper_instance_) return true;
   published_for = mapper_instance_;
-  if (auto kf = keyframe_of_frame_.find(frame_id); kf != keyframe_of_frame_.end())
+  if (auto kf = keyframe_of_frame_.find(frame_id); kf != keyframe_of_frame_.end()) {
     bus_.publish(channel::kKeyframes, kf->second);
+    announced_for_[kf->second.keyframe_id] = mapper_instance_;
+  }
   bus_.publish(channel::kTrackedFrames, tf->second);
   return true;
 }
@@ -341,6 +346,15 @@ void History::publishArchived(const rekon_msgs::keyframe_t& kf, const std::optio
   constraints_.push_back(constraintMsg(rekon_msgs::constraint_t::KIND_ODOMETRY, *incoming));
   journal(kConstraintRecord, constraints_.back());
   bus_.publish(channel::kConstraints, constraints_.back());
+}
+
+void History::announceAgain(int64_t keyframe_id) {
+  int& announced = announced_for_[keyframe_id];
+  if (announced >= mapper_instance_) return;
+  announced = mapper_instance_;
+  const auto kf = std::find_if(keyframes_.rbegin(), keyframes_.rend(),
+                               [keyframe_id](const rekon_msgs::keyframe_t& k) { return k.keyframe_id == keyframe_id; });
+  if (kf != keyframes_.rend()) bus_.publish(channel::kKeyframes, *kf);
 }
 
 bool History::noteMapperPid(int pid) {

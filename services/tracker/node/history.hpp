@@ -96,6 +96,11 @@ class History {
 
  private:
   void serveBatch(const rekon_msgs::replay_request_t& request);
+  // Under mutex_: keyframe `keyframe_id`'s keyframe_t again, once per mapper
+  // instance that has not heard it. A mapper restarted after a keyframe was
+  // made never placed it (a live source sends none of its frames again), and
+  // skipped the frames tracked against it until a graph update placed it.
+  void announceAgain(int64_t keyframe_id);
   // Under mutex_: into the journal (when there is one).
   template <class M>
   void journal(RecordTag tag, const M& m) {
@@ -111,6 +116,7 @@ class History {
   int mapper_instance_ = 1;
   std::set<int> mapper_pids_;
   std::map<int64_t, int> published_for_;  // the mapper instance each frame's result went out to
+  std::map<int64_t, int> announced_for_;  // the mapper instance each keyframe's keyframe_t went out to
   int64_t graph_version_ = -1;
   bool done_ = false;
   std::vector<rekon_msgs::replay_request_t> requests_;  // waiting for the main thread
