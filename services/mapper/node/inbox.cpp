@@ -31,6 +31,13 @@ bool Inbox::away(const std::string& service, double never_heard_s) const {
           std::chrono::steady_clock::now() - started_ > std::chrono::duration<double>(never_heard_s));
 }
 
+bool Inbox::resendUnderWay() const {
+  if (resumed_from_ <= 0 || rewind_wait_s_ <= 0 || end_frame_ == kNoEndYet || last_resolved_ >= end_frame_ ||
+      end_frame_ < resumed_from_)
+    return false;
+  return std::chrono::steady_clock::now() - last_frame_at_ < std::chrono::duration<double>(rewind_wait_s_);
+}
+
 bool Inbox::beforeResume(int64_t id) {
   if (awaiting_frame_ < 0 || id < awaiting_frame_) return false;  // before it: in the store, a copy
   const auto now = std::chrono::steady_clock::now();
@@ -63,6 +70,7 @@ void Inbox::onFrame(const rekon_msgs::frame_t& msg) {
   std::optional<bool> again_ack;  // set for a frame sent again: whether to acknowledge it now
   {
     std::lock_guard<std::mutex> lock(mutex_);
+    last_frame_at_ = std::chrono::steady_clock::now();
     if (beforeResume(msg.frame_id)) {
       spdlog::info("frame {} came before frame {}, the resume point: sent before the restart was heard of; it comes "
                    "again in order", msg.frame_id, awaiting_frame_);
@@ -250,6 +258,7 @@ bool Inbox::streamOver(bool wait_for_optimiser, bool queue_baseline) {
                  lifecycle.silence_s, end_frame_);
     return true;
   }
+  if (resendUnderWay()) return false;
   const bool frames_done = end_frame_ != kNoEndYet && (tracker_done || last_resolved_ >= end_frame_);
   if (end_frame_ != kNoEndYet && wait_for_optimiser && !optimiser_done && frames_done && optimiser_gone &&
       !std::exchange(optimiser_gone_said_, true)) {

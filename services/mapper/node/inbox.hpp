@@ -149,6 +149,11 @@ class Inbox {
   bool beforeResume(int64_t id);
   // `service` gone (heard, then silent), or never heard within `never_heard_s` of this instance's start.
   bool away(const std::string& service, double never_heard_s) const;
+  // Under mutex_: a restart behind a source that rewinds, whose frames from
+  // the resume point to the end have not all come again. The upstream's
+  // done_t (heard again at once) says nothing of them; a source that sends
+  // nothing for rewind_wait_s_ is not waited for.
+  bool resendUnderWay() const;
 
   ServiceContext& ctx_;
   const size_t max_queued_;
@@ -181,6 +186,7 @@ class Inbox {
   double rewind_wait_s_ = 0.0;
   int64_t newest_before_resume_ = -1;
   std::chrono::steady_clock::time_point first_before_resume_{};
+  std::chrono::steady_clock::time_point last_frame_at_ = started_;  // the newest frame message, or the start
   std::string worker_error_;
   MapperCounters progress_;  // the worker's copy after each piece of work, for the progress log
 };
