@@ -418,13 +418,6 @@ TEST(Faults, OnePercentMessageLossCompletesWithTheSameResult) { expectCompletesU
 // uninterrupted run.
 TEST(Faults, FivePercentMessageLossCompletesWithTheSameResult) { expectCompletesUnderLoss(0.05, 0.00005, 0.0004); }
 
-// rekon chaos at small scale: the room at its recorded rate (3 s), a random
-// restartable service killed every 0.7-1.5 s, compared with the cached
-// uninterrupted run. Measured (seed 1, 2-core VM): 5 kills (player 4, mapper
-// 1), 90 of 90 poses, ATE 0.23 mm as uninterrupted, the mesh 0.045 mm from
-// the uninterrupted one: within rekon chaos's default bounds (95 % of the
-// poses, ATE 1.5x + 0.5 mm, CORR 2 mm). With a bound no run can meet (more
-// poses than frames), it says so and exits 1.
 // `rekon chaos` on the room against its cached uninterrupted run, given at
 // most `timeout_s`; the caller appends the rest of the options.
 std::string roomChaos(int timeout_s) {
@@ -432,6 +425,13 @@ std::string roomChaos(int timeout_s) {
          " --baseline " + baseline().run;
 }
 
+// rekon chaos at small scale: the room at its recorded rate (3 s), a random
+// restartable service killed every 0.7-1.5 s, compared with the cached
+// uninterrupted run. Measured (seed 1, 2-core VM): 5 kills (player 4, mapper
+// 1), 90 of 90 poses, ATE 0.23 mm as uninterrupted, the mesh 0.045 mm from
+// the uninterrupted one: within rekon chaos's default bounds (95 % of the
+// poses, ATE 1.5x + 0.5 mm, CORR 2 mm). With a bound no run can meet (more
+// poses than frames), it says so and exits 1.
 TEST(Faults, ChaosKillsRandomServicesAndTheRunStaysWithinItsBounds) {
   rekon::test::TempDir dir;
   const std::string chaos = roomChaos(240) + " --every 0.7-1.5 --seed 1 --out ";

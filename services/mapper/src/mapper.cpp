@@ -142,13 +142,7 @@ void Mapper::restoreFromStore() {
   for (const store::KeyframeInfo& info : infos) {
     KeyframeRecord rec;  // the images stay in the store until the rebuild reaches it
     rec.home = ImagesHome::kStore;
-    rec.kf.id = info.id;
-    rec.kf.anchor_keyframe_id = info.anchor_keyframe_id;
-    rec.kf.pose_in_anchor = info.pose_in_anchor;
-    rec.kf.first_frame_id = info.first_frame_id;
-    rec.kf.last_frame_id = info.last_frame_id;
-    rec.kf.timestamp = info.timestamp;
-    rec.kf.frames = info.frames;
+    rec.kf = store::withoutImages(info);
     next_kf_id_ = std::max(next_kf_id_, info.id + 1);
     // The old instance died between the store and the session: the session gets it now.
     if (session_ && !session_->has(info.id)) {

@@ -96,15 +96,23 @@ void removeSpillFiles(const std::string& dir, const std::string& segment) {
   if (removed > 0) spdlog::info("removed {} keyframe spill files of '{}' from {}", removed, segment, dir);
 }
 
+KeyframeInfo infoOf(const ShmKeyframe& k) {
+  KeyframeInfo i;
+  i.id = k.id;
+  i.anchor_keyframe_id = k.anchor;
+  i.first_frame_id = k.first_frame;
+  i.last_frame_id = k.last_frame;
+  i.frames = k.frames;
+  i.timestamp = k.timestamp;
+  i.pose_in_anchor = fromShm(k.pose_in_anchor);
+  i.integrated_pose = fromShm(k.integrated_pose);
+  i.integrated = k.integrated != 0;
+  i.spilled = k.data == nullptr;
+  return i;
+}
+
 fusion::FusedKeyframe unpack(const ShmKeyframe& k, const uint8_t* data, int width, int height) {
-  fusion::FusedKeyframe kf;
-  kf.id = k.id;
-  kf.anchor_keyframe_id = k.anchor;
-  kf.pose_in_anchor = fromShm(k.pose_in_anchor);
-  kf.first_frame_id = k.first_frame;
-  kf.last_frame_id = k.last_frame;
-  kf.frames = k.frames;
-  kf.timestamp = k.timestamp;
+  fusion::FusedKeyframe kf = withoutImages(infoOf(k));
   unpackKeyframeImages(data, width, height, kf);
   return kf;
 }
@@ -500,23 +508,22 @@ std::vector<std::pair<int64_t, Pose>> KeyframeStore::anchorPoses() const {
   return out;
 }
 
+fusion::FusedKeyframe withoutImages(const KeyframeInfo& info) {
+  fusion::FusedKeyframe kf;
+  kf.id = info.id;
+  kf.anchor_keyframe_id = info.anchor_keyframe_id;
+  kf.pose_in_anchor = info.pose_in_anchor;
+  kf.first_frame_id = info.first_frame_id;
+  kf.last_frame_id = info.last_frame_id;
+  kf.frames = info.frames;
+  kf.timestamp = info.timestamp;
+  return kf;
+}
+
 std::vector<KeyframeInfo> KeyframeStore::list() const {
   auto l = impl_->lock();
   std::vector<KeyframeInfo> out;
-  for (const ShmKeyframe& k : *impl_->keyframes) {
-    KeyframeInfo i;
-    i.id = k.id;
-    i.anchor_keyframe_id = k.anchor;
-    i.first_frame_id = k.first_frame;
-    i.last_frame_id = k.last_frame;
-    i.frames = k.frames;
-    i.timestamp = k.timestamp;
-    i.pose_in_anchor = fromShm(k.pose_in_anchor);
-    i.integrated_pose = fromShm(k.integrated_pose);
-    i.integrated = k.integrated != 0;
-    i.spilled = k.data == nullptr;
-    out.push_back(i);
-  }
+  for (const ShmKeyframe& k : *impl_->keyframes) out.push_back(infoOf(k));
   return out;
 }
 

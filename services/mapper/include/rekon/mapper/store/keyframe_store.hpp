@@ -75,6 +75,9 @@ struct KeyframeInfo {
   bool spilled = false;  // its images are in a spill file, not in the segment
 };
 
+// The keyframe `info` describes, without its images (KeyframeStore::loadById reads those).
+fusion::FusedKeyframe withoutImages(const KeyframeInfo& info);
+
 class KeyframeStore {
  public:
   // Opens the segment when it exists (its intrinsics must equal k, else
