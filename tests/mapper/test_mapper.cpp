@@ -506,7 +506,7 @@ TEST(KeyframeStore, ARestartedMapperFusesNewFramesWhileItRebuildsAndEndsWithTheS
   const Difference d = compare(snapshot(rebuilt_first.volume()), snapshot(rebuilt_beside.volume()));
   EXPECT_GT(d.observed, 100000);
   EXPECT_EQ(d.weight_or_sdf, 0);      // the same keyframes at the same poses: the same integer sums
-  EXPECT_LE(d.max_color_levels, 2u);  // colors: rounding of another order of integrations
+  EXPECT_LE(d.max_color_levels, 2u);  // colors: rounding of another order of integrations (measured 1)
   rebuilt_first.removeStore();
   rebuilt_beside.removeStore();
 }
