@@ -15,6 +15,7 @@
 #include "rekon/progress/progress_line.hpp"
 #include "rekon/common/cli.hpp"
 #include "rekon/common/error.hpp"
+#include "rekon/common/image_io.hpp"
 #include "png_writer.hpp"
 #include "sensor_noise.hpp"
 
@@ -81,6 +82,9 @@ SequenceReport writeSequence(const SequenceOptions& options, const std::string& 
   const auto scene = Scene::make(options.scene);
   const int frames = options.frames > 0 ? options.frames : scene->defaultFrames(options.laps);
   if (options.frames < 0) throw Error("--frames " + std::to_string(options.frames) + " is negative; give 1 or more (0 = scene default)");
+  if (options.jpeg_quality < 0 || options.jpeg_quality > 100)
+    throw Error("--jpeg " + std::to_string(options.jpeg_quality) + " must lie in [1, 100], or 0 for PNG color");
+  const std::string color_ext = options.jpeg_quality > 0 ? ".jpg" : ".png";
   createOutputFolder((fs::path(out_dir) / "rgb").string());
   createOutputFolder((fs::path(out_dir) / "depth").string());
   const Intrinsics k = defaultIntrinsics();
@@ -99,9 +103,10 @@ SequenceReport writeSequence(const SequenceOptions& options, const std::string& 
       try {
         const auto& sp = trajectory[static_cast<size_t>(i)];
         const RgbdFrame f = scene->render(k, sp.pose, options.noise, frameSeed(options.seed, i), 1);
-        const std::string name = stamp(sp.timestamp) + ".png";
-        writeBytes((fs::path(out_dir) / "rgb" / name).string(), encodePngFast(f.color));
-        writeBytes((fs::path(out_dir) / "depth" / name).string(), encodePngFast(f.depth));
+        const std::string name = stamp(sp.timestamp);
+        writeBytes((fs::path(out_dir) / "rgb" / (name + color_ext)).string(),
+                   options.jpeg_quality > 0 ? encodeJpeg(f.color, options.jpeg_quality) : encodePngFast(f.color));
+        writeBytes((fs::path(out_dir) / "depth" / (name + ".png")).string(), encodePngFast(f.depth));
         if (options.on_frame) options.on_frame(++done, frames);
       } catch (const std::exception& e) {
         std::lock_guard<std::mutex> lock(error_mutex);
@@ -119,11 +124,12 @@ SequenceReport writeSequence(const SequenceOptions& options, const std::string& 
   std::ofstream rgb_txt(fs::path(out_dir) / "rgb.txt"), depth_txt(fs::path(out_dir) / "depth.txt");
   std::string command = "rekon synth --scene " + options.scene + " --seed " + std::to_string(options.seed);
   if (options.laps != 1) command += " --laps " + std::to_string(options.laps);
+  if (options.jpeg_quality > 0) command += " --jpeg " + std::to_string(options.jpeg_quality);
   rgb_txt << "# color images\n# " << command << "\n# timestamp filename\n";
   depth_txt << "# depth maps\n# " << command << "\n# timestamp filename\n";
   for (const auto& sp : trajectory) {
     const std::string s = stamp(sp.timestamp);
-    rgb_txt << s << " rgb/" << s << ".png\n";
+    rgb_txt << s << " rgb/" << s << color_ext << "\n";
     depth_txt << s << " depth/" << s << ".png\n";
   }
   if (!rgb_txt || !depth_txt) throw Error(out_dir + ": cannot write rgb.txt/depth.txt; check the output folder");

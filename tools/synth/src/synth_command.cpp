@@ -68,10 +68,13 @@ int synthCommand(int argc, char** argv) {
       .option("truncation", "with --describe: truncation band in metres", "0.04")
       .option("seed", "seed of trajectory shake and sensor noise", "1")
       .option("noise", "kinect or none", "kinect")
+      .option("jpeg", "color as JPEG of this quality (1-100) instead of PNG (a fifth of the bytes), for a long scan's "
+                      "cache played by rekon bench longrun --dataset (0 = PNG)", "0")
       .option("drift", "T_PER_M,R_DEG_PER_M: also write drifted_trajectory.txt", "")
       .examples("rekon synth --scene room --out out/room\n"
                 "rekon synth --scene corridor --laps 2 --out out/corridor2\n"
                 "rekon synth --scene building --describe --minutes 60   # size, path, voxel map at 1 cm\n"
+                "rekon synth --scene building --minutes 60 --jpeg 95 --out out/building60   # the hour as a cache\n"
                 "rekon synth --scene room --frames 60 --drift 0.05,3 --out out/drifted   # with drifted_trajectory.txt");
   if (!args.parse(argc, argv)) return 0;
   const bool describe = args.flagSet("describe");
@@ -93,6 +96,7 @@ int synthCommand(int argc, char** argv) {
     throw Error("--seed '" + seed_text + "' is not a non-negative integer");
   }
   o.noise = parseNoise(args.get("noise"));
+  o.jpeg_quality = args.getInt("jpeg");
   if (!args.get("drift").empty()) {
     std::istringstream ss(args.get("drift"));
     char comma = 0;

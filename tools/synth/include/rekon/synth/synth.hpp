@@ -89,6 +89,10 @@ struct SequenceOptions {
   int laps = 1;    // corridor only: times round the out-and-back path
   uint64_t seed = 1;
   Noise noise = Noise::Kinect;
+  // 0: color as PNG (lossless). 1-100: color as JPEG of that quality, about a
+  // fifth of the PNG's bytes, for a cache of a long scan (rekon bench longrun
+  // --dataset); the depth stays PNG.
+  int jpeg_quality = 0;
   // Random-walk drift for drifted_trajectory.txt; both 0 = not written.
   double drift_translation_per_m = 0.0;
   double drift_rotation_deg_per_m = 0.0;
