@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <array>
 #include <chrono>
+#include <cmath>
 #include <condition_variable>
 #include <deque>
 #include <exception>
@@ -332,6 +333,35 @@ void LiveOutlet::writeStats(JsonObject& stats) const {
   const LatencyHistogram& h = state_->latency;
   stats.set("latency_samples", static_cast<long long>(h.count()));
   if (h.count() > 0) stats.set("latency_ms_p50", h.quantile(0.5)).set("latency_ms_p95", h.quantile(0.95));
+}
+
+struct SourceCountsLog::State {
+  std::optional<CsvLog> csv;
+  std::chrono::steady_clock::time_point start = std::chrono::steady_clock::now();
+  double next_row_s = 1.0, ms = 0;
+  int64_t made = 0;
+};
+
+SourceCountsLog::SourceCountsLog(const std::string& out_dir) : state_(std::make_unique<State>()) {
+  if (!out_dir.empty())
+    state_->csv.emplace(out_dir + "/source_counts.csv", "seconds,frames_due,sent,dropped,skipped_late,render_ms_mean");
+}
+
+SourceCountsLog::~SourceCountsLog() = default;
+
+void SourceCountsLog::frameMade(double ms) {
+  state_->ms += ms;
+  ++state_->made;
+}
+
+void SourceCountsLog::row(int64_t due, const LiveOutlet::Counts& c, bool last_row) {
+  State& s = *state_;
+  const double t = std::chrono::duration<double>(std::chrono::steady_clock::now() - s.start).count();
+  if (!s.csv || (t < s.next_row_s && !last_row)) return;
+  s.next_row_s = std::floor(t) + 1.0;
+  s.csv->row(t, due, c.sent, c.dropped, c.skipped_late, s.made > 0 ? s.ms / static_cast<double>(s.made) : 0.0);
+  s.ms = 0;
+  s.made = 0;
 }
 
 }  // namespace rekon

@@ -144,6 +144,13 @@ TEST(LivePacing, PlayerBehindItsClockSkipsTheLateFramesAndEndsOnTime) {
     EXPECT_GE(unused, 0) << player;
     EXPECT_LE(unused, threads * captured) << player;
     EXPECT_LT(captured + unused, 300) << "frames skipped are never decoded\n" << player;
+    // The same counts go to source_counts.csv as they come (rekon bench longrun's frames per minute): its
+    // last row, at the end, holds the frames due, sent, dropped and skipped.
+    const std::string last_row = lastLine(readText(run + "/source_counts.csv"));
+    EXPECT_EQ(last_row.substr(last_row.find(',') + 1, last_row.rfind(',') - last_row.find(',')),
+              "300," + std::to_string(jsonInt(player, "frames_sent")) + "," +
+                  std::to_string(jsonInt(player, "frames_dropped")) + "," + std::to_string(skipped) + ",")
+        << last_row;
     const double decode_s = rekon::test::jsonNumber(player, "decode_s_max");
     // 20 ms for the rest of one iteration (waking, offering) on a loaded machine.
     const double bound_s = 2.0 * decode_s + 2.0 * kPeriodS + 0.02;

@@ -276,6 +276,7 @@ class Player {
   // from the next frame.
   void playLive(int64_t from) {
     LiveOutlet outlet(ctx_, *sender_, watch_, consumers_, params_.live_in_flight);
+    SourceCountsLog counts(ctx_.outDir());
     int64_t last = -1;
     for (int64_t id = from; id < end_ && !ctx_.stopRequested(); ++id) {
       sleepUntilRecorded(id);
@@ -284,7 +285,9 @@ class Player {
       id = due;
       const auto decode_start = Clock::now();
       LoadedFrame loaded = ahead_.take(id);
-      decode_max_s_ = std::max(decode_max_s_, ConsumerWatch::secondsSince(decode_start));
+      const double decode_s = ConsumerWatch::secondsSince(decode_start);
+      decode_max_s_ = std::max(decode_max_s_, decode_s);
+      counts.frameMade(1e3 * decode_s);
       // Late by the time it goes out (decoding included): as a camera driver's delay.
       const double late_s = std::max(0.0, ConsumerWatch::secondsSince(start_) - scheduledSeconds(id));
       behind_clock_max_s_ = std::max(behind_clock_max_s_, late_s);
@@ -292,6 +295,7 @@ class Player {
       last = id;
       ++sent_;
       reportProgress(id + 1);
+      counts.row(id + 1, outlet.counts());
     }
     live_wall_s_ = ConsumerWatch::secondsSince(start_);
     if (last >= 0) behind_clock_end_s_ = live_wall_s_ - scheduledSeconds(last);
@@ -299,6 +303,7 @@ class Player {
     outlet.finish(params_.wait_timeout_s);
     outlet.writeStats(ctx_.stats());
     const LiveOutlet::Counts c = outlet.counts();
+    counts.row(last + 1, c, true);
     spdlog::info("live pacing: {} frames sent, {} dropped (the consumers were not ready), {} skipped (their time had "
                  "passed; the player was up to {:.0f} ms behind its clock)",
                  c.sent, c.dropped, c.skipped_late, 1e3 * behind_clock_max_s_);

@@ -92,4 +92,26 @@ class LiveOutlet {
   std::shared_ptr<State> state_;  // shared with the bus handler, which may outlive this object
 };
 
+// <out>/source_counts.csv of a source, a row a second and a last one at its
+// end, so a stopped run keeps what its source did (rekon bench longrun reads
+// it): frames due so far (the next frame's id), sent, dropped, skipped late,
+// and the mean time the source took to make each frame since the row before
+// (rendering it, or waiting for its decoding). An empty `out_dir` writes
+// nothing.
+class SourceCountsLog {
+ public:
+  explicit SourceCountsLog(const std::string& out_dir);
+  ~SourceCountsLog();
+  SourceCountsLog(const SourceCountsLog&) = delete;
+  SourceCountsLog& operator=(const SourceCountsLog&) = delete;
+
+  void frameMade(double ms);
+  // Writes a row when a second has passed since the last (or `last_row`).
+  void row(int64_t due, const LiveOutlet::Counts& c, bool last_row = false);
+
+ private:
+  struct State;
+  std::unique_ptr<State> state_;
+};
+
 }  // namespace rekon

@@ -9,10 +9,8 @@
 #include <spdlog/spdlog.h>
 
 #include <chrono>
-#include <optional>
 #include <thread>
 
-#include "rekon/common/csv_log.hpp"
 #include "rekon/common/error.hpp"
 #include "rekon/common/frame_source.hpp"
 #include "rekon/common/service.hpp"
@@ -50,9 +48,7 @@ void runSource(rekon::ServiceContext& ctx, const SourceParams& p) {
                                                    static_cast<int>(config.getInt("transport.max_height"))});
   spdlog::info("scene {}: {} frames ({:.1f} min), rendered as they play, {}", p.scene, frames, frames / 1800.0,
                p.rate > 0 ? fmt::format("live at {:.0f} Hz", 30.0 * p.rate) : std::string("unpaced"));
-  std::optional<rekon::CsvLog> counts;
-  if (!ctx.outDir().empty())
-    counts.emplace(ctx.outDir() + "/source_counts.csv", "seconds,frames_due,sent,dropped,skipped_late,render_ms_mean");
+  rekon::SourceCountsLog counts(ctx.outDir());
   auto render = [&](int64_t id) {
     rekon::RgbdFrame f = scene->render(k, trajectory[static_cast<size_t>(id)].pose, p.noise,
                                        rekon::synth::frameSeed(p.seed, id), p.render_threads);
@@ -62,23 +58,14 @@ void runSource(rekon::ServiceContext& ctx, const SourceParams& p) {
   };
   ctx.setState("playing");
   const Clock::time_point start = Clock::now();
-  double render_ms = 0, next_row = 1.0;
-  int64_t rendered = 0, rendered_row = 0, sent = 0, last = -1;
-  double render_ms_row = 0;
-  auto row = [&](int64_t due, int64_t dropped, int64_t skipped, bool last_row = false) {
-    if (!counts || (since(start) < next_row && !last_row)) return;
-    next_row += 1.0;
-    counts->row(since(start), due, sent, dropped, skipped,
-                rendered > rendered_row ? render_ms_row / static_cast<double>(rendered - rendered_row) : 0.0);
-    rendered_row = rendered;
-    render_ms_row = 0;
-  };
+  double render_ms = 0;
+  int64_t rendered = 0, sent = 0, last = -1;
   auto timed = [&](int64_t id) {
     const Clock::time_point t0 = Clock::now();
     rekon::RgbdFrame f = render(id);
     const double ms = 1e3 * since(t0);
     render_ms += ms;
-    render_ms_row += ms;
+    counts.frameMade(ms);
     ++rendered;
     return f;
   };
@@ -96,14 +83,12 @@ void runSource(rekon::ServiceContext& ctx, const SourceParams& p) {
       last = id;
       ++sent;
       ctx.setLastFrame(id);
-      const auto c = outlet.counts();
-      row(id + 1, c.dropped, c.skipped_late);
+      counts.row(id + 1, outlet.counts());
     }
     outlet.finish(config.getDouble("player.wait_timeout_s"));
     outlet.writeStats(ctx.stats());
     const auto c = outlet.counts();
-    row(last + 1, c.dropped, c.skipped_late, true);
-    counts.reset();
+    counts.row(last + 1, c, true);
     spdlog::info("live: {} frames sent, {} dropped, {} skipped (their time had passed while rendering)", c.sent, c.dropped,
                  c.skipped_late);
   } else {
@@ -120,10 +105,10 @@ void runSource(rekon::ServiceContext& ctx, const SourceParams& p) {
       last = id;
       ++sent;
       ctx.setLastFrame(id);
-      row(id + 1, 0, 0);
+      counts.row(id + 1, {.sent = sent});
     }
     if (last >= 0) watch.waitForAck(consumers, last, config.getDouble("player.wait_timeout_s"), ctx);
-    row(last + 1, 0, 0, true);
+    counts.row(last + 1, {.sent = sent}, true);
   }
   const double wall = since(start);
   rekon_msgs::end_of_stream_t eos{};

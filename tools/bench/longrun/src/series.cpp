@@ -386,7 +386,8 @@ std::vector<GoalLine> judgeGoals(const std::vector<Bucket>& b, double bucket_s, 
                                  : GoalLine{end_of_run_s <= 180 ? "PASS" : "FAIL", "end of run (final pass and meshes) within 180 s",
                                             fmt::format("{:.1f} s", end_of_run_s)});
   out.push_back({"n/a", "ATE and CORR/COMPL no worse than a 10-minute scan of the same space",
-                 "a --scene run writes OUT/groundtruth.txt and OUT/mesh_gt.ply: score it with rekon eval traj and rekon eval surface"});
+                 "score it with rekon eval traj and rekon eval surface against groundtruth.txt and mesh_gt.ply (a --scene run "
+                 "writes them into OUT; a rekon synth dataset holds them)"});
   return out;
 }
 
