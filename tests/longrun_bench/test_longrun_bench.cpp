@@ -26,13 +26,15 @@ using rekon::test::TempDir;
 template <class Latency, class Rss>
 void writeRun(const TempDir& dir, int unfused, Latency latency_ms, Rss mapper_mb) {
   std::ofstream lat(dir / "player_latency.csv"), fused(dir / "mapper_timing.csv"), counts(dir / "source_counts.csv"),
-      rss(dir / "longrun_rss.csv"), opt(dir / "optimiser_timing.csv"), rounds(dir / "mapper_reintegration.csv");
+      rss(dir / "longrun_rss.csv"), opt(dir / "optimiser_timing.csv"), rounds(dir / "mapper_reintegration.csv"),
+      checks(dir / "tracker_loop_checks.csv");
   lat << "frame_id,captured_s,latency_ms\n";
   fused << "frame_id,ms,fuse_ms,integrate_ms\n";
   counts << "seconds,frames_due,sent,dropped,skipped_late,render_ms_mean\n";
   rss << "seconds,service,rss_mb\n";
   opt << "frame_id,ms,keyframes,graph_version\n";
   rounds << "time_s,graph_version,keyframes_reintegrated,ms,blocks_streamed,final_pass,frames_fused,piece\n";
+  checks << "keyframe_id,frame_id,candidates,accepted,ms\n";
   for (int b = 0; b < 4; ++b) {
     for (int i = 0; i < 300; ++i) {
       const int id = b * 300 + i;
@@ -43,6 +45,7 @@ void writeRun(const TempDir& dir, int unfused, Latency latency_ms, Rss mapper_mb
     rss << 10 * b + 5 << ",mapper," << mapper_mb(b) << '\n';
     opt << b * 300 + 150 << ",2,10," << b << '\n';
     rounds << 10 * b + 5 << ',' << b << ",3,40,0,0,100,0\n";
+    checks << 2 * b << ',' << b * 300 + 20 << ",5,2," << 100 + 100 * (b == 3) << '\n';  // the last bucket's twice the others'
   }
   opt << "1199,50,40,4\n";  // the final optimisation: not a live solve
 }
@@ -65,6 +68,7 @@ TEST(LongrunTable, BucketsHoldWhatTheTablesSay) {
   EXPECT_DOUBLE_EQ(buckets[1].solve_ms_mean, 2.0);
   EXPECT_DOUBLE_EQ(buckets[3].solve_ms_mean, 2.0);  // the final optimisation (50 ms) is left out
   EXPECT_DOUBLE_EQ(buckets[0].round_ms_mean, 40.0);
+  EXPECT_DOUBLE_EQ(buckets[2].loop_check_ms_mean, 100.0);
   EXPECT_DOUBLE_EQ(buckets[0].rss_mb.at("mapper"), 100.0);
 }
 
@@ -88,6 +92,7 @@ TEST(LongrunGoals, LatencyAndMemoryThatGrowFail) {
   EXPECT_EQ(line(lines, "RSS of mapper").substr(0, 4), "FAIL");
   EXPECT_EQ(line(lines, "optimiser solve time").substr(0, 4), "PASS");
   EXPECT_EQ(line(lines, "correction round time").substr(0, 4), "PASS");
+  EXPECT_EQ(line(lines, "loop-check time per keyframe").substr(0, 10), "FAIL 200 /");
   EXPECT_EQ(line(lines, "end of run"), "PASS 20.0 s");
   EXPECT_EQ(line(lines, "all services together").substr(0, 4), "PASS");
 }
@@ -112,7 +117,7 @@ TEST(LongrunBench, ATenSecondSliceOfTheBuildingWritesItsTablesPlotsAndSummary) {
                           " --frames 300 --bucket-s 2 2>&1";
   ASSERT_EQ(runCommand(cmd, &out), 0) << out;
   for (const char* f : {"longrun.csv", "summary.txt", "longrun_frames.svg", "longrun_latency.svg", "longrun_times.svg",
-                        "longrun_memory.svg", "longrun_rss.csv", "mesh.ply", "trajectory.txt"})
+                        "longrun_memory.svg", "longrun_rss.csv", "mesh.ply", "trajectory.txt", "tracker_loop_checks.csv"})
     EXPECT_TRUE(std::filesystem::exists(std::filesystem::path(dir / "run") / f)) << f;
   // The fused line counts mapper_timing.csv's rows against the frames the source had due.
   int fused = -1;

@@ -8,6 +8,7 @@
 #include <thread>
 
 #include "history.hpp"
+#include "rekon/common/csv_log.hpp"
 #include "rekon/common/error.hpp"
 #include "inbox.hpp"
 #include "outputs.hpp"
@@ -114,6 +115,11 @@ void runTrackerService(ServiceContext& ctx) {
   History history(ctx.bus(), state.journal());
   // One copy of each DVO keyframe for loop closure and relocalisation, bounded by tracker.keyframes_in_memory.
   const auto keyframes = std::make_shared<KeyframeCache>(params);
+  // <out>/tracker_loop_checks.csv, a row per keyframe's check as it ends (rekon bench longrun's loop-check
+  // time per keyframe); declared before the worker, whose thread writes it.
+  std::optional<CsvLog> checks;
+  if (!ctx.outDir().empty())
+    checks.emplace(ctx.outDir() + "/tracker_loop_checks.csv", "keyframe_id,frame_id,candidates,accepted,ms", restarted);
   // Started once a restart has indexed the earlier keyframes in it.
   LoopClosureWorker loops(params, [&history](const LoopConstraint& c) { history.publishLoopConstraint(c); }, false,
                           keyframes);
@@ -123,6 +129,9 @@ void runTrackerService(ServiceContext& ctx) {
   Inbox inbox(ctx, worker, history, loops, params.loop.when_behind == LoopClosureParams::WhenBehind::kHold);
   std::optional<rekon_msgs::resume_point_t> resume_point;
   loops.onSettled([&history](int64_t id) { history.noteLoopChecked(id); });
+  loops.onChecked([&checks](int64_t keyframe_id, int64_t frame_id, const LoopClosureStats& check, double ms) {
+    if (checks) checks->row(keyframe_id, frame_id, check.candidates, check.accepted, ms);
+  });
   if (restarted)
     resume_point = restoreAfterRestart(ctx, state, history, *keyframes, worker, loops, inbox, params.aligner);
   loops.start();

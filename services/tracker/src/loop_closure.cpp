@@ -521,11 +521,12 @@ void LoopClosureWorker::run() {
     // What the check read back and the cache evicted is freed by now (unless
     // the tracking thread still holds it): past the slack its pages go back,
     // so that the tracker's memory follows what it keeps.
-    const int64_t id = job.keyframe->id;
+    const int64_t id = job.keyframe->id, frame_id = job.keyframe->frame_id;
     job.keyframe.reset();
     if (on_settled_ && job.kind != Kind::kStored) on_settled_(id);
     const bool trimmed = heap_slack_bytes_ > 0 && releaseFreedMemoryBeyond(heap_slack_bytes_);
     const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    if (job.kind == Kind::kCheck && on_checked_) on_checked_(id, frame_id, local, ms);
     {
       std::lock_guard<std::mutex> lock(mutex_);
       if (job.kind == Kind::kCheck) {

@@ -79,7 +79,7 @@ std::vector<Bucket> readBuckets(const std::string& dir, double bucket_s, double 
   if (!(bucket_s > 0) || !(fps > 0)) throw Error("longrun: bucket and frame rate must be positive");
   std::vector<Bucket> b;
   struct Samples {
-    std::vector<double> latency, integrate, solve, round;
+    std::vector<double> latency, integrate, solve, round, loop_check;
   };
   std::vector<Samples> s;
   auto at = [&](double t) -> Bucket& {
@@ -88,7 +88,7 @@ std::vector<Bucket> readBuckets(const std::string& dir, double bucket_s, double 
       Bucket n;
       n.t0_s = static_cast<double>(b.size()) * bucket_s;
       n.latency_p50_ms = n.latency_p95_ms = n.integrate_ms_mean = n.solve_ms_mean = n.solve_ms_max = n.round_ms_mean =
-          n.round_ms_max = n.render_ms_mean = kNaN;
+          n.round_ms_max = n.loop_check_ms_mean = n.render_ms_mean = kNaN;
       b.push_back(n);
       s.emplace_back();
     }
@@ -152,6 +152,11 @@ std::vector<Bucket> readBuckets(const std::string& dir, double bucket_s, double 
     for (size_t r = 0; r + 1 < t.rows.size(); ++r)  // the last is the final optimisation
       if (t.number(r, id) >= 0) samples(t.number(r, id) / fps).solve.push_back(t.number(r, ms));
   }
+  {  // the tracker's loop checks, at the frame of the keyframe checked
+    const Table t = readTable((d / "tracker_loop_checks.csv").string());
+    const int id = t.column("frame_id"), ms = t.column("ms");
+    for (size_t r = 0; r < t.rows.size(); ++r) samples(t.number(r, id) / fps).loop_check.push_back(t.number(r, ms));
+  }
   {  // resident memory per service, sampled by the bench
     const Table t = readTable((d / "longrun_rss.csv").string());
     const int sec = t.column("seconds"), svc = t.column("service"), mb = t.column("rss_mb");
@@ -177,6 +182,7 @@ std::vector<Bucket> readBuckets(const std::string& dir, double bucket_s, double 
     b[i].solve_ms_max = maxOf(s[i].solve);
     b[i].round_ms_mean = mean(s[i].round);
     b[i].round_ms_max = maxOf(s[i].round);
+    b[i].loop_check_ms_mean = mean(s[i].loop_check);
   }
   return b;
 }
@@ -198,7 +204,7 @@ void writeBucketsCsv(const std::vector<Bucket>& b, const std::string& path) {
   std::ofstream out(path + ".tmp");
   out << "minute_start,frames_due,frames_sent,frames_dropped,frames_skipped,frames_posed,frames_fused,"
          "latency_p50_ms,latency_p95_ms,integrate_ms_mean,solve_ms_mean,solve_ms_max,round_ms_mean,round_ms_max,"
-         "render_ms_mean,voxels_active_mb,voxels_host_mb,voxels_on_disk_mb";
+         "loop_check_ms_mean,render_ms_mean,voxels_active_mb,voxels_host_mb,voxels_on_disk_mb";
   for (const auto& n : names) out << ",rss_mb_" << n;
   out << "\n";
   for (const auto& k : b) {
@@ -207,7 +213,7 @@ void writeBucketsCsv(const std::vector<Bucket>& b, const std::string& path) {
         << num(k.frames_skipped) << ',' << num(k.frames_posed) << ',' << num(k.frames_fused) << ',' << num(k.latency_p50_ms)
         << ',' << num(k.latency_p95_ms) << ',' << num(k.integrate_ms_mean) << ',' << num(k.solve_ms_mean) << ','
         << num(k.solve_ms_max) << ',' << num(k.round_ms_mean) << ',' << num(k.round_ms_max) << ','
-        << num(k.render_ms_mean) << ',' << num(tier("active_mb")) << ',' << num(tier("host_mb")) << ','
+        << num(k.loop_check_ms_mean) << ',' << num(k.render_ms_mean) << ',' << num(tier("active_mb")) << ',' << num(tier("host_mb")) << ','
         << num(tier("on_disk_mb"));
     for (const auto& n : names) out << ',' << num(k.rss_mb.count(n) ? k.rss_mb.at(n) : kNaN);
     out << "\n";
@@ -292,9 +298,10 @@ std::vector<std::string> writePlots(const std::vector<Bucket>& b, const std::str
   writeSvg(latency, "Capture to pose", "ms", x,
            {{"p50", col([](const Bucket& k) { return k.latency_p50_ms; })},
             {"p95", col([](const Bucket& k) { return k.latency_p95_ms; })}});
-  writeSvg(times, "Optimiser solve, correction round, integration", "ms", x,
+  writeSvg(times, "Optimiser solve, correction round, loop check per keyframe, integration", "ms", x,
            {{"solve mean", col([](const Bucket& k) { return k.solve_ms_mean; })},
             {"round mean", col([](const Bucket& k) { return k.round_ms_mean; })},
+            {"loop check mean", col([](const Bucket& k) { return k.loop_check_ms_mean; })},
             {"integrate mean", col([](const Bucket& k) { return k.integrate_ms_mean; })},
             {"render mean", col([](const Bucket& k) { return k.render_ms_mean; })}});
   std::vector<Series> mem;
@@ -379,6 +386,9 @@ std::vector<GoalLine> judgeGoals(const std::vector<Bucket>& b, double bucket_s, 
   out.push_back(ratioGoal(fmt::format("optimiser solve time, last [{:.0f}, {:.0f}] s within 1.5x of [{:.0f}, {:.0f}] s", l0, d, s0, s1),
                           windowMean(b, bucket_s, l0, d, [](const Bucket& k) { return k.solve_ms_mean; }),
                           windowMean(b, bucket_s, s0, s1, [](const Bucket& k) { return k.solve_ms_mean; }), 1.5));
+  out.push_back(ratioGoal(fmt::format("loop-check time per keyframe, last [{:.0f}, {:.0f}] s within 1.5x of [{:.0f}, {:.0f}] s", l0, d, s0, s1),
+                          windowMean(b, bucket_s, l0, d, [](const Bucket& k) { return k.loop_check_ms_mean; }),
+                          windowMean(b, bucket_s, s0, s1, [](const Bucket& k) { return k.loop_check_ms_mean; }), 1.5));
   out.push_back(ratioGoal(fmt::format("correction round time, last [{:.0f}, {:.0f}] s within 1.5x of [{:.0f}, {:.0f}] s", l0, d, s0, s1),
                           windowMean(b, bucket_s, l0, d, [](const Bucket& k) { return k.round_ms_mean; }),
                           windowMean(b, bucket_s, s0, s1, [](const Bucket& k) { return k.round_ms_mean; }), 1.5));

@@ -218,6 +218,11 @@ class LoopClosureWorker {
   // dropped by a full queue (it was then only added as a candidate). Set
   // before start().
   void onSettled(std::function<void(int64_t)> settled) { on_settled_ = std::move(settled); }
+  // Called on the worker thread after a new keyframe's check ran, with the
+  // keyframe's id and frame id, what the check found (its counts alone) and
+  // its wall time in ms, the memory hand-back after it included. Set before start().
+  using CheckedFn = std::function<void(int64_t keyframe_id, int64_t frame_id, const LoopClosureStats& check, double ms)>;
+  void onChecked(CheckedFn checked) { on_checked_ = std::move(checked); }
   // Queues a new keyframe's check; when queue_capacity checks already wait,
   // the oldest waiting one is dropped with a warning (its keyframe still waits,
   // to be added as a candidate). When queue_capacity such keyframes wait too
@@ -263,6 +268,7 @@ class LoopClosureWorker {
   LoopClosureDetector detector_;
   AcceptFn on_accept_;
   std::function<void(int64_t)> on_settled_;
+  CheckedFn on_checked_;
   const size_t heap_slack_bytes_;  // 0: never hand freed memory back
   mutable std::mutex mutex_;
   std::condition_variable wake_, drained_;

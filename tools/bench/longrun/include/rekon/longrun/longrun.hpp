@@ -17,13 +17,14 @@ struct Bucket {
   double frames_posed = 0, frames_fused = 0;
   double latency_p50_ms, latency_p95_ms;
   double integrate_ms_mean, solve_ms_mean, solve_ms_max, round_ms_mean, round_ms_max;
+  double loop_check_ms_mean;  // per keyframe checked, at the keyframe's frame
   double render_ms_mean;
   std::map<std::string, double> rss_mb;   // per service, the largest sample
   std::map<std::string, double> tier_mb;  // the mapper's voxels: active, host, on_disk (largest sample)
 };
 
 // Reads what a run folder holds (player_latency.csv, source_counts.csv,
-// mapper_timing.csv, mapper_reintegration.csv, optimiser_timing.csv,
+// mapper_timing.csv, mapper_reintegration.csv, optimiser_timing.csv, tracker_loop_checks.csv,
 // longrun_rss.csv, longrun_tiers.csv; any may be missing) into buckets of
 // `bucket_s` seconds. `fps`: the frames' rate (frame id / fps = seconds of play).
 std::vector<Bucket> readBuckets(const std::string& run_dir, double bucket_s, double fps);
