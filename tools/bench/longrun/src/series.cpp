@@ -318,10 +318,10 @@ namespace {
 bool inWindow(const Bucket& k, double bucket_s, double a, double e) { return k.t0_s < e && k.t0_s + bucket_s > a; }
 
 // The mean of a bucket quantity over the buckets that overlap [a, e] seconds.
-double windowMean(const std::vector<Bucket>& b, double bucket_s, double a, double e, double (*f)(const Bucket&)) {
+double windowMean(const std::vector<Bucket>& b, double bucket_s, double a, double e, double Bucket::*field) {
   std::vector<double> v;
   for (const auto& k : b)
-    if (inWindow(k, bucket_s, a, e) && !std::isnan(f(k))) v.push_back(f(k));
+    if (inWindow(k, bucket_s, a, e) && !std::isnan(k.*field)) v.push_back(k.*field);
   return mean(v);
 }
 
@@ -357,9 +357,12 @@ std::vector<GoalLine> judgeGoals(const std::vector<Bucket>& b, double bucket_s, 
     if (b[i].frames_due > 0 || b[i].frames_posed > 0 || b[i].frames_fused > 0) played = i + 1;
   const double d = static_cast<double>(played) * bucket_s;
   const double e0 = d / 60, e1 = d / 6, m10 = 9 * d / 60, l0 = 5 * d / 6, s0 = d / 12, s1 = d / 4;
-  out.push_back(ratioGoal(fmt::format("capture-to-pose p95, last [{:.0f}, {:.0f}] s within 1.5x of [{:.0f}, {:.0f}] s", l0, d, e0, e1),
-                          windowMean(b, bucket_s, l0, d, [](const Bucket& k) { return k.latency_p95_ms; }),
-                          windowMean(b, bucket_s, e0, e1, [](const Bucket& k) { return k.latency_p95_ms; }), 1.5));
+  // A mean over the last window within 1.5x of its mean over [r0, r1].
+  auto meanGoal = [&](const std::string& what, double Bucket::*field, double r0, double r1) {
+    return ratioGoal(fmt::format("{}, last [{:.0f}, {:.0f}] s within 1.5x of [{:.0f}, {:.0f}] s", what, l0, d, r0, r1),
+                     windowMean(b, bucket_s, l0, d, field), windowMean(b, bucket_s, r0, r1, field), 1.5);
+  };
+  out.push_back(meanGoal("capture-to-pose p95", &Bucket::latency_p95_ms, e0, e1));
   std::vector<std::string> names;
   for (const auto& k : b)
     for (const auto& [n, mb] : k.rss_mb)
@@ -383,15 +386,9 @@ std::vector<GoalLine> judgeGoals(const std::vector<Bucket>& b, double bucket_s, 
   out.push_back(names.empty() ? GoalLine{"n/a", "all services together at most 2500 MB", "no RSS samples"}
                               : GoalLine{peak_total <= 2500 ? "PASS" : "FAIL", "all services together at most 2500 MB",
                                          fmt::format("peak {:.0f} MB", peak_total)});
-  out.push_back(ratioGoal(fmt::format("optimiser solve time, last [{:.0f}, {:.0f}] s within 1.5x of [{:.0f}, {:.0f}] s", l0, d, s0, s1),
-                          windowMean(b, bucket_s, l0, d, [](const Bucket& k) { return k.solve_ms_mean; }),
-                          windowMean(b, bucket_s, s0, s1, [](const Bucket& k) { return k.solve_ms_mean; }), 1.5));
-  out.push_back(ratioGoal(fmt::format("loop-check time per keyframe, last [{:.0f}, {:.0f}] s within 1.5x of [{:.0f}, {:.0f}] s", l0, d, s0, s1),
-                          windowMean(b, bucket_s, l0, d, [](const Bucket& k) { return k.loop_check_ms_mean; }),
-                          windowMean(b, bucket_s, s0, s1, [](const Bucket& k) { return k.loop_check_ms_mean; }), 1.5));
-  out.push_back(ratioGoal(fmt::format("correction round time, last [{:.0f}, {:.0f}] s within 1.5x of [{:.0f}, {:.0f}] s", l0, d, s0, s1),
-                          windowMean(b, bucket_s, l0, d, [](const Bucket& k) { return k.round_ms_mean; }),
-                          windowMean(b, bucket_s, s0, s1, [](const Bucket& k) { return k.round_ms_mean; }), 1.5));
+  out.push_back(meanGoal("optimiser solve time", &Bucket::solve_ms_mean, s0, s1));
+  out.push_back(meanGoal("loop-check time per keyframe", &Bucket::loop_check_ms_mean, s0, s1));
+  out.push_back(meanGoal("correction round time", &Bucket::round_ms_mean, s0, s1));
   out.push_back(end_of_run_s < 0 ? GoalLine{"n/a", "end of run (final pass and meshes) within 180 s", "the run did not end"}
                                  : GoalLine{end_of_run_s <= 180 ? "PASS" : "FAIL", "end of run (final pass and meshes) within 180 s",
                                             fmt::format("{:.1f} s", end_of_run_s)});
