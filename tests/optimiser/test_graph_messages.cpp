@@ -166,6 +166,12 @@ TEST(OptimiserParams, InvalidValuesAreErrorsNamingTheKey) {
       EXPECT_NE(std::string(e.what()).find("optimiser.nice"), std::string::npos) << e.what();
     }
   }
+  try {
+    optimiserParamsFromConfig(Config::load("", {"optimiser.loop_neighbours_max=-1"}));
+    FAIL() << "a negative cap must be rejected";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("optimiser.loop_neighbours_max"), std::string::npos) << e.what();
+  }
 }
 
 }  // namespace

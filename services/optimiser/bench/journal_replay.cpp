@@ -5,6 +5,7 @@
 // graph's size, the heap in use and the mean solve time every EVERY keyframes
 // (issue 49: what grows with time). Prints numbers; not a test.
 //   rekon_optimiser_replay JOURNAL TRAJECTORY_OUT [CULL_RADIUS_M] [CULL_ANGLE_DEG] [EVERY] [RESTART_AT,...] [LOOPS_OUT]
+//                          [loop_neighbours_max=N]
 // RESTART_AT: keyframe counts at which the optimiser is killed and restarted,
 // as rekon run does (issue 48): a new graph gets everything so far at once
 // (rebuildFromJournal), then the replay goes on. LOOPS_OUT: the loop edges
@@ -22,6 +23,7 @@
 #include <sstream>
 #include <string>
 #include <variant>
+#include <vector>
 
 #include "graph_worker.hpp"
 #include "journal.hpp"
@@ -49,15 +51,28 @@ void printRow(const GraphWorker& worker, size_t applied, Window& window) {
 
 }  // namespace
 
-int main(int argc, char** argv) {
+int main(int raw_argc, char** raw_argv) {
+  // Positional arguments, and the one option (loop_neighbours_max=N, as optimiser.loop_neighbours_max).
+  std::vector<char*> positional;
+  int loop_neighbours_max = 0;
+  for (int i = 0; i < raw_argc; ++i) {
+    const std::string arg = raw_argv[i];
+    if (arg.rfind("loop_neighbours_max=", 0) == 0)
+      loop_neighbours_max = std::atoi(arg.c_str() + arg.find('=') + 1);
+    else
+      positional.push_back(raw_argv[i]);
+  }
+  const int argc = static_cast<int>(positional.size());
+  char** argv = positional.data();
   if (argc < 3) {
-    std::fprintf(stderr, "usage: rekon_optimiser_replay JOURNAL TRAJECTORY_OUT [CULL_RADIUS_M] [CULL_ANGLE_DEG] [EVERY]\n");
+    std::fprintf(stderr, "usage: rekon_optimiser_replay JOURNAL TRAJECTORY_OUT [CULL_RADIUS_M] [CULL_ANGLE_DEG] [EVERY] [RESTART_AT,...] [LOOPS_OUT] [loop_neighbours_max=N]\n");
     return 1;
   }
   try {
     PoseGraphParams params;
     params.cull_radius_m = argc > 3 ? std::atof(argv[3]) : 0.0;
     params.cull_angle_deg = argc > 4 ? std::atof(argv[4]) : 15.0;
+    params.loop_neighbours_max = loop_neighbours_max;
     const size_t every = argc > 5 ? static_cast<size_t>(std::atoi(argv[5])) : 100;
     std::set<size_t> restarts;
     std::istringstream restart_list(argc > 6 ? argv[6] : "");
@@ -91,8 +106,9 @@ int main(int argc, char** argv) {
     GraphWorker& worker = *worker_ptr;
     worker.optimise(true, -1);
     printRow(worker, journal.items.size(), window);
-    std::printf("merged edges %zu, dropped by culling %zu, outliers removed %zu\n", worker.graph().edgesMerged(),
-                worker.graph().edgesDroppedByCulling(), worker.graph().loopEdgesRemoved());
+    const PoseGraph& g = worker.graph();
+    std::printf("merged edges %zu, dropped by culling %zu, re-routed %zu, dropped by the cap %zu, outliers removed %zu\n",
+                g.edgesMerged(), g.edgesDroppedByCulling(), g.edgesRerouted(), g.edgesDroppedByCap(), g.loopEdgesRemoved());
     if (argc > 7) {
       std::ofstream loops(argv[7]);
       const std::vector<Constraint> kept = worker.graph().loopEdges();

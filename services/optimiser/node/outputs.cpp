@@ -62,6 +62,8 @@ void setStats(ServiceContext& ctx, const GraphWorker& worker, size_t trajectory_
       .set("keyframes_culled", graph.numCulled())
       .set("edges_merged", graph.edgesMerged())
       .set("edges_dropped_by_culling", graph.edgesDroppedByCulling())
+      .set("edges_rerouted", graph.edgesRerouted())
+      .set("edges_dropped_by_cap", graph.edgesDroppedByCap())
       .set("optimisations", static_cast<long long>(worker.optimisations()))
       .set("optimise_ms_mean", worker.optimiseMsMean())
       .set("graph_updates", static_cast<long long>(worker.optimisations()))

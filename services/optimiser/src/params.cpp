@@ -31,6 +31,7 @@ void PoseGraphParams::validate() const {
   require(std::isfinite(cull_radius_m) && cull_radius_m >= 0, "cull_radius_m", cull_radius_m, "zero (no culling) or more");
   require(std::isfinite(cull_angle_deg) && cull_angle_deg >= 0 && cull_angle_deg <= 180, "cull_angle_deg",
           cull_angle_deg, "between 0 and 180");
+  require(loop_neighbours_max >= 0, "loop_neighbours_max", loop_neighbours_max, "zero (no cap) or more");
 }
 
 void OptimiserServiceParams::validate() const {
@@ -87,6 +88,7 @@ OptimiserServiceParams optimiserParamsFromConfig(const Config& config) {
   p.graph.final_function_tolerance = config.getDouble("optimiser.final_function_tolerance");
   p.graph.cull_radius_m = config.getDouble("optimiser.cull_radius_m");
   p.graph.cull_angle_deg = config.getDouble("optimiser.cull_angle_deg");
+  p.graph.loop_neighbours_max = config.getInt("optimiser.loop_neighbours_max");
   p.information_scale = config.getDouble("optimiser.information_scale");
   p.final_repeats = config.getInt("optimiser.final_repeats");
   p.final_repeat_gap_ms = config.getInt("optimiser.final_repeat_gap_ms");

@@ -104,10 +104,11 @@ Matrix6d PoseGraph::checkedInformation(const Constraint& c, const std::string& n
   return sym;
 }
 
-PoseGraph::Edge PoseGraph::makeEdge(const Constraint& c, const std::string& origin) {
+PoseGraph::Edge PoseGraph::makeEdge(const Constraint& c, const std::string& origin, bool moved) {
   Edge e;
   e.c = c;
   e.origin = origin;
+  e.moved = moved;
   e.sqrt_information = Eigen::LLT<Matrix6d>(c.information).matrixU();
   e.z = std::make_shared<detail::RelativeMeasurement>(Eigen::Quaterniond(c.relative.linear()).conjugate(),
                                                       c.relative.translation());
@@ -123,7 +124,8 @@ void PoseGraph::addConstraint(const Constraint& c, const std::string& origin) {
   if (!isValidPose(c.relative, 1e-6)) throw Error(name + " has an invalid relative pose; dropped");
   Constraint checked = c;
   checked.information = checkedInformation(c, name);
-  if (culled_.count(c.from_id) || culled_.count(c.to_id)) {
+  const bool moved = culled_.count(c.from_id) || culled_.count(c.to_id);
+  if (moved) {
     checked = onKeptKeyframes(checked);
     compact_ = true;  // it may join two keyframes that have an edge already
     if (checked.from_id == checked.to_id) {
@@ -132,12 +134,12 @@ void PoseGraph::addConstraint(const Constraint& c, const std::string& origin) {
       return;
     }
   }
-  insertEdge(checked, origin, name);
+  insertEdge(checked, origin, name, moved);
 }
 
-void PoseGraph::insertEdge(const Constraint& c, const std::string& origin, const std::string& name) {
+void PoseGraph::insertEdge(const Constraint& c, const std::string& origin, const std::string& name, bool moved) {
   const size_t index = edges_.size();
-  edges_.push_back(makeEdge(c, origin));
+  edges_.push_back(makeEdge(c, origin, moved));
   Node& from = nodes_.at(c.from_id);
   Node& to = nodes_.at(c.to_id);
   from.edges.push_back(index);

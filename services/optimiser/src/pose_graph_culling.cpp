@@ -7,7 +7,9 @@
 #include <algorithm>
 #include <cmath>
 #include <map>
+#include <limits>
 #include <tuple>
+#include <unordered_map>
 
 #include "rekon/common/se3.hpp"
 #include "rekon/optimiser/pose_graph.hpp"
@@ -23,11 +25,12 @@ std::pair<int64_t, Pose> PoseGraph::resolve(int64_t id) const {
   return {id, in_kept};
 }
 
-Constraint PoseGraph::onKeptKeyframes(const Constraint& c) const {
-  // from = F T_f and to = T T_t on the kept F and T: T-in-F = T_f relative T_t^-1, and
-  // the edge's error E = T_t^-1 E' T_t, so xi' = Ad(T_t) xi: I' = Ad(T_t^-1)^T I Ad(T_t^-1).
-  const auto [from, in_from] = resolve(c.from_id);
-  const auto [to, in_to] = resolve(c.to_id);
+namespace {
+
+// The constraint between `from` and `to`, where its own ends are from * in_from and to * in_to. With
+// from = F T_f and to = T T_t: T-in-F = T_f relative T_t^-1, and the edge's error E = T_t^-1 E' T_t, so
+// xi' = Ad(T_t) xi: I' = Ad(T_t^-1)^T I Ad(T_t^-1).
+Constraint onOtherEnds(const Constraint& c, int64_t from, const Pose& in_from, int64_t to, const Pose& in_to) {
   Constraint out = c;
   out.from_id = from;
   out.to_id = to;
@@ -36,6 +39,14 @@ Constraint PoseGraph::onKeptKeyframes(const Constraint& c) const {
   out.information = ad.transpose() * c.information * ad;
   out.information = 0.5 * (out.information + out.information.transpose()).eval();
   return out;
+}
+
+}  // namespace
+
+Constraint PoseGraph::onKeptKeyframes(const Constraint& c) const {
+  const auto [from, in_from] = resolve(c.from_id);
+  const auto [to, in_to] = resolve(c.to_id);
+  return onOtherEnds(c, from, in_from, to, in_to);
 }
 
 void PoseGraph::cullSettledKeyframes() {
@@ -78,7 +89,7 @@ void PoseGraph::cull(int64_t id, int64_t kept) {
       ++edges_dropped_by_culling_;
       continue;
     }
-    e = makeEdge(moved, e.origin);
+    e = makeEdge(moved, e.origin, true);
   }
   nodes_.erase(id);
   compact_ = true;
@@ -128,18 +139,66 @@ Constraint merged(const Constraint& a, const Constraint& b) {
 
 }  // namespace
 
+std::optional<Constraint> PoseGraph::rerouted(const Constraint& c, int64_t end,
+                                               const std::vector<int64_t>& neighbours) const {
+  const int64_t far = c.from_id == end ? c.to_id : c.from_id;
+  const Pose far_pose = poseOf(nodes_.at(far));
+  std::optional<int64_t> nearest;
+  double nearest_m = PoseGraphParams::kRerouteRadiusM;
+  for (int64_t n : neighbours) {
+    const double d = translationDistance(poseOf(nodes_.at(n)), far_pose);
+    if (d < nearest_m) nearest_m = d, nearest = n;
+  }
+  if (!nearest) return std::nullopt;
+  const Pose far_in_nearest(poseOf(nodes_.at(*nearest)).inverse() * far_pose);
+  if (c.from_id == end) return onOtherEnds(c, end, Pose::Identity(), *nearest, far_in_nearest);
+  return onOtherEnds(c, *nearest, far_in_nearest, end, Pose::Identity());
+}
+
+bool PoseGraph::capMovedLoopEdge(Edge& e, std::unordered_map<int64_t, LoopNeighbours>& neighbours) const {
+  const size_t max = static_cast<size_t>(params_.loop_neighbours_max);
+  LoopNeighbours& from = neighbours[e.c.from_id];
+  LoopNeighbours& to = neighbours[e.c.to_id];
+  if (!e.moved || (from.moved < max && to.moved < max)) {
+    from.ids.push_back(e.c.to_id);
+    to.ids.push_back(e.c.from_id);
+    from.moved += e.moved;
+    to.moved += e.moved;
+    return true;
+  }
+  std::optional<Constraint> onto;
+  if (from.moved >= max) onto = rerouted(e.c, e.c.from_id, from.ids);
+  if (!onto && to.moved >= max) onto = rerouted(e.c, e.c.to_id, to.ids);
+  if (!onto) return false;
+  e = makeEdge(*onto, e.origin, true);  // onto a pair that has an edge: the caller merges it into that one
+  return true;
+}
+
 void PoseGraph::compactEdges() {
   std::deque<Edge> kept;
   std::map<std::tuple<int, int64_t, int64_t>, size_t> by_pair;  // kind, lower id, higher id
+  std::unordered_map<int64_t, LoopNeighbours> neighbours;
+  // Keyframes still young (not yet judged for culling) are not held to the cap: their own loop edges judge them.
+  const int64_t young = unjudged_.empty() ? std::numeric_limits<int64_t>::max() : unjudged_.front();
+  const auto pairKey = [](const Constraint& c) {
+    return std::make_tuple(static_cast<int>(c.kind), std::min(c.from_id, c.to_id), std::max(c.from_id, c.to_id));
+  };
   for (Edge& e : edges_) {
     if (!e.kept) continue;
     if (mergeable(e)) {
-      const auto key = std::make_tuple(static_cast<int>(e.c.kind), std::min(e.c.from_id, e.c.to_id),
-                                       std::max(e.c.from_id, e.c.to_id));
-      const auto [it, fresh] = by_pair.emplace(key, kept.size());
+      if (params_.loop_neighbours_max > 0 && e.c.kind == EdgeKind::Loop && e.c.from_id < young &&
+          e.c.to_id < young && by_pair.count(pairKey(e.c)) == 0) {
+        const int64_t from = e.c.from_id, to = e.c.to_id;
+        if (!capMovedLoopEdge(e, neighbours)) {
+          ++edges_dropped_by_cap_;
+          continue;
+        }
+        edges_rerouted_ += e.c.from_id != from || e.c.to_id != to;
+      }
+      const auto [it, fresh] = by_pair.emplace(pairKey(e.c), kept.size());
       if (!fresh) {
         Edge& into = kept[it->second];
-        into = makeEdge(merged(into.c, e.c), into.origin);
+        into = makeEdge(merged(into.c, e.c), into.origin, into.moved);
         ++edges_merged_;
         continue;
       }

@@ -62,6 +62,13 @@ struct PoseGraphParams {
   // 0: no culling (the graph keeps every keyframe). Set by config/default.yaml.
   double cull_radius_m = 0.0;
   double cull_angle_deg = 0.0;
+  // With culling: the most kept keyframes a kept keyframe is paired with by
+  // moved loop edges (a revisit's, culled onto it); past that a moved edge
+  // that would pair it with one more is re-routed onto the existing pair
+  // whose other end is nearest to its own (within kRerouteRadiusM), or
+  // dropped. 0: no cap. Set by config/default.yaml.
+  int loop_neighbours_max = 0;
+  static constexpr double kRerouteRadiusM = 1.0;
 
   // Throws rekon::Error naming the first invalid key.
   void validate() const;

@@ -26,6 +26,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <unordered_map>
 #include <utility>
 #include <vector>
 
@@ -111,6 +112,9 @@ class PoseGraph {
   // dropped because culling put both their ends on one keyframe.
   size_t edgesMerged() const { return edges_merged_; }
   size_t edgesDroppedByCulling() const { return edges_dropped_by_culling_; }
+  // Moved loop edges past loop_neighbours_max: re-routed onto an existing pair, or dropped (no neighbour near).
+  size_t edgesRerouted() const { return edges_rerouted_; }
+  size_t edgesDroppedByCap() const { return edges_dropped_by_cap_; }
   size_t numConstraints() const;  // kept ones
   size_t numLoopEdges() const;    // kept loop edges
   size_t loopEdgesRemoved() const { return loop_edges_removed_; }
@@ -141,6 +145,7 @@ class PoseGraph {
     Matrix6d sqrt_information;  // upper triangular U with U^T U = information
     std::shared_ptr<const detail::RelativeMeasurement> z;
     bool kept = true;
+    bool moved = false;  // put on its keyframes by culling (a revisit's edge moved onto kept keyframes)
   };
 
   // A culled keyframe: its pose in the kept keyframe it was attached to.
@@ -153,8 +158,8 @@ class PoseGraph {
   // The information matrix checked (rekon::Error otherwise) and symmetrised.
   static Matrix6d checkedInformation(const Constraint& c, const std::string& name);
   // The edge as the solver uses it (its square-root information, its measurement).
-  static Edge makeEdge(const Constraint& c, const std::string& origin);
-  void insertEdge(const Constraint& c, const std::string& origin, const std::string& name);
+  static Edge makeEdge(const Constraint& c, const std::string& origin, bool moved = false);
+  void insertEdge(const Constraint& c, const std::string& origin, const std::string& name, bool moved);
   // The kept keyframe `id` is (or is attached to) and id's pose in it.
   std::pair<int64_t, Pose> resolve(int64_t id) const;
   // The constraint between the kept keyframes its ends are on, its information carried along.
@@ -164,8 +169,25 @@ class PoseGraph {
   std::optional<int64_t> cullTarget(int64_t id) const;
   void cull(int64_t id, int64_t kept);
   // Drops removed edges, merges edges between the same keyframes (culling
-  // only) and rebuilds each node's edge list.
+  // only), holds each kept keyframe to loop_neighbours_max pairs made by
+  // moved loop edges, and rebuilds each node's edge list.
   void compactEdges();
+  // Per kept keyframe, the keyframes its loop edges pair it with, and how
+  // many of those pairs moved edges made.
+  struct LoopNeighbours {
+    std::vector<int64_t> ids;
+    size_t moved = 0;
+  };
+  // A loop edge between settled keyframes that pairs them for the first
+  // time, held to loop_neighbours_max: true when it stays (noted in
+  // `neighbours`) or was re-routed onto a pair that has an edge (`e` then
+  // joins that pair), false when it is to be dropped.
+  bool capMovedLoopEdge(Edge& e, std::unordered_map<int64_t, LoopNeighbours>& neighbours) const;
+  // A moved loop edge past loop_neighbours_max, re-routed onto a pair `end`
+  // has already (its other end swapped for end's neighbour nearest to it,
+  // within kRerouteRadiusM, rigidly at their current relative pose); nullopt
+  // when no neighbour is that near.
+  std::optional<Constraint> rerouted(const Constraint& c, int64_t end, const std::vector<int64_t>& neighbours) const;
   bool mergeable(const Edge& e) const;
   static void setPose(Node& n, const Pose& p);
   double edgeChi2(const Edge& e) const;
@@ -192,7 +214,7 @@ class PoseGraph {
   std::map<int64_t, Culled> culled_;
   std::deque<int64_t> unjudged_;  // keyframes not yet judged for culling, oldest first (culling only)
   bool compact_ = false;          // an edge was removed, moved or redirected since the last compactEdges
-  size_t edges_merged_ = 0, edges_dropped_by_culling_ = 0;
+  size_t edges_merged_ = 0, edges_dropped_by_culling_ = 0, edges_rerouted_ = 0, edges_dropped_by_cap_ = 0;
   std::unique_ptr<ceres::Manifold> pose_manifold_;
   std::unique_ptr<ceres::LossFunction> loop_loss_;
   std::unique_ptr<detail::BlockCholesky> cholesky_;  // with the pattern it was analysed for
