@@ -130,8 +130,8 @@ TEST(SurfaceBand, AFlatSquareFillsTwoLayersOfBlocks) {
 }
 
 TEST(Building, ItsMapAt1cmIsLargerThanTheMappersActivePlusHostBudgets) {
-  // config/default.yaml: mapper.active_mb 1024 + host_mb 1024 = 2048 MiB of 6 KiB blocks = 349,525
-  // blocks; beyond them the disk tier holds the rest. Without the ceiling (never within 4 m of
+  // mapper.active_mb 1024 + host_mb 1024 = 2048 MiB of 6 KiB blocks = 349,525 blocks (the defaults
+  // are smaller since 2026-12-07: 1024 + 256); beyond them the disk tier holds the rest. Without the ceiling (never within 4 m of
   // the walk's camera) measured 777,197 blocks (4554 MiB).
   const int64_t blocks = rekon::synth::surfaceBandBlocks(buildingMesh(), {0.01, 0.04, 8, 2.65});
   EXPECT_GT(blocks, 2 * 349525);
