@@ -71,6 +71,7 @@ JournalScan scanRecordJournal(const std::string& path, const std::function<bool(
     if (at<uint32_t>(frame, kHeader + size) != fnv1a32(frame.data(), kHeader + size)) break;
     record.tag = at<uint32_t>(frame, 0);
     record.bytes.assign(frame, kHeader, size);
+    record.offset = offset;
     if (!visit(record)) break;
     ++out.records;
     offset += kHeader + size + kTrailer;
@@ -116,14 +117,49 @@ RecordJournal::RecordJournal(const std::string& path, bool restarted, const Acce
     fd_ = -1;
     throw Error("cannot write the journal " + path + " (" + why + "); check the disk and the folder's permissions");
   }
+  end_ = keep ? contents_.valid_bytes : sizeof(kMagic);
+  read_fd_ = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
 }
 
 RecordJournal::~RecordJournal() {
   if (fd_ >= 0) ::close(fd_);
+  if (read_fd_ >= 0) ::close(read_fd_);
 }
 
-void RecordJournal::append(uint32_t tag, const std::string& bytes) {
-  if (fd_ < 0) return;
+std::optional<JournalRecord> RecordJournal::readAt(uint64_t offset) const {
+  const auto readFully = [this](char* into, size_t n, uint64_t from) {
+    while (n > 0) {
+      const ssize_t r = ::pread(read_fd_, into, n, static_cast<off_t>(from));
+      if (r < 0 && errno == EINTR) continue;
+      if (r <= 0) return false;
+      into += r;
+      from += static_cast<uint64_t>(r);
+      n -= static_cast<size_t>(r);
+    }
+    return true;
+  };
+  std::string frame(kHeader, '\0');
+  bool ok = read_fd_ >= 0 && readFully(frame.data(), kHeader, offset);
+  const uint32_t size = ok ? at<uint32_t>(frame, sizeof(uint32_t)) : 0;
+  if (ok) {
+    frame.resize(kHeader + size + kTrailer);
+    ok = readFully(frame.data() + kHeader, size + kTrailer, offset + kHeader) &&
+         at<uint32_t>(frame, kHeader + size) == fnv1a32(frame.data(), kHeader + size);
+  }
+  if (!ok) {
+    spdlog::error("cannot read back the record at byte {} of the journal {} ({}); it is left out", offset, path_,
+                  read_fd_ < 0 ? "not open for reading" : "short read or bad checksum");
+    return std::nullopt;
+  }
+  JournalRecord record;
+  record.tag = at<uint32_t>(frame, 0);
+  record.bytes.assign(frame, kHeader, size);
+  record.offset = offset;
+  return record;
+}
+
+std::optional<uint64_t> RecordJournal::append(uint32_t tag, const std::string& bytes) {
+  if (fd_ < 0) return std::nullopt;
   const auto t0 = std::chrono::steady_clock::now();
   const auto size = static_cast<uint32_t>(bytes.size());
   buffer_.clear();
@@ -136,13 +172,16 @@ void RecordJournal::append(uint32_t tag, const std::string& bytes) {
     ++appended_.records;
     appended_.bytes += static_cast<int64_t>(buffer_.size());
     appended_.seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    return;
+    const uint64_t offset = end_;
+    end_ += buffer_.size();
+    return offset;
   }
   spdlog::error("cannot append to the journal {} ({}; disk full?): no more journal, a restart rebuilds only what "
                 "came before",
                 path_, std::strerror(errno));
   ::close(fd_);
   fd_ = -1;
+  return std::nullopt;
 }
 
 }  // namespace rekon

@@ -54,25 +54,41 @@ void History::publishResult(const TrackResult& r) {
     announceAgain(r.keyframe_id);
   }
   const auto publish_edge = [&](int8_t kind, const OdometryConstraint& edge) {
-    constraints_.push_back(constraintMsg(kind, edge));
-    journal(kConstraintRecord, constraints_.back());
-    bus_.publish(channel::kConstraints, constraints_.back());
+    const rekon_msgs::constraint_t c = constraintMsg(kind, edge);
+    constraints_.add(c, journal(kConstraintRecord, c));
+    bus_.publish(channel::kConstraints, c);
   };
   if (r.odometry) publish_edge(rekon_msgs::constraint_t::KIND_ODOMETRY, *r.odometry);
   if (r.relocalised_from) publish_edge(rekon_msgs::constraint_t::KIND_LOOP, *r.relocalised_from);
   if (r.reuse_edge) publish_edge(rekon_msgs::constraint_t::KIND_LOOP, *r.reuse_edge);
-  tracked_[r.frame_id] = tf;
-  published_for_[r.frame_id] = mapper_instance_;
-  journal(kTrackedFrameRecord, tf);
+  noteTrackedFrame(tf, journal(kTrackedFrameRecord, tf));
   bus_.publish(channel::kTrackedFrames, tf);
+}
+
+std::vector<History::FrameEntry>::iterator History::firstFrameFrom(int64_t frame_id) {
+  return std::lower_bound(frames_.begin(), frames_.end(), frame_id,
+                          [](const FrameEntry& e, int64_t id) { return e.frame_id < id; });
+}
+
+void History::noteTrackedFrame(const rekon_msgs::tracked_frame_t& tf, std::optional<uint64_t> offset) {
+  // Frames come in id order; one tracked again after a restart replaces the first.
+  auto at = frames_.end();
+  if (!frames_.empty() && tf.frame_id <= frames_.back().frame_id)
+    at = firstFrameFrom(tf.frame_id);
+  if (at != frames_.end() && at->frame_id == tf.frame_id) {
+    tracked_log_.replace(at->index, tf, offset);
+    at->published_for = mapper_instance_;
+    return;
+  }
+  frames_.insert(at, FrameEntry{tf.frame_id, static_cast<uint32_t>(tracked_log_.size()), mapper_instance_});
+  tracked_log_.add(tf, offset);
 }
 
 void History::publishLoopConstraint(const LoopConstraint& l) {
   const rekon_msgs::constraint_t c = constraintMsg(rekon_msgs::constraint_t::KIND_LOOP, l);
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    constraints_.push_back(c);
-    journal(kConstraintRecord, c);
+    constraints_.add(c, journal(kConstraintRecord, c));
   }
   bus_.publish(channel::kConstraints, c);
   spdlog::info("loop closure {} -> {} (ln det ratios coarse {:.2f}, fine {:.2f}, {} pixels)", l.from_id, l.to_id,
@@ -89,16 +105,15 @@ void History::noteLoopChecked(int64_t id) {
 
 bool History::republishResult(int64_t frame_id) {
   std::lock_guard<std::mutex> lock(mutex_);
-  auto tf = tracked_.find(frame_id);
-  if (tf == tracked_.end()) return false;
-  int& published_for = published_for_[frame_id];
-  if (published_for >= mapper_instance_) return true;
-  published_for = mapper_instance_;
+  const auto entry = firstFrameFrom(frame_id);
+  if (entry == frames_.end() || entry->frame_id != frame_id) return false;
+  if (entry->published_for >= mapper_instance_) return true;
+  entry->published_for = mapper_instance_;
   if (auto kf = keyframe_of_frame_.find(frame_id); kf != keyframe_of_frame_.end()) {
     bus_.publish(channel::kKeyframes, kf->second);
     announced_for_[kf->second.keyframe_id] = mapper_instance_;
   }
-  bus_.publish(channel::kTrackedFrames, tf->second);
+  if (const auto tf = tracked_log_.at(entry->index)) bus_.publish(channel::kTrackedFrames, *tf);
   return true;
 }
 
@@ -126,25 +141,32 @@ void History::serveBatch(const rekon_msgs::replay_request_t& r) {
     // Keyframes first, then constraints (each edge's keyframes before it),
     // then tracked frames, from the requester's cursor, max_items in all.
     size_t budget = static_cast<size_t>(std::clamp(r.max_items, 0, kMaxReplayBatch));
-    const auto take = [&budget](const auto& from, int64_t next, auto& into) {
-      for (size_t i = static_cast<size_t>(std::max<int64_t>(0, next)); i < from.size() && budget > 0; ++i, --budget)
-        into.push_back(from[i]);
-      return std::max<int64_t>(0, next) + static_cast<int64_t>(into.size());
+    // From `next` on, while the budget lasts; `get(i)` nullopt: a message the journal could not give back
+    // (logged there), skipped. Returns the next cursor.
+    const auto take = [&budget](size_t size, int64_t next, auto get, auto& into) {
+      size_t i = static_cast<size_t>(std::max<int64_t>(0, next));
+      for (; i < size && budget > 0; ++i, --budget) {
+        if (auto m = get(i)) into.push_back(std::move(*m));
+      }
+      return static_cast<int64_t>(i);
     };
-    end.next_keyframe = take(keyframes_, r.next_keyframe, keyframes);
-    end.next_constraint = take(constraints_, r.next_constraint, constraints);
-    end.next_frame_id = r.next_frame_id;
-    for (auto it = tracked_.lower_bound(r.next_frame_id); it != tracked_.end() && budget > 0; ++it, --budget) {
-      tracked.push_back(it->second);
-      end.next_frame_id = it->first + 1;
-    }
+    end.next_keyframe = take(keyframes_.size(), r.next_keyframe,
+                             [this](size_t i) { return std::optional(keyframes_[i]); }, keyframes);
+    end.next_constraint = take(constraints_.size(), r.next_constraint,
+                               [this](size_t i) { return constraints_.at(i); }, constraints);
+    const auto first = firstFrameFrom(r.next_frame_id);
+    const auto first_index = static_cast<int64_t>(first - frames_.begin());
+    const int64_t next_index = take(frames_.size(), first_index,
+                                    [this](size_t i) { return tracked_log_.at(frames_[i].index); }, tracked);
+    end.next_frame_id = next_index > first_index ? frames_[static_cast<size_t>(next_index) - 1].frame_id + 1
+                                                 : r.next_frame_id;
     end.complete = end.next_keyframe >= static_cast<int64_t>(keyframes_.size()) &&
                    end.next_constraint >= static_cast<int64_t>(constraints_.size()) &&
-                   (tracked_.empty() || end.next_frame_id > tracked_.rbegin()->first);
+                   (frames_.empty() || end.next_frame_id > frames_.back().frame_id);
     end.keyframes = static_cast<int64_t>(keyframes_.size());
     end.constraints = static_cast<int64_t>(constraints_.size());
-    end.tracked_frames = static_cast<int64_t>(tracked_.size());
-    end.last_frame_id = tracked_.empty() ? -1 : tracked_.rbegin()->first;
+    end.tracked_frames = static_cast<int64_t>(frames_.size());
+    end.last_frame_id = frames_.empty() ? -1 : frames_.back().frame_id;
     end.graph_version = graph_version_;
     end.done = done_;
   }
@@ -279,7 +301,7 @@ RestoredJournal History::restore(const JournalRead& read) {
         undecodable(i, "a constraint");
         return finish();
       }
-      constraints_.push_back(*c);
+      constraints_.add(*c, record.offset);
       ++out.constraints;
       const auto to = keyframe_index.find(c->to_id);
       const auto relative = fromMsg(c->relative);
@@ -300,8 +322,7 @@ RestoredJournal History::restore(const JournalRead& read) {
         undecodable(i, "a tracked frame");
         return finish();
       }
-      tracked_[tf->frame_id] = *tf;
-      published_for_[tf->frame_id] = mapper_instance_;
+      noteTrackedFrame(*tf, record.offset);
       ++out.tracked_frames;
       const auto kf = keyframe_pose.find(tf->keyframe_id);
       if (kf != keyframe_pose.end()) out.odometry.push_back({tf->timestamp, kf->second * *in_keyframe});
@@ -343,9 +364,9 @@ void History::publishArchived(const rekon_msgs::keyframe_t& kf, const std::optio
   journal(kKeyframeRecord, kf);
   bus_.publish(channel::kKeyframes, kf);
   if (!incoming) return;
-  constraints_.push_back(constraintMsg(rekon_msgs::constraint_t::KIND_ODOMETRY, *incoming));
-  journal(kConstraintRecord, constraints_.back());
-  bus_.publish(channel::kConstraints, constraints_.back());
+  const rekon_msgs::constraint_t c = constraintMsg(rekon_msgs::constraint_t::KIND_ODOMETRY, *incoming);
+  constraints_.add(c, journal(kConstraintRecord, c));
+  bus_.publish(channel::kConstraints, c);
 }
 
 void History::announceAgain(int64_t keyframe_id) {

@@ -4,6 +4,10 @@
 // replay of it, and a frame the player sends again (for a restarted mapper)
 // gets its stored result instead of being tracked twice. Written by the bus
 // thread and the loop-closure worker; replays go out from the main thread.
+// With a journal, constraints and tracked frames are kept as their places in
+// it and read back when sent again (PublishedLog), so what the History holds
+// per frame is 32 bytes, not the message's 384 plus a map node; keyframes
+// (88 bytes, one per 20 frames or more) stay in memory.
 #include <cstdint>
 #include <map>
 #include <optional>
@@ -11,6 +15,7 @@
 #include <mutex>
 #include <vector>
 
+#include "published_log.hpp"
 #include "rekon/common/bus.hpp"
 #include "rekon/common/record_journal.hpp"
 #include "rekon/tracker/loop_closure.hpp"
@@ -101,21 +106,32 @@ class History {
   // made never placed it (a live source sends none of its frames again), and
   // skipped the frames tracked against it until a graph update placed it.
   void announceAgain(int64_t keyframe_id);
-  // Under mutex_: into the journal (when there is one).
+  // Under mutex_: into the journal (when there is one); where it went there.
   template <class M>
-  void journal(RecordTag tag, const M& m) {
-    if (journal_) journal_->append(tag, m);
+  std::optional<uint64_t> journal(RecordTag tag, const M& m) {
+    return journal_ ? journal_->append(tag, m) : std::nullopt;
   }
+  // Under mutex_: a tracked frame published (or restored), `offset` where the journal holds it.
+  void noteTrackedFrame(const rekon_msgs::tracked_frame_t& tf, std::optional<uint64_t> offset);
+
+  // A tracked frame: its message in tracked_log_, and the mapper instance its result went out to.
+  struct FrameEntry {
+    int64_t frame_id;
+    uint32_t index;
+    int32_t published_for;
+  };
+  // Under mutex_: the first of frames_ with an id at or after `frame_id`.
+  std::vector<FrameEntry>::iterator firstFrameFrom(int64_t frame_id);
   Bus& bus_;
   RecordJournal* journal_;
   std::mutex mutex_;
   std::vector<rekon_msgs::keyframe_t> keyframes_;
-  std::vector<rekon_msgs::constraint_t> constraints_;  // odometry and loop edges, in publication order
-  std::map<int64_t, rekon_msgs::tracked_frame_t> tracked_;  // by frame id
+  PublishedLog<rekon_msgs::constraint_t> constraints_{journal_};  // odometry and loop edges, in publication order
+  PublishedLog<rekon_msgs::tracked_frame_t> tracked_log_{journal_};
+  std::vector<FrameEntry> frames_;  // by frame id
   std::map<int64_t, rekon_msgs::keyframe_t> keyframe_of_frame_;
   int mapper_instance_ = 1;
   std::set<int> mapper_pids_;
-  std::map<int64_t, int> published_for_;  // the mapper instance each frame's result went out to
   std::map<int64_t, int> announced_for_;  // the mapper instance each keyframe's keyframe_t went out to
   int64_t graph_version_ = -1;
   bool done_ = false;

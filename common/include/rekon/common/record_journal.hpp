@@ -39,7 +39,8 @@ enum RecordTag : uint32_t {
 
 struct JournalRecord {
   uint32_t tag = 0;
-  std::string bytes;  // the LCM encoding
+  std::string bytes;    // the LCM encoding
+  uint64_t offset = 0;  // where it starts in the file (RecordJournal::readAt reads it back from there)
 };
 
 struct JournalRead {
@@ -90,16 +91,22 @@ class RecordJournal {
   void forgetContents() { contents_ = JournalRead{}; }
   const std::string& path() const { return path_; }
 
-  // Appends one record. A failed write logs one error and stops the journal
-  // (the run goes on; a restart then rebuilds less). Not thread-safe.
-  void append(uint32_t tag, const std::string& bytes);
+  // Appends one record; returns where it starts in the file (nullopt when
+  // the journal has stopped). A failed write logs one error and stops the
+  // journal (the run goes on; a restart then rebuilds less). Not thread-safe.
+  std::optional<uint64_t> append(uint32_t tag, const std::string& bytes);
   template <class M>
-  void append(uint32_t tag, const M& message) {
+  std::optional<uint64_t> append(uint32_t tag, const M& message) {
     std::string bytes(static_cast<size_t>(message.getEncodedSize()), '\0');
     message.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
-    append(tag, bytes);
+    return append(tag, bytes);
   }
   bool open() const { return fd_ >= 0; }
+  // The record that starts at `offset` (an append's result, or a record
+  // of contents()), read back from the file; nullopt, with one log line,
+  // when it cannot be read whole or its checksum does not match. Safe from
+  // any thread (appends only ever add after it).
+  std::optional<JournalRecord> readAt(uint64_t offset) const;
   // What this instance appended: records, bytes (framing included) and the
   // wall time its appends took.
   struct Appended {
@@ -111,6 +118,8 @@ class RecordJournal {
  private:
   std::string path_;
   int fd_ = -1;
+  int read_fd_ = -1;     // for readAt; stays open when a failed write stops the journal
+  uint64_t end_ = 0;     // the file's length: where the next record starts
   JournalRead contents_;
   std::string buffer_;  // one record, reused
   Appended appended_;
