@@ -110,6 +110,30 @@ TEST(LongrunPlots, EachSeriesHasAPointPerBucket) {
   EXPECT_EQ(std::count(pts.begin(), pts.end(), ','), 4);  // four buckets, four x,y points
 }
 
+// The end of run after the last frame: a bucket with memory but no frames.
+// The frame counts and latencies stop with the play (they drew a fall to 0
+// there), the memory goes on; ticks are plain numbers (2 200, not 2.2e+03).
+TEST(LongrunPlots, FramesAndLatencyEndWithThePlayMemoryWithTheRun) {
+  TempDir dir;
+  writeRun(dir, 0, [](int) { return 10.0; }, [](int) { return 2000.0; });
+  std::ofstream(dir / "longrun_rss.csv", std::ios::app) << "45,mapper,1900\n";
+  const auto buckets = rekon::longrun::readBuckets(dir.path(), 10.0, 30.0);
+  ASSERT_EQ(buckets.size(), 5u);
+  rekon::longrun::writePlots(buckets, dir.path());
+  const auto points = [](const std::string& svg, const std::string& name) {
+    std::smatch m;
+    const std::regex series("data-name=\"" + name + "\"[^>]*points=\"([^\"]*)\"");
+    if (!std::regex_search(svg, m, series)) return -1;
+    const std::string pts = m[1];
+    return static_cast<int>(std::count(pts.begin(), pts.end(), ','));
+  };
+  EXPECT_EQ(points(readText(dir / "longrun_latency.svg"), "p95"), 4);
+  EXPECT_EQ(points(readText(dir / "longrun_frames.svg"), "fused"), 4);
+  const std::string memory = readText(dir / "longrun_memory.svg");
+  EXPECT_EQ(points(memory, "mapper"), 5);
+  EXPECT_EQ(memory.find("e+0"), std::string::npos) << memory;
+}
+
 TEST(LongrunBench, ATenSecondSliceOfTheBuildingWritesItsTablesPlotsAndSummary) {
   TempDir dir;
   std::string out;

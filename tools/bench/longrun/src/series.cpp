@@ -234,7 +234,9 @@ struct Series {
 // (points where the value is NaN are left out), axes with their range.
 void writeSvg(const std::string& path, const std::string& title, const std::string& unit, const std::vector<double>& x,
               const std::vector<Series>& series) {
-  constexpr double W = 720, H = 360, L = 70, R = 170, T = 40, B = 50;
+  constexpr double W = 720, H = 360, L = 80, R = 170, T = 40, B = 50;
+  // Ticks as plain numbers (1980, not 1.98e+03, whose width ran into the axis' label).
+  const auto tick = [](double v) { return v >= 100 ? fmt::format("{:.0f}", v) : fmt::format("{:.3g}", v); };
   double ymax = 0, xmax = 0;
   for (double v : x) xmax = std::max(xmax, v);
   for (const auto& s : series)
@@ -253,10 +255,10 @@ void writeSvg(const std::string& path, const std::string& title, const std::stri
   out << fmt::format("<line x1=\"{0}\" y1=\"{1}\" x2=\"{0}\" y2=\"{2}\" stroke=\"black\"/>\n", L, T, H - B);
   for (int i = 0; i <= 4; ++i) {
     const double yv = ymax * i / 4, py = H - B - (H - T - B) * i / 4.0;
-    out << fmt::format("<text x=\"{}\" y=\"{}\" text-anchor=\"end\">{:.3g}</text>\n", L - 6, py + 4, yv);
+    out << fmt::format("<text x=\"{}\" y=\"{}\" text-anchor=\"end\">{}</text>\n", L - 6, py + 4, tick(yv));
     out << fmt::format("<line x1=\"{0}\" y1=\"{1}\" x2=\"{2}\" y2=\"{1}\" stroke=\"#ddd\"/>\n", L, py, W - R);
     const double xv = xmax * i / 4, px = L + (W - L - R) * i / 4.0;
-    out << fmt::format("<text x=\"{}\" y=\"{}\" text-anchor=\"middle\">{:.3g}</text>\n", px, H - B + 18, xv);
+    out << fmt::format("<text x=\"{}\" y=\"{}\" text-anchor=\"middle\">{}</text>\n", px, H - B + 18, tick(xv));
   }
   out << fmt::format("<text x=\"{}\" y=\"{}\" text-anchor=\"middle\">minutes of play</text>\n", L + (W - L - R) / 2, H - 10);
   out << fmt::format("<text x=\"14\" y=\"{}\" transform=\"rotate(-90 14 {})\" text-anchor=\"middle\">{}</text>\n",
@@ -279,12 +281,27 @@ void writeSvg(const std::string& path, const std::string& title, const std::stri
 
 }  // namespace
 
+namespace {
+
+// The play's length in buckets: up to the last that had frames (the end of run after it is judged apart).
+size_t playedBuckets(const std::vector<Bucket>& b) {
+  size_t played = 0;
+  for (size_t i = 0; i < b.size(); ++i)
+    if (b[i].frames_due > 0 || b[i].frames_posed > 0 || b[i].frames_fused > 0) played = i + 1;
+  return played;
+}
+
+}  // namespace
+
 std::vector<std::string> writePlots(const std::vector<Bucket>& b, const std::string& dir) {
   std::vector<double> x;
   for (const auto& k : b) x.push_back(k.t0_s / 60.0);
-  auto col = [&](auto f) {
+  // A quantity per bucket; the frame counts, latencies and times only while frames played (the end of
+  // run after the last one has none, and would draw them falling to 0).
+  const size_t played = playedBuckets(b);
+  auto col = [&](auto f, bool whole_run = false) {
     std::vector<double> v;
-    for (const auto& k : b) v.push_back(f(k));
+    for (size_t i = 0; i < b.size(); ++i) v.push_back(whole_run || i < played ? f(b[i]) : kNaN);
     return v;
   };
   const std::string frames = dir + "/longrun_frames.svg", latency = dir + "/longrun_latency.svg",
@@ -303,11 +320,14 @@ std::vector<std::string> writePlots(const std::vector<Bucket>& b, const std::str
             {"round mean", col([](const Bucket& k) { return k.round_ms_mean; })},
             {"loop check mean", col([](const Bucket& k) { return k.loop_check_ms_mean; })},
             {"integrate mean", col([](const Bucket& k) { return k.integrate_ms_mean; })},
-            {"render mean", col([](const Bucket& k) { return k.render_ms_mean; })}});
+            // The synth source's rendering of a frame, or the player's wait for a frame's decoding.
+            {"source wait mean", col([](const Bucket& k) { return k.render_ms_mean; })}});
   std::vector<Series> mem;
-  for (const auto& n : services(b)) mem.push_back({n, col([&](const Bucket& k) { return k.rss_mb.count(n) ? k.rss_mb.at(n) : kNaN; })});
+  for (const auto& n : services(b))
+    mem.push_back({n, col([&](const Bucket& k) { return k.rss_mb.count(n) ? k.rss_mb.at(n) : kNaN; }, true)});
   for (const char* t : {"active_mb", "host_mb", "on_disk_mb"})
-    mem.push_back({std::string("voxels ") + t, col([&](const Bucket& k) { return k.tier_mb.count(t) ? k.tier_mb.at(t) : kNaN; })});
+    mem.push_back({std::string("voxels ") + t,
+                   col([&](const Bucket& k) { return k.tier_mb.count(t) ? k.tier_mb.at(t) : kNaN; }, true)});
   writeSvg(memory, "Resident memory per service, mapper voxel tiers", "MB", x, mem);
   return {frames, latency, times, memory};
 }
@@ -351,11 +371,7 @@ std::vector<GoalLine> judgeGoals(const std::vector<Bucket>& b, double bucket_s, 
   } else {
     out.push_back({"n/a", "at least 95 % of frames fused", "no frames"});
   }
-  // The play's length: up to the last bucket that had frames (the end of run after it is judged apart).
-  size_t played = 0;
-  for (size_t i = 0; i < b.size(); ++i)
-    if (b[i].frames_due > 0 || b[i].frames_posed > 0 || b[i].frames_fused > 0) played = i + 1;
-  const double d = static_cast<double>(played) * bucket_s;
+  const double d = static_cast<double>(playedBuckets(b)) * bucket_s;
   const double e0 = d / 60, e1 = d / 6, m10 = 9 * d / 60, l0 = 5 * d / 6, s0 = d / 12, s1 = d / 4;
   // A mean over the last window within 1.5x of its mean over [r0, r1].
   auto meanGoal = [&](const std::string& what, double Bucket::*field, double r0, double r1) {
