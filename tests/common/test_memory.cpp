@@ -7,19 +7,8 @@
 #include <vector>
 
 #include "rekon/common/memory.hpp"
+#include "test_support.hpp"
 
-// The sanitizers' allocators replace glibc's heap, which this test measures
-// (GCC says so with __SANITIZE_*__, clang with __has_feature).
-#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
-#define REKON_GLIBC_HEAP 0
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
-#define REKON_GLIBC_HEAP 0
-#endif
-#endif
-#ifndef REKON_GLIBC_HEAP
-#define REKON_GLIBC_HEAP 1
-#endif
 
 namespace {
 

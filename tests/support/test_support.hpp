@@ -8,6 +8,20 @@
 #include <string>
 #include <vector>
 
+// 1 when malloc is glibc's: the sanitizers' allocators replace its heap, which
+// tests of heap use (mallinfo2, RssAnon) measure (GCC says so with
+// __SANITIZE_*__, clang with __has_feature).
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#define REKON_GLIBC_HEAP 0
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
+#define REKON_GLIBC_HEAP 0
+#endif
+#endif
+#ifndef REKON_GLIBC_HEAP
+#define REKON_GLIBC_HEAP 1
+#endif
+
 namespace rekon::test {
 
 // ../shared/data/NAME, or "" when absent (REKON_DATA overrides the root).
