@@ -33,6 +33,30 @@ T at(const std::string& bytes, size_t offset) {
   return v;
 }
 
+// A whole record's frame (header, payload, trailer) that starts at `offset`
+// in the file, as `into`; false when its checksum does not match.
+bool checkedRecord(const std::string& frame, uint64_t offset, JournalRecord& into) {
+  const auto size = at<uint32_t>(frame, sizeof(uint32_t));
+  if (at<uint32_t>(frame, kHeader + size) != fnv1a32(frame.data(), kHeader + size)) return false;
+  into.tag = at<uint32_t>(frame, 0);
+  into.bytes.assign(frame, kHeader, size);
+  into.offset = offset;
+  return true;
+}
+
+// n bytes from `fd` at `from` (pread: the descriptor's position is left alone).
+bool readAll(int fd, char* into, size_t n, uint64_t from) {
+  while (n > 0) {
+    const ssize_t r = ::pread(fd, into, n, static_cast<off_t>(from));
+    if (r < 0 && errno == EINTR) continue;
+    if (r <= 0) return false;
+    into += r;
+    from += static_cast<uint64_t>(r);
+    n -= static_cast<size_t>(r);
+  }
+  return true;
+}
+
 bool writeAll(int fd, const char* data, size_t n) {
   while (n > 0) {
     const ssize_t w = ::write(fd, data, n);
@@ -68,11 +92,7 @@ JournalScan scanRecordJournal(const std::string& path, const std::function<bool(
     if (file_size - offset - kHeader < static_cast<uint64_t>(size) + kTrailer) break;
     frame.resize(kHeader + size + kTrailer);
     if (!in.read(frame.data() + kHeader, size + kTrailer)) break;
-    if (at<uint32_t>(frame, kHeader + size) != fnv1a32(frame.data(), kHeader + size)) break;
-    record.tag = at<uint32_t>(frame, 0);
-    record.bytes.assign(frame, kHeader, size);
-    record.offset = offset;
-    if (!visit(record)) break;
+    if (!checkedRecord(frame, offset, record) || !visit(record)) break;
     ++out.records;
     offset += kHeader + size + kTrailer;
   }
@@ -127,34 +147,20 @@ RecordJournal::~RecordJournal() {
 }
 
 std::optional<JournalRecord> RecordJournal::readAt(uint64_t offset) const {
-  const auto readFully = [this](char* into, size_t n, uint64_t from) {
-    while (n > 0) {
-      const ssize_t r = ::pread(read_fd_, into, n, static_cast<off_t>(from));
-      if (r < 0 && errno == EINTR) continue;
-      if (r <= 0) return false;
-      into += r;
-      from += static_cast<uint64_t>(r);
-      n -= static_cast<size_t>(r);
-    }
-    return true;
-  };
   std::string frame(kHeader, '\0');
-  bool ok = read_fd_ >= 0 && readFully(frame.data(), kHeader, offset);
-  const uint32_t size = ok ? at<uint32_t>(frame, sizeof(uint32_t)) : 0;
+  JournalRecord record;
+  bool ok = read_fd_ >= 0 && readAll(read_fd_, frame.data(), kHeader, offset);
   if (ok) {
+    const auto size = at<uint32_t>(frame, sizeof(uint32_t));
     frame.resize(kHeader + size + kTrailer);
-    ok = readFully(frame.data() + kHeader, size + kTrailer, offset + kHeader) &&
-         at<uint32_t>(frame, kHeader + size) == fnv1a32(frame.data(), kHeader + size);
+    ok = readAll(read_fd_, frame.data() + kHeader, size + kTrailer, offset + kHeader) &&
+         checkedRecord(frame, offset, record);
   }
   if (!ok) {
     spdlog::error("cannot read back the record at byte {} of the journal {} ({}); it is left out", offset, path_,
                   read_fd_ < 0 ? "not open for reading" : "short read or bad checksum");
     return std::nullopt;
   }
-  JournalRecord record;
-  record.tag = at<uint32_t>(frame, 0);
-  record.bytes.assign(frame, kHeader, size);
-  record.offset = offset;
   return record;
 }
 

@@ -279,10 +279,6 @@ void writeSvg(const std::string& path, const std::string& title, const std::stri
   if (!out) throw Error(path + ": cannot write; check the output folder");
 }
 
-}  // namespace
-
-namespace {
-
 // The play's length in buckets: up to the last that had frames (the end of run after it is judged apart).
 size_t playedBuckets(const std::vector<Bucket>& b) {
   size_t played = 0;
