@@ -157,8 +157,9 @@ std::optional<JournalRecord> RecordJournal::readAt(uint64_t offset) const {
          checkedRecord(frame, offset, record);
   }
   if (!ok) {
-    spdlog::error("cannot read back the record at byte {} of the journal {} ({}); it is left out", offset, path_,
-                  read_fd_ < 0 ? "not open for reading" : "short read or bad checksum");
+    spdlog::error("cannot read back the record at byte {} of the journal {} ({}); it is left out of what is sent "
+                  "again: check the disk and that nothing else writes the file",
+                  offset, path_, read_fd_ < 0 ? "not open for reading" : "short read or bad checksum");
     return std::nullopt;
   }
   return record;
